@@ -1,0 +1,233 @@
+"""The estimator's records: what goes in (observations, odometry) and what comes out (Estimate)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "Estimate",
+    "FactorResidual",
+    "MarkerEstimate",
+    "MarkerGraphError",
+    "MarkerLink",
+    "Method",
+    "Observation",
+    "OdometryNoise",
+    "OdometrySample",
+    "RejectedObservationError",
+]
+
+
+class MarkerGraphError(Exception):
+    """Base of every error markergraph raises on purpose."""
+
+
+class RejectedObservationError(MarkerGraphError, ValueError):
+    """An observation the estimator cannot use (NaN, negative range, unknown marker id)."""
+
+
+class Method(Enum):
+    """The estimators; each maps observations and odometry to an :class:`Estimate`."""
+
+    CLOSED_FORM = "closed-form"
+    """The paper's procedure: localise, dead-reckon, link with E_ab, compose M from home."""
+    MARKER_GRAPH = "marker-graph"
+    """The paper's node graph optimised: measured E_ab as between factors of marker nodes."""
+    SLAM = "slam"
+    """Robot poses and markers, odometry and observation factors, batch Levenberg-Marquardt."""
+    ISAM2 = "isam2"
+    """The SLAM graph solved incrementally, frame by frame."""
+    EKF = "ekf"
+    """EKF-SLAM on filterpy with a sparse update."""
+
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """One marker seen in one camera frame, in the camera's horizontal (top-view) frame.
+
+    Attributes:
+        t_ns: capture time [ns].
+        marker_id: the marker's id in its dictionary.
+        bearing: direction of the marker centre from the optical axis [rad], counter-clockwise
+            (left of the image centre is positive).
+        theta: the paper's yaw [rad]: the camera's polar angle in the marker's frame.
+        range_m: horizontal distance from the camera to the marker centre [m].
+        sigma_bearing, sigma_theta, sigma_range: standard deviations of the three [rad, rad, m].
+    """
+
+    t_ns: int
+    marker_id: int
+    bearing: float
+    theta: float
+    range_m: float
+    sigma_bearing: float
+    sigma_theta: float
+    sigma_range: float
+
+    def validate(self) -> None:
+        """Raise :class:`RejectedObservationError` naming this record if it is unusable."""
+        values = (
+            self.bearing,
+            self.theta,
+            self.range_m,
+            self.sigma_bearing,
+            self.sigma_theta,
+            self.sigma_range,
+        )
+        if not all(math.isfinite(v) for v in values):
+            raise RejectedObservationError(
+                f"observation of marker {self.marker_id} at t_ns="
+                f"{self.t_ns} has a NaN or infinite value"
+            )
+        if self.range_m <= 0.0:
+            raise RejectedObservationError(
+                f"observation of marker {self.marker_id} at t_ns="
+                f"{self.t_ns} has range_m={self.range_m} <= 0"
+            )
+        if min(self.sigma_bearing, self.sigma_theta, self.sigma_range) <= 0.0:
+            raise RejectedObservationError(
+                f"observation of marker {self.marker_id} at t_ns="
+                f"{self.t_ns} has a standard deviation <= 0"
+            )
+
+
+@dataclass(frozen=True, slots=True)
+class OdometrySample:
+    """The base's pose in the odometry frame, ``T_odom_base``, at one time.
+
+    Attributes:
+        t_ns: time [ns].
+        x, y: position in the odometry frame [m].
+        yaw: heading in the odometry frame [rad].
+    """
+
+    t_ns: int
+    x: float
+    y: float
+    yaw: float
+
+    def pose(self) -> gtsam.Pose2:
+        return gtsam.Pose2(self.x, self.y, self.yaw)
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryNoise:
+    """Wheel odometry's noise: a random walk in what was travelled between two stamps.
+
+    The covariance of the motion between two stamps, in the frame of the first, is
+    ``diag(vxy, vxy, vyaw)`` with ``vxy = floor_m^2 + per_m^2 * dist`` and
+    ``vyaw = floor_rad^2 + yaw_per_m^2 * dist + yaw_per_rad^2 * |dyaw|``: variances add up
+    over consecutive steps, so the model does not depend on how often odometry is sampled.
+
+    Attributes:
+        per_m: position standard deviation after one metre travelled [m per sqrt(m)].
+        yaw_per_m: heading standard deviation after one metre travelled [rad per sqrt(m)].
+        yaw_per_rad: heading standard deviation after one radian turned [rad per sqrt(rad)].
+        floor_m, floor_rad: added to every step so a standstill is never exactly certain.
+    """
+
+    per_m: float = 0.012
+    yaw_per_m: float = 0.008
+    yaw_per_rad: float = 0.012
+    floor_m: float = 1e-4
+    floor_rad: float = 1e-4
+
+    def covariance(self, delta: gtsam.Pose2) -> NDArray[np.float64]:
+        """3x3 covariance over (x, y, yaw) of one relative motion ``delta``."""
+        dist = math.hypot(delta.x(), delta.y())
+        var_xy = self.floor_m**2 + self.per_m**2 * dist
+        var_yaw = (
+            self.floor_rad**2 + self.yaw_per_m**2 * dist + self.yaw_per_rad**2 * abs(delta.theta())
+        )
+        return np.diag([var_xy, var_xy, var_yaw])
+
+
+@dataclass(frozen=True, slots=True)
+class MarkerEstimate:
+    """A marker's estimated pose in the map frame (the home marker's frame).
+
+    Attributes:
+        marker_id: the marker's id.
+        T_map_marker: its pose [m, rad].
+        covariance: 3x3 over (x, y, yaw) in the marker's own tangent space, or None where the
+            method has none.
+        n_observations: how many observations of it were used.
+    """
+
+    marker_id: int
+    T_map_marker: gtsam.Pose2
+    covariance: NDArray[np.float64] | None
+    n_observations: int
+
+
+@dataclass(frozen=True, slots=True)
+class MarkerLink:
+    """Two markers the method linked, and by how many measurements."""
+
+    marker_a: int
+    marker_b: int
+    n_measurements: int
+
+
+@dataclass(frozen=True, slots=True)
+class FactorResidual:
+    """One factor's whitened error after optimisation.
+
+    Attributes:
+        kind: ``"odometry"``, ``"observation"``, ``"edge"`` or ``"prior"``.
+        keys: the variables it joins, as readable names (``"x12"``, ``"m3"``).
+        whitened_error: ``sqrt(2 * error)``, the Mahalanobis length of its residual.
+        downweighted: whether a robust kernel gave it a weight below one half.
+    """
+
+    kind: str
+    keys: tuple[str, ...]
+    whitened_error: float
+    downweighted: bool = False
+
+
+@dataclass
+class Estimate:
+    """What every method returns.
+
+    Attributes:
+        method: the method that made it.
+        home_id: the marker whose frame is the map frame.
+        markers: marker id -> its estimate.
+        trajectory_t_ns: (N,) stamps of the estimated robot poses [ns].
+        trajectory: (N, 3) robot base poses in the map frame, rows (x, y, yaw).
+        residuals: per-factor whitened errors (empty for methods without factors).
+        links: which markers are linked and by how many measurements.
+        unplaced: marker id -> why it could not be placed.
+        timings_s: stage name -> seconds.
+        converged: False when an optimiser stopped without converging (the estimate is its last).
+        trajectory_covariance: (N, 3, 3) robot pose covariances where the method keeps them
+            (EKF), for NEES against ground truth.
+        nis: (M,) normalised innovation squared of each observation update (EKF only).
+    """
+
+    method: Method
+    home_id: int
+    markers: dict[int, MarkerEstimate]
+    trajectory_t_ns: NDArray[np.int64]
+    trajectory: NDArray[np.float64]
+    residuals: list[FactorResidual] = field(default_factory=list)
+    links: list[MarkerLink] = field(default_factory=list)
+    unplaced: dict[int, str] = field(default_factory=dict)
+    timings_s: dict[str, float] = field(default_factory=dict)
+    converged: bool = True
+    trajectory_covariance: NDArray[np.float64] | None = None
+    nis: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
+
+    def marker_xy_yaw(self) -> dict[int, NDArray[np.float64]]:
+        """marker id -> (x, y, yaw) in the map frame."""
+        return {
+            i: np.array([m.T_map_marker.x(), m.T_map_marker.y(), m.T_map_marker.theta()])
+            for i, m in self.markers.items()
+        }
