@@ -142,27 +142,35 @@ class WheelErrors:
 def wheel_odometry(
     true_poses: NDArray[np.float64], errors: WheelErrors, rng: np.random.Generator
 ) -> NDArray[np.float64]:
-    """Integrate noisy wheel increments of a true trajectory; (N, 3) poses in the odom frame.
+    """Integrate noisy increments of a true trajectory; (N, 3) poses in the odometry frame.
 
-    The odometry frame is where the base stood at the first sample.
+    Each increment is the true relative pose between two samples, its translation scaled and
+    noised along the direction of travel, its turn scaled, biased and noised; the increments are
+    then composed. With every error zero this reproduces the trajectory exactly. The odometry
+    frame is where the base stood at the first sample.
     """
     scale = 1.0 + rng.normal(0.0, errors.scale_sigma)
     yaw_scale = 1.0 + rng.normal(0.0, errors.yaw_scale_sigma)
     yaw_bias = rng.normal(0.0, errors.yaw_bias_sigma)
     d_xy = np.diff(true_poses[:, :2], axis=0)
     yaw = true_poses[:-1, 2]
-    # Forward distance in the base frame (diff-drive cannot move sideways).
-    ds = d_xy[:, 0] * np.cos(yaw) + d_xy[:, 1] * np.sin(yaw)
+    c, s = np.cos(yaw), np.sin(yaw)
+    forward = c * d_xy[:, 0] + s * d_xy[:, 1]  # the increment in the base's own frame
+    left = -s * d_xy[:, 0] + c * d_xy[:, 1]
     dyaw = wrap_array(np.diff(true_poses[:, 2]))
-    n = len(ds)
-    ds_measured = ds * scale + errors.distance_noise * np.sqrt(np.abs(ds)) * rng.standard_normal(n)
+    n = len(forward)
+    distance = np.hypot(forward, left)
+    stretch = scale + errors.distance_noise * rng.standard_normal(n) / np.sqrt(
+        np.maximum(distance, 1e-12)
+    )  # random walk: noise grows with sqrt(distance)
+    forward_measured, left_measured = forward * stretch, left * stretch
     dyaw_measured = (
         dyaw * yaw_scale
-        + yaw_bias * np.abs(ds)
-        + errors.yaw_noise * np.sqrt(np.abs(ds) + np.abs(dyaw)) * rng.standard_normal(n)
+        + yaw_bias * distance
+        + errors.yaw_noise * np.sqrt(distance + np.abs(dyaw)) * rng.standard_normal(n)
     )
     heading = np.concatenate([[0.0], np.cumsum(dyaw_measured)])
-    mid_heading = heading[:-1] + dyaw_measured / 2.0  # midpoint integration of an arc
-    x = np.concatenate([[0.0], np.cumsum(ds_measured * np.cos(mid_heading))])
-    y = np.concatenate([[0.0], np.cumsum(ds_measured * np.sin(mid_heading))])
+    ch, sh = np.cos(heading[:-1]), np.sin(heading[:-1])
+    x = np.concatenate([[0.0], np.cumsum(ch * forward_measured - sh * left_measured)])
+    y = np.concatenate([[0.0], np.cumsum(sh * forward_measured + ch * left_measured)])
     return np.column_stack([x, y, wrap_array(heading)])

@@ -1,6 +1,16 @@
 """markergraph.estimator: the paper's closed forms and the estimators (numpy, gtsam, filterpy)."""
 
 from markergraph.estimator.angles import angle_diff, wrap, wrap_array
+from markergraph.estimator.frames import Frame, Frames, build_frames
+from markergraph.estimator.graph import Robust
+from markergraph.estimator.metrics import (
+    MapError,
+    TrajectoryError,
+    chi2_interval,
+    map_error,
+    nees,
+    trajectory_error,
+)
 from markergraph.estimator.paper import (
     Edge,
     Form,
@@ -13,19 +23,54 @@ from markergraph.estimator.paper import (
     heading,
     odometry,
 )
+from markergraph.estimator.run import estimate, estimate_frames
+from markergraph.estimator.types import (
+    Estimate,
+    FactorResidual,
+    MarkerEstimate,
+    MarkerGraphError,
+    MarkerLink,
+    Method,
+    Observation,
+    OdometryNoise,
+    OdometrySample,
+    RejectedObservationError,
+)
 
 __all__ = [
     "Edge",
+    "Estimate",
+    "FactorResidual",
     "Form",
+    "Frame",
+    "Frames",
     "Goal",
+    "MapError",
+    "MarkerEstimate",
+    "MarkerGraphError",
+    "MarkerLink",
+    "Method",
+    "Observation",
+    "OdometryNoise",
+    "OdometrySample",
     "PolarPose",
+    "RejectedObservationError",
+    "Robust",
+    "TrajectoryError",
     "angle_diff",
+    "build_frames",
+    "chi2_interval",
     "compose",
     "edge_from_observation",
     "edge_from_pose2",
     "edge_to_pose2",
+    "estimate",
+    "estimate_frames",
     "heading",
+    "map_error",
+    "nees",
     "odometry",
+    "trajectory_error",
     "wrap",
     "wrap_array",
 ]

@@ -183,7 +183,7 @@ class FactorResidual:
         kind: ``"odometry"``, ``"observation"``, ``"edge"`` or ``"prior"``.
         keys: the variables it joins, as readable names (``"x12"``, ``"m3"``).
         whitened_error: ``sqrt(2 * error)``, the Mahalanobis length of its residual.
-        downweighted: whether a robust kernel gave it a weight below one half.
+        downweighted: whether a robust kernel gave it a weight below 0.25 (an outlier it caught).
     """
 
     kind: str
@@ -210,6 +210,7 @@ class Estimate:
         trajectory_covariance: (N, 3, 3) robot pose covariances where the method keeps them
             (EKF), for NEES against ground truth.
         nis: (M,) normalised innovation squared of each observation update (EKF only).
+        notes: diagnostics a person should read: what was skipped, what is disconnected.
     """
 
     method: Method
@@ -224,6 +225,7 @@ class Estimate:
     converged: bool = True
     trajectory_covariance: NDArray[np.float64] | None = None
     nis: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
+    notes: list[str] = field(default_factory=list)
 
     def marker_xy_yaw(self) -> dict[int, NDArray[np.float64]]:
         """marker id -> (x, y, yaw) in the map frame."""

@@ -114,17 +114,13 @@ def test_route_executes_rotate_translate_goals_exactly() -> None:
 
 
 def test_noise_free_wheel_odometry_is_exact() -> None:
-    """With every error zero, odometry integrates the true trajectory (relative to its start).
-
-    Exact but for steps that straddle a turn-to-drive switch, where the midpoint heading is a
-    few microradians off: 1e-4 m after 200 s.
-    """
+    """With every error zero, odometry integrates the true trajectory (relative to its start)."""
     world, route = scenario("corridor-loop")
     truth = plan(world, route).poses(np.arange(0.0, 200.0, 0.02))
     odom = wheel_odometry(truth, WheelErrors(0.0, 0.0, 0.0, 0.0, 0.0), np.random.default_rng(0))
     T_world_odom = gtsam.Pose2(*truth[0])
     for row, pose in zip(odom[::500], truth[::500], strict=True):
-        assert T_world_odom.compose(gtsam.Pose2(*row)).equals(gtsam.Pose2(*pose), 1e-4)
+        assert T_world_odom.compose(gtsam.Pose2(*row)).equals(gtsam.Pose2(*pose), 1e-9)
 
 
 def test_wheel_odometry_drifts_with_its_systematic_errors() -> None:

@@ -1,0 +1,170 @@
+"""Estimator inputs: validated observations grouped into frames, odometry interpolated at each."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Collection, Iterable
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.estimator.models import interpolate_pose
+from markergraph.estimator.types import (
+    MarkerGraphError,
+    Observation,
+    OdometryNoise,
+    OdometrySample,
+    RejectedObservationError,
+)
+
+__all__ = ["Frame", "Frames", "build_frames"]
+
+# Frames this far outside the odometry's time span still take its first or last pose.
+MAX_EXTRAPOLATION_NS = 100_000_000
+
+
+@dataclass(frozen=True)
+class Frame:
+    """The observations of one camera frame and the odometry pose at its stamp.
+
+    Attributes:
+        t_ns: the frame's stamp [ns].
+        T_odom_base: the base's odometry pose at ``t_ns``.
+        observations: the markers seen, at most one per id.
+        odometry_covariance: covariance of the motion from the previous frame to this one (in
+            its tangent space), composed over every odometry sample between them; zero for the
+            first frame.
+    """
+
+    t_ns: int
+    T_odom_base: gtsam.Pose2
+    observations: tuple[Observation, ...]
+    odometry_covariance: NDArray[np.float64]
+
+
+@dataclass
+class Frames:
+    """Everything an estimator consumes.
+
+    Attributes:
+        frames: frames with observations, in time order.
+        home_id: the marker whose frame is the map frame.
+        home_frame: index of the first frame that sees the home marker.
+        notes: what was dropped and why.
+    """
+
+    frames: list[Frame]
+    home_id: int
+    home_frame: int
+    notes: list[str] = field(default_factory=list)
+
+    def marker_ids(self) -> list[int]:
+        """Every marker id observed, in order of first sight."""
+        seen: dict[int, None] = {}
+        for frame in self.frames:
+            for obs in frame.observations:
+                seen.setdefault(obs.marker_id, None)
+        return list(seen)
+
+
+def build_frames(
+    observations: Iterable[Observation],
+    odometry: Iterable[OdometrySample],
+    home_id: int | None = None,
+    marker_ids: Collection[int] | None = None,
+    odometry_noise: OdometryNoise = OdometryNoise(),
+) -> Frames:
+    """Validate observations, group them by stamp and attach the odometry pose at each stamp.
+
+    Args:
+        observations: marker observations, any order.
+        odometry: odometry samples, any order, at least one.
+        home_id: the map's home marker (default: the first marker observed).
+        marker_ids: if given, the only ids allowed; others are rejected.
+        odometry_noise: the noise model of one odometry increment.
+
+    Raises:
+        RejectedObservationError: an observation is unusable (the message names it).
+        MarkerGraphError: no odometry, no observation, or the home marker is never seen.
+    """
+    by_stamp: dict[int, dict[int, Observation]] = {}
+    for obs in observations:
+        obs.validate()
+        if marker_ids is not None and obs.marker_id not in marker_ids:
+            raise RejectedObservationError(
+                f"observation at t_ns={obs.t_ns} has unknown marker id {obs.marker_id}"
+            )
+        # Two detections of one id in one frame: keep the nearer, it is the better measured.
+        current = by_stamp.setdefault(obs.t_ns, {}).get(obs.marker_id)
+        if current is None or obs.range_m < current.range_m:
+            by_stamp[obs.t_ns][obs.marker_id] = obs
+    samples = sorted(odometry, key=lambda sample: sample.t_ns)
+    if not samples:
+        raise MarkerGraphError("no odometry samples: the estimators need odometry")
+    if not by_stamp:
+        raise MarkerGraphError("no marker observations: nothing to map")
+    stamps = np.array([sample.t_ns for sample in samples], dtype=np.int64)
+    frames: list[Frame] = []
+    skipped = 0
+    for t_ns in sorted(by_stamp):
+        T_odom_base = _odometry_at(samples, stamps, t_ns)
+        if T_odom_base is None:
+            skipped += 1
+            continue
+        if frames:
+            previous = frames[-1]
+            inside = [
+                samples[i].pose()
+                for i in range(
+                    int(np.searchsorted(stamps, previous.t_ns, "right")),
+                    int(np.searchsorted(stamps, t_ns, "left")),
+                )
+            ]
+            covariance = _motion_covariance(
+                [previous.T_odom_base, *inside, T_odom_base], odometry_noise
+            )
+        else:
+            covariance = np.zeros((3, 3))
+        frames.append(Frame(t_ns, T_odom_base, tuple(by_stamp[t_ns].values()), covariance))
+    notes = []
+    if skipped:
+        notes.append(f"{skipped} frame(s) outside the odometry's time span were skipped")
+    first_seen = next((obs.marker_id for f in frames for obs in f.observations), None)
+    home = first_seen if home_id is None else home_id
+    home_frame = next(
+        (k for k, f in enumerate(frames) if any(o.marker_id == home for o in f.observations)),
+        None,
+    )
+    if home is None or home_frame is None:
+        raise MarkerGraphError(f"the home marker {home} is never observed: no map frame")
+    return Frames(frames, home, home_frame, notes)
+
+
+def _motion_covariance(poses: list[gtsam.Pose2], noise: OdometryNoise) -> NDArray[np.float64]:
+    """Covariance of the odometry motion along ``poses``, increment by increment.
+
+    Each increment adds its own covariance after the total so far is carried into its end frame
+    (``S <- Ad(step^-1) S Ad(step^-1)^T + S_step``), so heading errors early in a long gap show
+    up as lateral errors at its end.
+    """
+    total = np.zeros((3, 3))
+    for start, end in itertools.pairwise(poses):
+        step = start.between(end)
+        ad = step.inverse().AdjointMap()
+        total = ad @ total @ ad.T + noise.covariance(step)
+    return total
+
+
+def _odometry_at(
+    samples: list[OdometrySample], stamps: np.ndarray, t_ns: int
+) -> gtsam.Pose2 | None:
+    """The odometry pose at ``t_ns``, interpolated in SE(2); None if too far outside the span."""
+    i = int(np.searchsorted(stamps, t_ns))
+    if i == 0:
+        return samples[0].pose() if stamps[0] - t_ns <= MAX_EXTRAPOLATION_NS else None
+    if i == len(samples):
+        return samples[-1].pose() if t_ns - stamps[-1] <= MAX_EXTRAPOLATION_NS else None
+    t0, t1 = stamps[i - 1], stamps[i]
+    return interpolate_pose(samples[i - 1].pose(), samples[i].pose(), (t_ns - t0) / (t1 - t0))

@@ -1,0 +1,135 @@
+"""Measured marker-to-marker links (the paper's E_ab as relative poses) and graph connectivity."""
+
+from __future__ import annotations
+
+import itertools
+from collections import Counter, defaultdict, deque
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.estimator.frames import Frames
+from markergraph.estimator.graph import observation_measurement
+from markergraph.estimator.models import compose_covariance, invert_covariance
+from markergraph.estimator.types import MarkerLink, Observation
+
+__all__ = ["MeasuredLink", "components", "describe_disconnected", "link_counts", "measure_links"]
+
+
+@dataclass(frozen=True)
+class MeasuredLink:
+    """One measured ``T_a_b`` between two markers, with its covariance (tangent space at b).
+
+    Attributes:
+        marker_a, marker_b: the two markers.
+        T_a_b: b's pose in a's frame.
+        covariance: 3x3, from both observations and the odometry between them.
+        frame_a, frame_b: the frames whose observations it combines (equal for one frame).
+    """
+
+    marker_a: int
+    marker_b: int
+    T_a_b: gtsam.Pose2
+    covariance: NDArray[np.float64]
+    frame_a: int
+    frame_b: int
+
+
+def _link(
+    frames: Frames,
+    j: int,
+    obs_a: Observation,
+    k: int,
+    obs_b: Observation,
+    T_base_camera: gtsam.Pose2,
+) -> MeasuredLink:
+    T_base_a, cov_a = observation_measurement(obs_a, T_base_camera)
+    T_base_b, cov_b = observation_measurement(obs_b, T_base_camera)
+    steps = [
+        frames.frames[i - 1].T_odom_base.between(frames.frames[i].T_odom_base)
+        for i in range(j + 1, k + 1)
+    ]
+    step_covs = [frames.frames[i].odometry_covariance for i in range(j + 1, k + 1)]
+    chain = [T_base_a.inverse(), *steps, T_base_b]
+    covs = [invert_covariance(T_base_a, cov_a), *step_covs, cov_b]
+    T_a_b, covariance = compose_covariance(chain, covs)
+    return MeasuredLink(obs_a.marker_id, obs_b.marker_id, T_a_b, covariance, j, k)
+
+
+# Dead reckoning further than this between two markers makes no link: the paper's robot
+# localises on a marker and drives to the next, it does not wander.
+MAX_HANDOVER_M = 15.0
+
+
+def measure_links(
+    frames: Frames, T_base_camera: gtsam.Pose2, max_handover_m: float = MAX_HANDOVER_M
+) -> list[MeasuredLink]:
+    """Every E_ab the robot measures, each observation used in few links so errors stay nearly
+    independent.
+
+    * Markers seen in one frame are chained (nearest first): no odometry between them.
+    * When the robot turns from one set of markers to a new one with none in common, the
+      nearest marker of the last frame links to the nearest of the new frame through the
+      odometry in between, if it drove at most ``max_handover_m``: the paper's "localise on a,
+      dead-reckon, observe b".
+    """
+    links: list[MeasuredLink] = []
+    previous: int | None = None
+    travelled = [0.0] + [
+        float(np.hypot(*a.T_odom_base.between(b.T_odom_base).translation()))
+        for a, b in itertools.pairwise(frames.frames)
+    ]
+    path_m = np.cumsum(travelled)
+    for k, frame in enumerate(frames.frames):
+        seen = sorted(frame.observations, key=lambda o: o.range_m)
+        links += [_link(frames, k, a, k, b, T_base_camera) for a, b in itertools.pairwise(seen)]
+        if previous is not None:
+            before = frames.frames[previous].observations
+            near = path_m[k] - path_m[previous] <= max_handover_m
+            if near and not {o.marker_id for o in before} & {o.marker_id for o in seen}:
+                nearest_before = min(before, key=lambda o: o.range_m)
+                links.append(_link(frames, previous, nearest_before, k, seen[0], T_base_camera))
+        previous = k
+    return links
+
+
+def link_counts(links: list[MeasuredLink]) -> list[MarkerLink]:
+    """How many measurements link each pair of markers (pairs unordered, smaller id first)."""
+    counts = Counter(tuple(sorted((link.marker_a, link.marker_b))) for link in links)
+    return [MarkerLink(a, b, n) for (a, b), n in sorted(counts.items())]
+
+
+def components(marker_ids: list[int], links: list[MeasuredLink]) -> list[list[int]]:
+    """Groups of markers joined by links, each sorted; the groups in order of their first id."""
+    neighbours: dict[int, set[int]] = defaultdict(set)
+    for link in links:
+        neighbours[link.marker_a].add(link.marker_b)
+        neighbours[link.marker_b].add(link.marker_a)
+    unvisited, groups = set(marker_ids), []
+    for start in marker_ids:
+        if start not in unvisited:
+            continue
+        group, queue = [], deque([start])
+        unvisited.discard(start)
+        while queue:
+            marker = queue.popleft()
+            group.append(marker)
+            for other in neighbours[marker] & unvisited:
+                unvisited.discard(other)
+                queue.append(other)
+        groups.append(sorted(group))
+    return groups
+
+
+def describe_disconnected(groups: list[list[int]], home_id: int) -> list[str]:
+    """One sentence per group of markers no link chain joins to the home marker."""
+    return [
+        f"markers {', '.join(map(str, group))} are linked to no chain reaching home marker "
+        f"{home_id}"
+        if len(group) > 1
+        else f"marker {group[0]} is never seen together with, or right after, another marker"
+        for group in groups
+        if home_id not in group
+    ]

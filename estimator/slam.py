@@ -1,0 +1,362 @@
+"""The GTSAM methods: MARKER_GRAPH (markers only), SLAM (batch) and ISAM2 (incremental)."""
+
+from __future__ import annotations
+
+import time
+from collections import Counter, deque
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
+
+from markergraph.estimator.frames import Frames
+from markergraph.estimator.graph import (
+    HOME_PRIOR_NOISE,
+    Robust,
+    gaussian,
+    observation_factor,
+    observation_measurement,
+    read_residuals,
+)
+from markergraph.estimator.links import (
+    components,
+    describe_disconnected,
+    link_counts,
+    measure_links,
+)
+from markergraph.estimator.types import Estimate, MarkerEstimate, Method
+
+__all__ = ["IncrementalSlam", "solve_isam2", "solve_marker_graph", "solve_slam"]
+
+MAX_ITERATIONS = 100
+
+
+def _lm_params() -> gtsam.LevenbergMarquardtParams:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(MAX_ITERATIONS)
+    params.setRelativeErrorTol(1e-14)
+    params.setAbsoluteErrorTol(1e-14)
+    return params
+
+
+def _T_map_odom(frames: Frames, T_base_camera: gtsam.Pose2) -> gtsam.Pose2:
+    """The odometry frame in the map, from the first sight of the home marker."""
+    frame = frames.frames[frames.home_frame]
+    home = next(o for o in frame.observations if o.marker_id == frames.home_id)
+    T_base_home, _ = observation_measurement(home, T_base_camera)
+    return T_base_home.inverse().compose(frame.T_odom_base.inverse())
+
+
+def _marker_estimates(
+    values: gtsam.Values,
+    marker_ids: list[int],
+    counts: Counter[int],
+    marginals: gtsam.Marginals | None,
+) -> dict[int, MarkerEstimate]:
+    joint = None
+    if marginals is not None:
+        keys = gtsam.KeyVector([L(i) for i in marker_ids])
+        joint = marginals.jointMarginalCovariance(keys)
+    return {
+        i: MarkerEstimate(
+            i,
+            values.atPose2(L(i)),
+            None if joint is None else np.array(joint.at(L(i), L(i))),
+            counts[i],
+        )
+        for i in marker_ids
+    }
+
+
+def _marginals(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, notes: list[str]
+) -> gtsam.Marginals | None:
+    try:
+        return gtsam.Marginals(graph, values)
+    except RuntimeError as error:  # an indeterminate system: report, keep the means
+        notes.append(f"marginal covariances unavailable: {error}")
+        return None
+
+
+def _observation_counts(frames: Frames) -> Counter[int]:
+    return Counter(o.marker_id for f in frames.frames for o in f.observations)
+
+
+def build_slam_graph(
+    frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE
+) -> tuple[gtsam.NonlinearFactorGraph, list[str], gtsam.Values]:
+    """The full SLAM graph: home prior, odometry chain, one factor per observation.
+
+    Returns:
+        (graph, a kind label per factor, initial values from odometry anchored on home).
+    """
+    graph, kinds, initial = gtsam.NonlinearFactorGraph(), [], gtsam.Values()
+    graph.add(gtsam.PriorFactorPose2(L(frames.home_id), gtsam.Pose2(), HOME_PRIOR_NOISE))
+    kinds.append("prior")
+    T_map_odom = _T_map_odom(frames, T_base_camera)
+    for k, frame in enumerate(frames.frames):
+        T_map_base = T_map_odom.compose(frame.T_odom_base)
+        initial.insert(X(k), T_map_base)
+        if k > 0:
+            delta = frames.frames[k - 1].T_odom_base.between(frame.T_odom_base)
+            graph.add(
+                gtsam.BetweenFactorPose2(X(k - 1), X(k), delta, gaussian(frame.odometry_covariance))
+            )
+            kinds.append("odometry")
+        for obs in frame.observations:
+            graph.add(observation_factor(k, obs, T_base_camera, robust))
+            kinds.append("observation")
+            if not initial.exists(L(obs.marker_id)):
+                T_base_marker, _ = observation_measurement(obs, T_base_camera)
+                initial.insert(L(obs.marker_id), T_map_base.compose(T_base_marker))
+    return graph, kinds, initial
+
+
+def _trajectory(values: gtsam.Values, n: int) -> np.ndarray:
+    poses = [values.atPose2(X(k)) for k in range(n)]
+    return np.array([[p.x(), p.y(), p.theta()] for p in poses]).reshape(-1, 3)
+
+
+def _slam_notes(frames: Frames, T_base_camera: gtsam.Pose2) -> tuple[list, list[str]]:
+    links = measure_links(frames, T_base_camera)
+    groups = components(frames.marker_ids(), links)
+    notes = [
+        f"{sentence}; only odometry joins them to the map"
+        for sentence in describe_disconnected(groups, frames.home_id)
+    ]
+    return link_counts(links), notes
+
+
+def solve_slam(
+    frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE
+) -> Estimate:
+    """``Method.SLAM``: batch Levenberg-Marquardt over robot poses and markers."""
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    graph, kinds, initial = build_slam_graph(frames, T_base_camera, robust)
+    timings["build"] = time.perf_counter() - start
+    start = time.perf_counter()
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, _lm_params())
+    result = optimizer.optimize()
+    timings["optimize"] = time.perf_counter() - start
+    converged = optimizer.iterations() < MAX_ITERATIONS
+    links, notes = _slam_notes(frames, T_base_camera)
+    notes = frames.notes + notes
+    if not converged:
+        notes.append(
+            f"Levenberg-Marquardt stopped after {MAX_ITERATIONS} iterations without "
+            "converging; the map is its last estimate"
+        )
+    start = time.perf_counter()
+    marginals = _marginals(graph, result, notes)
+    estimate = Estimate(
+        method=Method.SLAM,
+        home_id=frames.home_id,
+        markers=_marker_estimates(
+            result, frames.marker_ids(), _observation_counts(frames), marginals
+        ),
+        trajectory_t_ns=np.array([f.t_ns for f in frames.frames], dtype=np.int64),
+        trajectory=_trajectory(result, len(frames.frames)),
+        residuals=read_residuals(graph, result, kinds),
+        links=links,
+        converged=converged,
+        notes=notes,
+    )
+    timings["marginals"] = time.perf_counter() - start
+    estimate.timings_s = timings
+    return estimate
+
+
+class IncrementalSlam:
+    """The SLAM graph grown and solved frame by frame with iSAM2.
+
+    Frames before the first sight of the home marker wait in a buffer: until then nothing fixes
+    the map frame. New poses start from odometry carried by a correction ``T_map_odom`` that is
+    re-read from the solution every ``REANCHOR_EVERY`` updates: reading the estimate each frame
+    would cost half as much again as the update itself.
+    """
+
+    REANCHOR_EVERY = 10
+
+    def __init__(
+        self, frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE
+    ) -> None:
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(0.01)
+        params.relinearizeSkip = 1
+        self.isam = gtsam.ISAM2(params)
+        self.frames, self.T_base_camera, self.robust = frames, T_base_camera, robust
+        self.T_map_odom = _T_map_odom(frames, T_base_camera)
+        self.next_frame = 0
+        self.updates = 0
+        # Everything added so far, for the residual read-out at the end.
+        self.graph, self.kinds = gtsam.NonlinearFactorGraph(), list[str]()
+        self.markers_added: set[int] = set()
+
+    def add_frames_through(self, k: int) -> None:
+        """Add every frame up to and including ``k`` in one iSAM2 update (if home was seen)."""
+        if k < self.frames.home_frame:
+            return
+        new_graph, new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if self.next_frame == 0:
+            new_graph.add(
+                gtsam.PriorFactorPose2(L(self.frames.home_id), gtsam.Pose2(), HOME_PRIOR_NOISE)
+            )
+            self.kinds.append("prior")
+        for j in range(self.next_frame, k + 1):
+            frame = self.frames.frames[j]
+            T_map_base = self.T_map_odom.compose(frame.T_odom_base)
+            if j > 0:
+                previous = self.frames.frames[j - 1]
+                delta = previous.T_odom_base.between(frame.T_odom_base)
+                new_graph.add(
+                    gtsam.BetweenFactorPose2(
+                        X(j - 1), X(j), delta, gaussian(frame.odometry_covariance)
+                    )
+                )
+                self.kinds.append("odometry")
+            new_values.insert(X(j), T_map_base)
+            for obs in frame.observations:
+                new_graph.add(observation_factor(j, obs, self.T_base_camera, self.robust))
+                self.kinds.append("observation")
+                if obs.marker_id not in self.markers_added:
+                    T_base_marker, _ = observation_measurement(obs, self.T_base_camera)
+                    new_values.insert(L(obs.marker_id), T_map_base.compose(T_base_marker))
+                    self.markers_added.add(obs.marker_id)
+        self.graph.push_back(new_graph)
+        self.isam.update(new_graph, new_values)
+        self.next_frame = k + 1
+        self.updates += 1
+        if self.updates % self.REANCHOR_EVERY == 0:
+            self.T_map_odom = self.isam.calculateEstimatePose2(X(k)).compose(
+                self.frames.frames[k].T_odom_base.inverse()
+            )
+
+    def finish(self, max_sweeps: int = 8, tolerance: float = 1e-6) -> bool:
+        """Relinearise everything until the estimate stops moving; True if it did.
+
+        A full solve as well: during the incremental updates iSAM2 skips back-substituting
+        changes below its wildfire threshold, which leaves ~1e-3 m between it and batch.
+        """
+        params = gtsam.ISAM2UpdateParams()
+        params.force_relinearize = True
+        params.forceFullSolve = True
+        before = self.isam.calculateEstimate()
+        for _ in range(max_sweeps):
+            self.isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), params)
+            after = self.isam.calculateEstimate()
+            keys = after.keys()  # a gtsam KeyVector
+            change = max(
+                np.max(np.abs(gtsam.Pose2.Logmap(before.atPose2(key).between(after.atPose2(key)))))
+                for key in keys
+            )
+            before = after
+            if change < tolerance:
+                return True
+        return False
+
+
+def solve_isam2(
+    frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE
+) -> Estimate:
+    """``Method.ISAM2``: the SLAM graph, one iSAM2 update per frame, then relinearised to rest."""
+    start = time.perf_counter()
+    slam = IncrementalSlam(frames, T_base_camera, robust)
+    for k in range(len(frames.frames)):
+        slam.add_frames_through(k)
+    timings = {"updates": time.perf_counter() - start}
+    start = time.perf_counter()
+    converged = slam.finish()
+    timings["finish"] = time.perf_counter() - start
+    result = slam.isam.calculateEstimate()
+    links, notes = _slam_notes(frames, T_base_camera)
+    notes = frames.notes + notes
+    if not converged:
+        notes.append("iSAM2 did not come to rest after its final relinearisations")
+    start = time.perf_counter()
+    marginals = gtsam.Marginals(slam.isam.getFactorsUnsafe(), result)
+    estimate = Estimate(
+        method=Method.ISAM2,
+        home_id=frames.home_id,
+        markers=_marker_estimates(
+            result, frames.marker_ids(), _observation_counts(frames), marginals
+        ),
+        trajectory_t_ns=np.array([f.t_ns for f in frames.frames], dtype=np.int64),
+        trajectory=_trajectory(result, len(frames.frames)),
+        residuals=read_residuals(slam.graph, result, slam.kinds),
+        links=links,
+        converged=converged,
+        notes=notes,
+    )
+    timings["marginals"] = time.perf_counter() - start
+    estimate.timings_s = timings
+    return estimate
+
+
+def solve_marker_graph(
+    frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE
+) -> Estimate:
+    """``Method.MARKER_GRAPH``: the paper's node graph, every measured E_ab a between factor."""
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    links = measure_links(frames, T_base_camera)
+    marker_ids = frames.marker_ids()
+    groups = components(marker_ids, links)
+    placed = next(group for group in groups if frames.home_id in group)
+    notes = frames.notes + describe_disconnected(groups, frames.home_id)
+    unplaced = {
+        i: "no chain of links reaches the home marker"
+        for group in groups
+        if frames.home_id not in group
+        for i in group
+    }
+    graph, kinds = gtsam.NonlinearFactorGraph(), ["prior"]
+    graph.add(gtsam.PriorFactorPose2(L(frames.home_id), gtsam.Pose2(), HOME_PRIOR_NOISE))
+    for link in links:
+        if link.marker_a in placed:
+            graph.add(
+                gtsam.BetweenFactorPose2(
+                    L(link.marker_a),
+                    L(link.marker_b),
+                    link.T_a_b,
+                    gaussian(link.covariance, robust),
+                )
+            )
+            kinds.append("edge")
+    # Initial values: compose the first link found outward from home (a spanning tree).
+    initial = gtsam.Values()
+    initial.insert(L(frames.home_id), gtsam.Pose2())
+    by_marker: dict[int, list] = {}
+    for link in links:
+        by_marker.setdefault(link.marker_a, []).append((link.marker_b, link.T_a_b))
+        by_marker.setdefault(link.marker_b, []).append((link.marker_a, link.T_a_b.inverse()))
+    queue = deque([frames.home_id])
+    while queue:
+        a = queue.popleft()
+        for b, T_a_b in by_marker.get(a, []):
+            if not initial.exists(L(b)):
+                initial.insert(L(b), initial.atPose2(L(a)).compose(T_a_b))
+                queue.append(b)
+    timings["build"] = time.perf_counter() - start
+    start = time.perf_counter()
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, _lm_params())
+    result = optimizer.optimize()
+    timings["optimize"] = time.perf_counter() - start
+    converged = optimizer.iterations() < MAX_ITERATIONS
+    start = time.perf_counter()
+    marginals = _marginals(graph, result, notes)
+    estimate = Estimate(
+        method=Method.MARKER_GRAPH,
+        home_id=frames.home_id,
+        markers=_marker_estimates(result, placed, _observation_counts(frames), marginals),
+        trajectory_t_ns=np.empty(0, dtype=np.int64),
+        trajectory=np.empty((0, 3)),
+        residuals=read_residuals(graph, result, kinds),
+        links=link_counts(links),
+        unplaced=unplaced,
+        converged=converged,
+        notes=notes,
+    )
+    timings["marginals"] = time.perf_counter() - start
+    estimate.timings_s = timings
+    return estimate

@@ -1,0 +1,376 @@
+"""The estimators against simulator ground truth, their Jacobians against numerical derivatives."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+import pytest
+
+from markergraph.datasets import ObservationNoise, WheelErrors, scenario, simulate_fast
+from markergraph.datasets.simulate import SimulatedRun
+from markergraph.estimator import (
+    Form,
+    MarkerGraphError,
+    Method,
+    Observation,
+    OdometryNoise,
+    OdometrySample,
+    RejectedObservationError,
+    Robust,
+    build_frames,
+    estimate,
+    estimate_frames,
+    map_error,
+)
+from markergraph.estimator.ekf import MarkerEkf
+from markergraph.estimator.models import (
+    compose_covariance,
+    ekf_marker_init,
+    ekf_motion,
+    ekf_observation,
+    observation_covariance,
+    observation_pose,
+    polar_to_pose_jacobian,
+)
+
+AFTER_OPTIMISATION = 1e-6
+JACOBIAN_TOL = 1e-6  # central differences with step 1e-6 are good to ~1e-9; margin for scale
+EXACT_ALGEBRA = 1e-9
+STEP = 1e-6
+MOUNT = gtsam.Pose2(0.1, 0.02, 0.05)  # an off-centre, slightly turned camera
+
+
+def numerical_jacobian(f, x: np.ndarray) -> np.ndarray:
+    """Central-difference Jacobian of a vector function."""
+    columns = []
+    for i in range(len(x)):
+        dx = np.zeros_like(x)
+        dx[i] = STEP
+        columns.append((np.asarray(f(x + dx)) - np.asarray(f(x - dx))) / (2 * STEP))
+    return np.column_stack(columns)
+
+
+def random_observation(rng: np.random.Generator) -> Observation:
+    return Observation(
+        0,
+        1,
+        rng.uniform(-0.6, 0.6),
+        rng.uniform(-1.2, 1.2),
+        rng.uniform(0.5, 5.0),
+        0.003,
+        0.02,
+        0.01,
+    )
+
+
+# --- Jacobians ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_polar_to_pose_jacobian_matches_numerical(seed: int) -> None:
+    """d(x, y, yaw)/d(bearing, theta, range) of T_camera_marker is the hand-derived matrix."""
+    obs = random_observation(np.random.default_rng(seed))
+
+    def pose_of(z: np.ndarray) -> np.ndarray:
+        T = observation_pose(replace(obs, bearing=z[0], theta=z[1], range_m=z[2]))
+        return np.array([T.x(), T.y(), T.theta()])
+
+    z = np.array([obs.bearing, obs.theta, obs.range_m])
+    np.testing.assert_allclose(
+        polar_to_pose_jacobian(obs.bearing, obs.range_m),
+        numerical_jacobian(pose_of, z),
+        atol=JACOBIAN_TOL,
+    )
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_observation_covariance_is_in_the_markers_tangent_space(seed: int) -> None:
+    """The covariance equals J S J^T with J = d Logmap(T0^-1 T(z)) / dz, GTSAM's convention."""
+    obs = random_observation(np.random.default_rng(seed))
+    T0 = observation_pose(obs)
+
+    def local(z: np.ndarray) -> np.ndarray:
+        T = observation_pose(replace(obs, bearing=z[0], theta=z[1], range_m=z[2]))
+        return gtsam.Pose2.Logmap(T0.between(T))
+
+    J = numerical_jacobian(local, np.array([obs.bearing, obs.theta, obs.range_m]))
+    sigma = np.diag([obs.sigma_bearing**2, obs.sigma_theta**2, obs.sigma_range**2])
+    np.testing.assert_allclose(observation_covariance(obs), J @ sigma @ J.T, atol=1e-9)
+
+
+def test_compose_covariance_matches_numerical_adjoints() -> None:
+    """Covariance of T0 T1 T2 equals sum_i J_i S_i J_i^T with J_i numerical."""
+    rng = np.random.default_rng(1)
+    poses = [gtsam.Pose2(*rng.uniform(-2, 2, 3)) for _ in range(3)]
+    covs = [np.diag(rng.uniform(0.01, 0.1, 3)) for _ in range(3)]
+    total, covariance = compose_covariance(poses, covs)
+    expected = np.zeros((3, 3))
+    for i in range(3):
+
+        def perturbed(e: np.ndarray, i: int = i) -> np.ndarray:
+            chain = [p.compose(gtsam.Pose2.Expmap(e)) if j == i else p for j, p in enumerate(poses)]
+            return gtsam.Pose2.Logmap(total.between(chain[0].compose(chain[1]).compose(chain[2])))
+
+        J = numerical_jacobian(perturbed, np.zeros(3))
+        expected += J @ covs[i] @ J.T
+    np.testing.assert_allclose(covariance, expected, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_ekf_jacobians_match_numerical(seed: int) -> None:
+    """Motion F and G, observation H, and marker-initialisation G match central differences."""
+    rng = np.random.default_rng(seed)
+    robot = np.array([*rng.uniform(-3, 3, 2), rng.uniform(-3, 3)])
+    marker = np.array([*(robot[:2] + rng.uniform(1, 4, 2)), rng.uniform(-3, 3)])
+    delta = np.array([*rng.uniform(-0.5, 0.5, 2), rng.uniform(-0.3, 0.3)])
+
+    _, F, G = ekf_motion(robot, gtsam.Pose2(*delta))
+    np.testing.assert_allclose(
+        F,
+        numerical_jacobian(lambda r: ekf_motion(r, gtsam.Pose2(*delta))[0], robot),
+        atol=JACOBIAN_TOL,
+    )
+    np.testing.assert_allclose(
+        G,
+        numerical_jacobian(lambda d: ekf_motion(robot, gtsam.Pose2(*d))[0], delta),
+        atol=JACOBIAN_TOL,
+    )
+
+    z, H_robot, H_marker = ekf_observation(robot, marker, MOUNT)
+    np.testing.assert_allclose(
+        H_robot,
+        numerical_jacobian(lambda r: ekf_observation(r, marker, MOUNT)[0], robot),
+        atol=JACOBIAN_TOL,
+    )
+    np.testing.assert_allclose(
+        H_marker,
+        numerical_jacobian(lambda m: ekf_observation(robot, m, MOUNT)[0], marker),
+        atol=JACOBIAN_TOL,
+    )
+
+    placed, G_robot, G_z = ekf_marker_init(robot, z, MOUNT)
+    np.testing.assert_allclose(placed, marker, atol=EXACT_ALGEBRA)  # the inverse of h
+    np.testing.assert_allclose(
+        G_robot,
+        numerical_jacobian(lambda r: ekf_marker_init(r, z, MOUNT)[0], robot),
+        atol=JACOBIAN_TOL,
+    )
+    np.testing.assert_allclose(
+        G_z,
+        numerical_jacobian(lambda zz: ekf_marker_init(robot, zz, MOUNT)[0], z),
+        atol=JACOBIAN_TOL,
+    )
+
+
+# --- noise-free runs recover the truth --------------------------------------------------------
+
+EXACT_VALUES = ObservationNoise(realised=0.0)
+NO_WHEEL_ERRORS = WheelErrors(0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@pytest.fixture(scope="module")
+def noise_free_run() -> SimulatedRun:
+    world, route = scenario("corridor-loop")
+    # Frames on odometry samples: interpolating across a turn-to-drive switch is not exact.
+    return simulate_fast(
+        world,
+        route,
+        seed=0,
+        noise=EXACT_VALUES,
+        wheel=NO_WHEEL_ERRORS,
+        odometry_hz=60.0,
+        frame_phase=0.0,
+        duration_s=240.0,
+    )
+
+
+@pytest.mark.parametrize(
+    ("method", "form"),
+    [
+        (Method.CLOSED_FORM, Form.SIGNED),
+        (Method.CLOSED_FORM, Form.EXACT),
+        (Method.MARKER_GRAPH, Form.SIGNED),
+        (Method.SLAM, Form.SIGNED),
+        (Method.ISAM2, Form.SIGNED),
+        (Method.EKF, Form.SIGNED),
+    ],
+)
+def test_noise_free_inputs_recover_the_true_map(
+    noise_free_run: SimulatedRun, method: Method, form: Form
+) -> None:
+    """With exact observations and odometry every method maps the markers to 1e-6."""
+    run = noise_free_run
+    result = estimate(
+        run.observations,
+        run.odometry,
+        method,
+        T_base_camera=run.mount.T_base_camera,
+        odometry_noise=run.odometry_noise,
+        home_id=run.world.home_id,
+        form=form,
+    )
+    error = map_error(result, run.true_markers())
+    assert len(error.marker_ids) >= 6
+    assert error.position_m.max() < AFTER_OPTIMISATION
+    assert error.yaw_rad.max() < AFTER_OPTIMISATION
+
+
+def test_paper_form_maps_wrongly_even_without_noise(noise_free_run: SimulatedRun) -> None:
+    """The printed closed forms misplace markers of the corridor by metres on exact inputs."""
+    run = noise_free_run
+    result = estimate(
+        run.observations,
+        run.odometry,
+        Method.CLOSED_FORM,
+        T_base_camera=run.mount.T_base_camera,
+        form=Form.PAPER,
+    )
+    assert map_error(result, run.true_markers()).rmse_position_m > 1.0
+
+
+# --- noisy runs -------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def noisy_run() -> SimulatedRun:
+    world, route = scenario("corridor-loop")
+    return simulate_fast(world, route, seed=7)
+
+
+def test_isam2_matches_batch_slam(noisy_run: SimulatedRun) -> None:
+    """After the last update iSAM2's map and trajectory equal batch Levenberg-Marquardt's."""
+    run = noisy_run
+    frames = build_frames(run.observations, run.odometry, 0, odometry_noise=run.odometry_noise)
+    batch = estimate_frames(frames, Method.SLAM, run.mount.T_base_camera)
+    incremental = estimate_frames(frames, Method.ISAM2, run.mount.T_base_camera)
+    for marker_id, marker in batch.markers.items():
+        other = incremental.markers[marker_id]
+        assert marker.T_map_marker.equals(other.T_map_marker, AFTER_OPTIMISATION)
+        np.testing.assert_allclose(marker.covariance, other.covariance, rtol=1e-3, atol=1e-12)
+    np.testing.assert_allclose(batch.trajectory, incremental.trajectory, atol=AFTER_OPTIMISATION)
+
+
+def test_slam_covariances_are_honest(noisy_run: SimulatedRun) -> None:
+    """Marker errors normalised by SLAM's marginals are chi-square(2) on average over markers."""
+    run = noisy_run
+    result = estimate(
+        run.observations,
+        run.odometry,
+        Method.SLAM,
+        T_base_camera=run.mount.T_base_camera,
+        odometry_noise=run.odometry_noise,
+    )
+    squared = []
+    for marker_id, T_true in run.true_markers().items():
+        if marker_id == run.world.home_id:
+            continue
+        marker = result.markers[marker_id]
+        local = marker.T_map_marker.transformTo(T_true.translation())  # error in its own frame
+        squared.append(float(local @ np.linalg.solve(marker.covariance[:2, :2], local)))
+    # 11 markers, 22 dof: the 99.9% interval of a chi-square mean, loosely (markers correlate).
+    assert 0.1 < np.mean(squared) < 5.0
+
+
+def test_sparse_ekf_update_matches_filterpy_dense_update() -> None:
+    """On a small map the sparse update's state and covariance equal filterpy's to 1e-9."""
+    world, route = scenario("paper-room")
+    run = simulate_fast(world, route, seed=2, duration_s=60.0)
+    frames = build_frames(run.observations, run.odometry, 0, odometry_noise=run.odometry_noise)
+    filters = {
+        dense: MarkerEkf(run.mount.T_base_camera, 0, np.array([1.0, 0.0, math.pi]))
+        for dense in (False, True)
+    }
+    checked = 0
+    for k, frame in enumerate(frames.frames):
+        for dense, ekf in filters.items():
+            if k > 0:
+                previous = frames.frames[k - 1]
+                ekf.predict(
+                    previous.T_odom_base.between(frame.T_odom_base), frame.odometry_covariance
+                )
+            for obs in frame.observations:
+                ekf.update(obs, dense=dense)
+        sparse, dense_ekf = filters[False].kf, filters[True].kf
+        np.testing.assert_allclose(sparse.x, dense_ekf.x, atol=1e-9)
+        np.testing.assert_allclose(sparse.P, dense_ekf.P, atol=1e-9)
+        checked += 1
+    assert checked > 100 and filters[False].kf.dim_x == 9  # robot and two non-home markers
+
+
+def test_robust_kernel_catches_injected_outliers(noisy_run: SimulatedRun) -> None:
+    """Five observations with a 1 m range error are down-weighted by Huber and named."""
+    run = noisy_run
+    corrupted = list(run.observations)
+    bad_indices = range(400, 1400, 200)
+    for i in bad_indices:
+        corrupted[i] = replace(corrupted[i], range_m=corrupted[i].range_m + 1.0)
+    result = estimate(
+        corrupted,
+        run.odometry,
+        Method.SLAM,
+        T_base_camera=run.mount.T_base_camera,
+        odometry_noise=run.odometry_noise,
+        robust=Robust.HUBER,
+    )
+    flagged = [r for r in result.residuals if r.downweighted]
+    assert 5 <= len(flagged) <= 8
+    assert all(r.kind == "observation" for r in flagged)
+    assert map_error(result, run.true_markers()).rmse_position_m < 0.15
+
+
+# --- diagnostics and bad input ----------------------------------------------------------------
+
+
+def test_disconnected_markers_are_named(noisy_run: SimulatedRun) -> None:
+    """A marker seen alone after 30 m of dead reckoning is reported, not placed, by the marker
+    graph, and said to hang on odometry alone by SLAM."""
+    run = noisy_run
+    lonely = Observation(run.odometry[-1].t_ns + 10**11, 99, 0.0, 0.2, 2.0, 0.002, 0.01, 0.01)
+    last = run.odometry[-1].pose().compose(gtsam.Pose2(30.0, 0.0, 0.0))  # 30 m further on
+    far_later = OdometrySample(lonely.t_ns, last.x(), last.y(), last.theta())
+    observations = [*run.observations[:300], lonely]
+    odometry = [*run.odometry, far_later]
+    graph = estimate(
+        observations, odometry, Method.MARKER_GRAPH, T_base_camera=run.mount.T_base_camera
+    )
+    assert 99 not in graph.markers and "home marker" in graph.unplaced[99]
+    slam = estimate(observations, odometry, Method.SLAM, T_base_camera=run.mount.T_base_camera)
+    assert 99 in slam.markers
+    assert any("marker 99" in note and "odometry" in note for note in slam.notes)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"range_m": math.nan}, "NaN"),
+        ({"range_m": -1.0}, "range_m=-1.0"),
+        ({"marker_id": 42}, "unknown marker id 42"),
+    ],
+)
+def test_bad_observations_are_rejected_by_name(
+    noisy_run: SimulatedRun, change: dict, message: str
+) -> None:
+    """NaN, a negative range and an unknown id raise an error naming the record."""
+    run = noisy_run
+    observations = list(run.observations)
+    observations[5] = replace(observations[5], **change)
+    with pytest.raises(RejectedObservationError, match=message) as caught:
+        estimate(observations, run.odometry, Method.SLAM, marker_ids=range(12))
+    assert f"t_ns={observations[5].t_ns}" in str(caught.value)
+
+
+def test_home_never_seen_is_a_clear_error(noisy_run: SimulatedRun) -> None:
+    """Asking for a home marker that never appears fails with one sentence."""
+    with pytest.raises(MarkerGraphError, match="home marker 77 is never observed"):
+        estimate(noisy_run.observations, noisy_run.odometry, Method.SLAM, home_id=77)
+
+
+def test_odometry_noise_adds_over_split_steps() -> None:
+    """The random-walk model gives one 2 m step the variance of two 1 m steps (straight line)."""
+    noise = OdometryNoise()
+    whole = noise.covariance(gtsam.Pose2(2.0, 0.0, 0.0))
+    half = noise.covariance(gtsam.Pose2(1.0, 0.0, 0.0))
+    np.testing.assert_allclose(whole[0, 0] - noise.floor_m**2, 2 * (half[0, 0] - noise.floor_m**2))
