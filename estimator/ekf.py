@@ -59,6 +59,7 @@ class MarkerEkf:
         self.kf.P = np.eye(3) * UNKNOWN_VARIANCE
         self.T_base_camera, self.home_id = T_base_camera, home_id
         self.index: dict[int, int] = {}  # marker id -> first state row of its block
+        self.innovations: list[NDArray[np.float64]] = []
         self.nis: list[float] = []
 
     @property
@@ -132,6 +133,7 @@ class MarkerEkf:
         else:
             self._sparse_update(z, R, obs.marker_id, columns)
         y = self.kf.y.reshape(3)
+        self.innovations.append(y.copy())
         self.nis.append(float(y @ np.linalg.solve(self.kf.S, y)))
         # Every yaw (rows 2, 5, 8, ...) moved with the update; keep them in (-pi, pi].
         self.kf.x[2::3, 0] = wrap_array(self.kf.x[2::3, 0])
@@ -195,6 +197,8 @@ def solve_ekf(frames: Frames, T_base_camera: gtsam.Pose2) -> Estimate:
         # Home first, so the robot is localised before it places anything.
         for obs in sorted(frame.observations, key=lambda o: o.marker_id != frames.home_id):
             ekf.update(obs)
+        if k == frames.home_frame:  # the first update only placed the robot: no innovation
+            del ekf.innovations[0], ekf.nis[0]
         t_ns.append(frame.t_ns)
         trajectory.append(ekf.robot.copy())
         covariances.append(ekf.kf.P[:3, :3].copy())
@@ -221,6 +225,7 @@ def solve_ekf(frames: Frames, T_base_camera: gtsam.Pose2) -> Estimate:
         trajectory=np.array(trajectory),
         trajectory_covariance=np.array(covariances),
         nis=np.array(ekf.nis),
+        innovations=np.array(ekf.innovations).reshape(-1, 3),
         notes=list(frames.notes),
         timings_s={"filter": time.perf_counter() - start},
     )

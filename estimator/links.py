@@ -84,6 +84,8 @@ def measure_links(
     path_m = np.cumsum(travelled)
     for k, frame in enumerate(frames.frames):
         seen = sorted(frame.observations, key=lambda o: o.range_m)
+        if not seen:  # a frame kept for its odometry alone
+            continue
         links += [_link(frames, k, a, k, b, T_base_camera) for a, b in itertools.pairwise(seen)]
         if previous is not None:
             before = frames.frames[previous].observations

@@ -32,10 +32,12 @@ MAX_ITERATIONS = 100
 
 
 def _lm_params() -> gtsam.LevenbergMarquardtParams:
+    # Tighter tolerances buy nothing measurable and cost rejected steps at convergence
+    # (1.5 s instead of 0.36 s on the 10,000-pose benchmark).
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(MAX_ITERATIONS)
-    params.setRelativeErrorTol(1e-14)
-    params.setAbsoluteErrorTol(1e-14)
+    params.setRelativeErrorTol(1e-10)
+    params.setAbsoluteErrorTol(1e-12)
     return params
 
 
@@ -184,6 +186,9 @@ class IncrementalSlam:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(0.01)
         params.relinearizeSkip = 1
+        # Cholesky declared a 10,000-pose warehouse run indeterminate (turning in place makes
+        # odometry nearly exact in translation); QR solves it at the same speed.
+        params.setFactorization("QR")
         self.isam = gtsam.ISAM2(params)
         self.frames, self.T_base_camera, self.robust = frames, T_base_camera, robust
         self.T_map_odom = _T_map_odom(frames, T_base_camera)
@@ -293,6 +298,24 @@ def solve_isam2(
     return estimate
 
 
+def _localise_on_markers(
+    frames: Frames, values: gtsam.Values, placed: set[int], T_base_camera: gtsam.Pose2
+) -> tuple[np.ndarray, np.ndarray]:
+    """The robot in each frame, from its nearest placed marker: the marker graph keeps no
+    robot poses, so this is how the paper's robot localises on the map."""
+    t_ns, rows = [], []
+    for frame in frames.frames:
+        seen = [o for o in frame.observations if o.marker_id in placed]
+        if not seen:
+            continue
+        nearest = min(seen, key=lambda o: o.range_m)
+        T_base_marker, _ = observation_measurement(nearest, T_base_camera)
+        T_map_base = values.atPose2(L(nearest.marker_id)).compose(T_base_marker.inverse())
+        t_ns.append(frame.t_ns)
+        rows.append([T_map_base.x(), T_map_base.y(), T_map_base.theta()])
+    return np.array(t_ns, dtype=np.int64), np.array(rows).reshape(-1, 3)
+
+
 def solve_marker_graph(
     frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE
 ) -> Estimate:
@@ -345,12 +368,13 @@ def solve_marker_graph(
     converged = optimizer.iterations() < MAX_ITERATIONS
     start = time.perf_counter()
     marginals = _marginals(graph, result, notes)
+    t_ns, trajectory = _localise_on_markers(frames, result, set(placed), T_base_camera)
     estimate = Estimate(
         method=Method.MARKER_GRAPH,
         home_id=frames.home_id,
         markers=_marker_estimates(result, placed, _observation_counts(frames), marginals),
-        trajectory_t_ns=np.empty(0, dtype=np.int64),
-        trajectory=np.empty((0, 3)),
+        trajectory_t_ns=t_ns,
+        trajectory=trajectory,
         residuals=read_residuals(graph, result, kinds),
         links=link_counts(links),
         unplaced=unplaced,

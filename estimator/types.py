@@ -209,6 +209,7 @@ class Estimate:
         converged: False when an optimiser stopped without converging (the estimate is its last).
         trajectory_covariance: (N, 3, 3) robot pose covariances where the method keeps them
             (EKF), for NEES against ground truth.
+        innovations: (M, 3) innovation (bearing, theta, range) of each update (EKF only).
         nis: (M,) normalised innovation squared of each observation update (EKF only).
         notes: diagnostics a person should read: what was skipped, what is disconnected.
     """
@@ -224,6 +225,7 @@ class Estimate:
     timings_s: dict[str, float] = field(default_factory=dict)
     converged: bool = True
     trajectory_covariance: NDArray[np.float64] | None = None
+    innovations: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)))
     nis: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
     notes: list[str] = field(default_factory=list)
 

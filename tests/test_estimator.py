@@ -374,3 +374,50 @@ def test_odometry_noise_adds_over_split_steps() -> None:
     whole = noise.covariance(gtsam.Pose2(2.0, 0.0, 0.0))
     half = noise.covariance(gtsam.Pose2(1.0, 0.0, 0.0))
     np.testing.assert_allclose(whole[0, 0] - noise.floor_m**2, 2 * (half[0, 0] - noise.floor_m**2))
+
+
+def test_optimiser_that_stops_early_says_so(noisy_run: SimulatedRun, monkeypatch) -> None:
+    """With one Levenberg-Marquardt iteration allowed, the estimate is flagged unconverged."""
+    from markergraph.estimator import slam
+
+    monkeypatch.setattr(slam, "MAX_ITERATIONS", 1)
+    run = noisy_run
+    result = estimate(
+        run.observations, run.odometry, Method.SLAM, T_base_camera=run.mount.T_base_camera
+    )
+    assert not result.converged
+    assert any("without converging" in note for note in result.notes)
+    assert len(result.markers) == 12  # the last estimate is still returned
+
+
+def test_ekf_keeps_innovations_and_nis(noisy_run: SimulatedRun) -> None:
+    """One innovation and one NIS per update (observations of known markers), NIS = y S^-1 y > 0."""
+    run = noisy_run
+    result = estimate(
+        run.observations,
+        run.odometry,
+        Method.EKF,
+        T_base_camera=run.mount.T_base_camera,
+        odometry_noise=run.odometry_noise,
+    )
+    n_first_sightings = len(result.markers) - 1  # the home marker is never added
+    assert len(result.nis) == len(result.innovations)
+    # The very first observation (of home) only initialises the robot.
+    assert len(result.nis) == len(run.observations) - n_first_sightings - 1
+    assert np.all(result.nis > 0)
+
+
+def test_marker_graph_localises_the_robot_on_its_map(noisy_run: SimulatedRun) -> None:
+    """The marker graph's trajectory (nearest-marker localisation) is within 0.5 m of the truth."""
+    run = noisy_run
+    result = estimate(
+        run.observations,
+        run.odometry,
+        Method.MARKER_GRAPH,
+        T_base_camera=run.mount.T_base_camera,
+        odometry_noise=run.odometry_noise,
+    )
+    true_by_stamp = dict(zip(run.frame_t_ns.tolist(), run.true_trajectory(), strict=True))
+    truth = np.array([true_by_stamp[int(t)] for t in result.trajectory_t_ns])
+    assert len(truth) > 1000
+    assert np.sqrt(np.mean(np.sum((result.trajectory[:, :2] - truth[:, :2]) ** 2, axis=1))) < 0.5
