@@ -6,9 +6,14 @@ Exit codes: 0 done, 1 user error (one line on stderr, no traceback), 2 internal 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
+from typing import NoReturn
+
+from markergraph.cli import _simulate
+from markergraph.estimator.types import MarkerGraphError
 
 __all__ = ["main"]
 
@@ -18,11 +23,22 @@ EXIT_OK, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR = 0, 1, 2
 PLANNED_COMMANDS = {
     "map": "estimate a corrected marker map from an MCAP log (default: the bundled sample)",
     "detect": "detect markers in an MCAP log and write observations as JSON lines",
-    "simulate": "simulate a world and write a ROS 2 MCAP log with ground truth",
     "info": "list what an MCAP log holds and which topics would be used",
     "export": "write a map.json in another tool's format",
     "heading": "the paper's target heading from a localisation on one marker to another",
 }
+
+
+class UserError(Exception):
+    """A mistake in what the user asked for: reported in one line, exit code 1."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse exits with 2 on a usage error; here 2 means an internal error, so use 1."""
+
+    def error(self, message: str) -> NoReturn:
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message}\n")
 
 
 def _version() -> str:
@@ -34,13 +50,14 @@ def _version() -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser for every subcommand."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="markergraph",
         description="Turn a robot's recorded log into a corrected map of the fiducial markers on "
         "its walls.",
     )
     parser.add_argument("--version", action="version", version=f"markergraph {_version()}")
-    commands = parser.add_subparsers(dest="command", metavar="COMMAND")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    _simulate.add_parser(commands)
     for name, summary in PLANNED_COMMANDS.items():
         commands.add_parser(name, help=summary, description=summary)
     return parser
@@ -53,5 +70,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_OK
-    print(f"markergraph {args.command}: not built yet in {_version()}", file=sys.stderr)
-    return EXIT_USER_ERROR
+    try:
+        if args.command == "simulate":
+            return _simulate.run(args)
+        print(f"markergraph {args.command}: not built yet in {_version()}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except (UserError, MarkerGraphError, ValueError, OSError) as error:
+        print(f"markergraph {args.command}: {error}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print(f"markergraph {args.command}: interrupted", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except Exception as error:  # a bug of ours: say so plainly
+        if os.environ.get("MARKERGRAPH_DEBUG"):
+            raise
+        print(
+            f"markergraph {args.command}: internal error: {error!r} "
+            "(set MARKERGRAPH_DEBUG=1 for the traceback)",
+            file=sys.stderr,
+        )
+        return EXIT_INTERNAL_ERROR

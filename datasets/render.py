@@ -85,9 +85,10 @@ def _marker_sheet(dictionary: str, marker_id: int, side_px: int) -> tuple[NDArra
     cells = aruco_dictionary.markerSize + 2
     square = cv2.aruco.generateImageMarker(aruco_dictionary, marker_id, side_px)
     border = max(1, round(side_px / cells))
-    sheet = cv2.copyMakeBorder(square, border, border, border, border, cv2.BORDER_CONSTANT,
-                               value=255)
-    return sheet, border
+    sheet = cv2.copyMakeBorder(
+        square, border, border, border, border, cv2.BORDER_CONSTANT, value=255
+    )
+    return np.asarray(sheet, dtype=np.uint8), border
 
 
 class Renderer:
@@ -101,15 +102,25 @@ class Renderer:
         texture_seed: seeds the wall and floor textures (fixed per world, not per frame).
     """
 
-    def __init__(self, world: World, camera: Camera = Camera(), mount: CameraMount = CameraMount(),
-                 *, ceiling_m: float = 2.6, depth_noise: DepthNoise = DepthNoise(),
-                 effects: ImageEffects = ImageEffects(), texture_seed: int = 0) -> None:
+    def __init__(
+        self,
+        world: World,
+        camera: Camera = Camera(),
+        mount: CameraMount = CameraMount(),
+        *,
+        ceiling_m: float = 2.6,
+        depth_noise: DepthNoise = DepthNoise(),
+        effects: ImageEffects = ImageEffects(),
+        texture_seed: int = 0,
+    ) -> None:
         self.world, self.camera, self.mount = world, camera, mount
         self.ceiling_m, self.depth_noise, self.effects = ceiling_m, depth_noise, effects
-        u, v = np.meshgrid(np.arange(camera.width, dtype=np.float64),
-                           np.arange(camera.height, dtype=np.float64))
-        rays_optical = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy,
-                                 np.ones_like(u)], axis=-1)
+        u, v = np.meshgrid(
+            np.arange(camera.width, dtype=np.float64), np.arange(camera.height, dtype=np.float64)
+        )
+        rays_optical = np.stack(
+            [(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u)], axis=-1
+        )
         # Per pixel, the ray with optical Z = 1 in the base frame. Everything that depends only
         # on the camera and its mount is computed here once, on flat float32 arrays.
         rays = (rays_optical @ mount.R_base_optical.T).reshape(-1, 3)
@@ -138,9 +149,10 @@ class Renderer:
         self._marker_walls = {m.id: m.wall for m in world.markers}
         self._geometry = MarkerGeometry.of(world)
         noise_rng = np.random.default_rng(texture_seed + 1)
-        self._image_noise = (noise_rng.standard_normal((_NOISE_FIELDS, camera.height,
-                                                        camera.width)) * effects.noise_sigma
-                             ).astype(np.float32)
+        self._image_noise = (
+            noise_rng.standard_normal((_NOISE_FIELDS, camera.height, camera.width))
+            * effects.noise_sigma
+        ).astype(np.float32)
 
     @staticmethod
     def _texture(rng: np.random.Generator, low: float, high: float) -> NDArray[np.float32]:
@@ -150,7 +162,9 @@ class Renderer:
         grid[::64, :] = grid[:, ::64] = -0.15
         return (low + (high - low) * np.clip(noise + grid, 0.0, 1.0)).astype(np.float32)
 
-    def _wall_table(self, p_xy: NDArray[np.float64], yaw: float) -> tuple[NDArray, NDArray, NDArray]:
+    def _wall_table(
+        self, p_xy: NDArray[np.float64], yaw: float
+    ) -> tuple[NDArray, NDArray, NDArray]:
         """For each table azimuth: horizontal distance to the nearest wall, its index, and the
         hit's distance along that wall (inf and -1 where no wall is hit)."""
         angles = self._azimuths + yaw
@@ -161,19 +175,23 @@ class Renderer:
         offset = a - p_xy  # (W, 2)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (offset[:, 0] * s[:, 1] - offset[:, 1] * s[:, 0]) / denominator
-            along = (offset[:, 0] * direction[:, 1:] - offset[:, 1] * direction[:, :1]) / denominator
+            along = (
+                offset[:, 0] * direction[:, 1:] - offset[:, 1] * direction[:, :1]
+            ) / denominator
         hit = (t > 1e-6) & (along >= 0.0) & (along <= 1.0)
         t = np.where(hit, t, np.inf)
         nearest = np.argmin(t, axis=1)
         rows = np.arange(len(angles))
         distance = t[rows, nearest]
         wall = np.where(np.isfinite(distance), nearest, -1)
-        along_m = np.where(wall >= 0, along[rows, nearest], 0.0) * np.hypot(s[nearest, 0],
-                                                                             s[nearest, 1])
+        along_m = np.where(wall >= 0, along[rows, nearest], 0.0) * np.hypot(
+            s[nearest, 0], s[nearest, 1]
+        )
         return distance, wall, along_m
 
-    def render(self, T_world_base: gtsam.Pose2, rng: np.random.Generator,
-               exposure: float = 1.0) -> RenderedFrame:
+    def render(
+        self, T_world_base: gtsam.Pose2, rng: np.random.Generator, exposure: float = 1.0
+    ) -> RenderedFrame:
         """Draw one frame from a base pose; ``rng`` draws this frame's noise."""
         T_world_camera = T_world_base.compose(self.mount.T_base_camera)
         yaw = T_world_base.theta()
@@ -181,8 +199,9 @@ class Renderer:
         shape = (self.camera.height, self.camera.width)
         distance, wall, along = self._wall_table(p_xy, yaw)
         # One gather from a (samples, 3) table instead of three: distance, wall, texture column.
-        table = np.column_stack([distance, wall, (along * _TEXELS_PER_M).astype(np.int32) & 255]
-                                ).astype(np.float32)
+        table = np.column_stack(
+            [distance, wall, (along * _TEXELS_PER_M).astype(np.int32) & 255]
+        ).astype(np.float32)
         per_pixel = np.take(table, self._table_index, axis=0)
         z = per_pixel[:, 0] * self._inverse_horizontal  # optical Z where the ray meets the wall
         hit_height = self.mount.height_m + z * self._ray_vertical
@@ -211,8 +230,9 @@ class Renderer:
         z[~np.isfinite(z)] = 0.0
 
         gray = gray.reshape(shape)
-        drawn = self._draw_markers(gray, T_world_base, pixel_wall.reshape(shape),
-                                   plain_wall.reshape(shape))
+        drawn = self._draw_markers(
+            gray, T_world_base, pixel_wall.reshape(shape), plain_wall.reshape(shape)
+        )
         if exposure != 1.0:
             gray *= exposure
         if self.effects.blur_sigma_px > 0:
@@ -222,8 +242,13 @@ class Renderer:
         rgb = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
         return RenderedFrame(rgb, self._noisy_depth(z.reshape(shape), rng), drawn)
 
-    def _draw_markers(self, gray: NDArray[np.float32], T_world_base: gtsam.Pose2,
-                      pixel_wall: NDArray[np.intp], plain_wall: NDArray[np.bool_]) -> tuple[int, ...]:
+    def _draw_markers(
+        self,
+        gray: NDArray[np.float32],
+        T_world_base: gtsam.Pose2,
+        pixel_wall: NDArray[np.intp],
+        plain_wall: NDArray[np.bool_],
+    ) -> tuple[int, ...]:
         """Composite every marker facing the camera into ``gray``; returns the drawn ids."""
         T_world_camera = T_world_base.compose(self.mount.T_base_camera)
         p_camera = np.array([T_world_camera.x(), T_world_camera.y()])
@@ -231,36 +256,58 @@ class Renderer:
         geometry = self._geometry
         # The camera in front of each marker (not behind its wall, nor edge-on)?
         offset = p_camera - geometry.poses[:, :2]
-        in_front = (np.cos(geometry.poses[:, 2]) * offset[:, 0]
-                    + np.sin(geometry.poses[:, 2]) * offset[:, 1]) > 0.05
+        in_front = (
+            np.cos(geometry.poses[:, 2]) * offset[:, 0]
+            + np.sin(geometry.poses[:, 2]) * offset[:, 1]
+        ) > 0.05
         candidates = np.flatnonzero(in_front)
         if candidates.size == 0:
             return ()
         optical = self.mount.world_to_optical(
-            T_world_base, geometry.corners[candidates].reshape(-1, 3)).reshape(-1, 4, 3)
+            T_world_base, geometry.corners[candidates].reshape(-1, 3)
+        ).reshape(-1, 4, 3)
+        # Keep markers wholly in front of the camera whose outline (with a margin for the white
+        # border) overlaps the image; the rest cost a warp each for nothing.
+        in_front_of_camera = np.all(optical[:, :, 2] >= 0.05, axis=1)
+        optical, candidates = optical[in_front_of_camera], candidates[in_front_of_camera]
+        projected = self.camera.project(optical.reshape(-1, 3)).reshape(-1, 4, 2)
+        low, high = projected.min(axis=1), projected.max(axis=1)
+        margin = 0.5 * (high - low).max(axis=1, keepdims=True)
+        overlaps = np.all((high + margin >= 0) & (low - margin <= [width, height]), axis=1)
         drawn = []
-        for index, corners in zip(candidates, optical, strict=True):
-            if np.any(corners[:, 2] < 0.05):
-                continue
+        for index, pixels in zip(
+            candidates[overlaps], projected[overlaps].astype(np.float32), strict=True
+        ):
             marker_id = int(geometry.ids[index])
-            pixels = self.camera.project(corners).astype(np.float32)
-            side = max(np.linalg.norm(pixels[0] - pixels[3]), np.linalg.norm(pixels[1] - pixels[2]),
-                       np.linalg.norm(pixels[0] - pixels[1]))
-            level = next((i for i, s in enumerate(_MARKER_LEVELS) if s >= side / 2.0),
-                         len(_MARKER_LEVELS) - 1)
+            side = max(
+                np.linalg.norm(pixels[0] - pixels[3]),
+                np.linalg.norm(pixels[1] - pixels[2]),
+                np.linalg.norm(pixels[0] - pixels[1]),
+            )
+            level = next(
+                (i for i, s in enumerate(_MARKER_LEVELS) if s >= side / 2.0),
+                len(_MARKER_LEVELS) - 1,
+            )
             sheet, border = self._sheets[marker_id][level]
             n = _MARKER_LEVELS[level]
             # The sheet's black-square corners, TL, TR, BR, BL, in its own pixels (pixel centres
             # at integers, so the square spans [border - 0.5, border + n - 0.5]).
-            source = np.float32([[border - 0.5, border - 0.5], [border + n - 0.5, border - 0.5],
-                                 [border + n - 0.5, border + n - 0.5],
-                                 [border - 0.5, border + n - 0.5]])
+            source = np.array(
+                [
+                    [border - 0.5, border - 0.5],
+                    [border + n - 0.5, border - 0.5],
+                    [border + n - 0.5, border + n - 0.5],
+                    [border - 0.5, border + n - 0.5],
+                ],
+                dtype=np.float32,
+            )
             H = cv2.getPerspectiveTransform(source, pixels)
             sheet_side = sheet.shape[0]
-            outline = cv2.perspectiveTransform(
-                np.float32([[[-0.5, -0.5], [sheet_side - 0.5, -0.5],
-                             [sheet_side - 0.5, sheet_side - 0.5], [-0.5, sheet_side - 0.5]]]), H
-            )[0]
+            far = sheet_side - 0.5
+            sheet_outline = np.array(
+                [[[-0.5, -0.5], [far, -0.5], [far, far], [-0.5, far]]], dtype=np.float32
+            )
+            outline = cv2.perspectiveTransform(sheet_outline, H)[0]
             x0, y0 = np.floor(outline.min(axis=0)).astype(int)
             x1, y1 = np.ceil(outline.max(axis=0)).astype(int) + 1
             x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
@@ -268,12 +315,18 @@ class Renderer:
                 continue
             shift = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], dtype=np.float64)
             with_mask = np.dstack([sheet, np.full_like(sheet, 255)])
-            warped = cv2.warpPerspective(with_mask, shift @ H, (x1 - x0, y1 - y0),
-                                         flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                         borderValue=0)
+            warped = cv2.warpPerspective(
+                with_mask,
+                shift @ H,
+                (x1 - x0, y1 - y0),
+                flags=cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_CONSTANT,
+                borderValue=0,
+            )
             coverage = warped[..., 1].astype(np.float32) / 255.0
-            on_its_wall = plain_wall[y0:y1, x0:x1] & (pixel_wall[y0:y1, x0:x1] ==
-                                                      self._marker_walls[marker_id])
+            on_its_wall = plain_wall[y0:y1, x0:x1] & (
+                pixel_wall[y0:y1, x0:x1] == self._marker_walls[marker_id]
+            )
             coverage *= on_its_wall
             if not coverage.any():
                 continue
@@ -289,10 +342,14 @@ class Renderer:
         size = (self.camera.width, self.camera.height)
         blocks = (-(-self.camera.height // noise.block_px), -(-self.camera.width // noise.block_px))
         # One draw per block, spread over the block: the matcher's error is correlated.
-        field = cv2.resize(rng.standard_normal(blocks).astype(np.float32), size,
-                           interpolation=cv2.INTER_NEAREST)
-        dropped = cv2.resize((rng.random(blocks) < noise.dropout).astype(np.uint8), size,
-                             interpolation=cv2.INTER_NEAREST).astype(bool)
+        field = cv2.resize(
+            rng.standard_normal(blocks).astype(np.float32), size, interpolation=cv2.INTER_NEAREST
+        )
+        dropped = cv2.resize(
+            (rng.random(blocks) < noise.dropout).astype(np.uint8),
+            size,
+            interpolation=cv2.INTER_NEAREST,
+        ).astype(bool)
         # In place, in millimetres: z + (base + k z^2) * field, rounded by adding 0.5.
         noisy = z * z
         noisy *= noise.per_m2

@@ -10,8 +10,22 @@ from numpy.typing import NDArray
 
 from markergraph.datasets.world import World
 from markergraph.estimator.angles import wrap, wrap_array
+from markergraph.estimator.types import OdometrySample
 
-__all__ = ["GoTo", "Look", "Route", "Trajectory", "WheelErrors", "plan", "wheel_odometry"]
+__all__ = [
+    "START_NS",
+    "Drive",
+    "GoTo",
+    "Look",
+    "Route",
+    "Trajectory",
+    "WheelErrors",
+    "drive",
+    "plan",
+    "wheel_odometry",
+]
+
+START_NS = 1_750_000_000_000_000_000  # a plausible wall-clock epoch for the first stamp
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,3 +188,64 @@ def wheel_odometry(
     x = np.concatenate([[0.0], np.cumsum(ch * forward_measured - sh * left_measured)])
     y = np.concatenate([[0.0], np.cumsum(sh * forward_measured + ch * left_measured)])
     return np.column_stack([x, y, wrap_array(heading)])
+
+
+@dataclass(frozen=True)
+class Drive:
+    """A route driven: true poses, wheel odometry and camera frame stamps.
+
+    Attributes:
+        odometry_t_ns: (N,) odometry stamps [ns].
+        odometry_truth: (N, 3) true base poses (x, y, yaw) in the world at those stamps.
+        odometry: (N, 3) wheel odometry ``T_odom_base`` at those stamps.
+        frame_t_ns: (F,) camera frame stamps [ns].
+        frame_poses: (F, 3) true base poses in the world at the frames.
+    """
+
+    odometry_t_ns: NDArray[np.int64]
+    odometry_truth: NDArray[np.float64]
+    odometry: NDArray[np.float64]
+    frame_t_ns: NDArray[np.int64]
+    frame_poses: NDArray[np.float64]
+
+    def odometry_samples(self) -> list[OdometrySample]:
+        return [
+            OdometrySample(int(t), float(x), float(y), float(yaw))
+            for t, (x, y, yaw) in zip(self.odometry_t_ns, self.odometry, strict=True)
+        ]
+
+
+def drive(
+    world: World,
+    route: Route,
+    rng: np.random.Generator,
+    *,
+    wheel: WheelErrors = WheelErrors(),
+    frame_hz: float = 15.0,
+    odometry_hz: float = 50.0,
+    frame_phase: float = 0.5,
+    duration_s: float | None = None,
+) -> Drive:
+    """Drive a route: sample the true trajectory, integrate drifting odometry, stamp frames.
+
+    Args:
+        frame_phase: where camera frames fall between odometry samples, as a fraction of the
+            odometry period (0.5 by default, so readers must interpolate odometry; 0 with an
+            odometry rate that is a multiple of the frame rate puts frames on samples).
+        duration_s: cut the route short (default: the whole route).
+    """
+    trajectory = plan(world, route)
+    duration = (
+        trajectory.duration_s if duration_s is None else min(duration_s, trajectory.duration_s)
+    )
+    odometry_t_s = np.arange(0.0, duration + 1e-9, 1.0 / odometry_hz)
+    odometry_truth = trajectory.poses(odometry_t_s)
+    odometry = wheel_odometry(odometry_truth, wheel, rng)
+    frame_t_s = np.arange(frame_phase / odometry_hz, duration, 1.0 / frame_hz)
+    return Drive(
+        START_NS + np.round(odometry_t_s * 1e9).astype(np.int64),
+        odometry_truth,
+        odometry,
+        START_NS + np.round(frame_t_s * 1e9).astype(np.int64),
+        trajectory.poses(frame_t_s),
+    )

@@ -15,7 +15,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.datasets.route import Route, Trajectory, WheelErrors, plan, wheel_odometry
+from markergraph.datasets.route import Route, WheelErrors, drive
 from markergraph.datasets.world import World
 from markergraph.estimator.angles import wrap_array
 from markergraph.estimator.types import Observation, OdometryNoise, OdometrySample
@@ -29,8 +29,6 @@ __all__ = [
     "simulate_fast",
     "visible_markers",
 ]
-
-START_NS = 1_750_000_000_000_000_000  # a plausible wall-clock epoch for the first stamp
 
 
 @dataclass(frozen=True, slots=True)
@@ -228,22 +226,17 @@ def simulate_fast(
         duration_s: cut the route short (default: the whole route).
     """
     rng = np.random.default_rng(seed)
-    trajectory: Trajectory = plan(world, route)
-    duration = (
-        trajectory.duration_s if duration_s is None else min(duration_s, trajectory.duration_s)
+    motion = drive(
+        world,
+        route,
+        rng,
+        wheel=wheel,
+        frame_hz=frame_hz,
+        odometry_hz=odometry_hz,
+        frame_phase=frame_phase,
+        duration_s=duration_s,
     )
-    odom_t_s = np.arange(0.0, duration + 1e-9, 1.0 / odometry_hz)
-    odometry_truth = trajectory.poses(odom_t_s)
-    odometry_poses = wheel_odometry(odometry_truth, wheel, rng)
-    odom_t_ns = START_NS + np.round(odom_t_s * 1e9).astype(np.int64)
-    odometry = [
-        OdometrySample(int(t), float(x), float(y), float(yaw))
-        for t, (x, y, yaw) in zip(odom_t_ns, odometry_poses, strict=True)
-    ]
-
-    frame_t_s = np.arange(frame_phase / odometry_hz, duration, 1.0 / frame_hz)
-    frame_poses = trajectory.poses(frame_t_s)
-    frame_t_ns = START_NS + np.round(frame_t_s * 1e9).astype(np.int64)
+    frame_t_ns, frame_poses = motion.frame_t_ns, motion.frame_poses
     marker_poses = {m.id: world.T_world_marker(m.id) for m in world.markers}
     geometry = MarkerGeometry.of(world)
     observations: list[Observation] = []
@@ -273,5 +266,13 @@ def simulate_fast(
                 )
             )
     return SimulatedRun(
-        world, route, camera, mount, frame_t_ns, frame_poses, odometry, odometry_truth, observations
+        world,
+        route,
+        camera,
+        mount,
+        frame_t_ns,
+        frame_poses,
+        motion.odometry_samples(),
+        motion.odometry_truth,
+        observations,
     )

@@ -77,7 +77,9 @@ def _schema_name(name: str) -> str:
 
 
 MESSAGE_DEFINITIONS: dict[str, str] = {
-    _schema_name(name): _full_definition(name) for name in _BASE if name != "builtin_interfaces/Time"
+    _schema_name(name): _full_definition(name)
+    for name in _BASE
+    if name != "builtin_interfaces/Time"
 }
 """Schema name (``sensor_msgs/msg/Image``) -> full ``ros2msg`` definition text."""
 
@@ -105,8 +107,12 @@ def quaternion_from_matrix(R: NDArray[np.float64]) -> dict[str, float]:
     trace = float(np.trace(R))
     if trace > 0.0:
         s = 2.0 * math.sqrt(trace + 1.0)
-        return {"w": 0.25 * s, "x": (R[2, 1] - R[1, 2]) / s, "y": (R[0, 2] - R[2, 0]) / s,
-                "z": (R[1, 0] - R[0, 1]) / s}
+        return {
+            "w": 0.25 * s,
+            "x": (R[2, 1] - R[1, 2]) / s,
+            "y": (R[0, 2] - R[2, 0]) / s,
+            "z": (R[1, 0] - R[0, 1]) / s,
+        }
     i = int(np.argmax(np.diag(R)))
     j, k = (i + 1) % 3, (i + 2) % 3
     s = 2.0 * math.sqrt(1.0 + R[i, i] - R[j, j] - R[k, k])

@@ -1,0 +1,371 @@
+"""Simulated runs as ROS 2 bags in MCAP: the topics realsense-ros 4.x and a diff-drive base publish,
+plus ground truth, readable by ``mcap`` with ``mcap-ros2-support`` and no ROS installed.
+
+Topics (header stamps are capture times; MCAP log times add a fixed transport latency):
+
+- ``/camera/camera/color/image_raw``: ``sensor_msgs/msg/Image``, rgb8; or, compressed,
+  ``/camera/camera/color/image_raw/compressed``: ``sensor_msgs/msg/CompressedImage``, JPEG
+- ``/camera/camera/aligned_depth_to_color/image_raw``: ``sensor_msgs/msg/Image``, 16UC1 in mm
+- ``/camera/camera/color/camera_info`` and ``.../aligned_depth_to_color/camera_info``
+- ``/odom``: ``nav_msgs/msg/Odometry`` and ``/tf``: odom -> base_link, at the odometry rate
+- ``/tf_static``: base_link -> camera_link -> camera_color_optical_frame
+- ``/ground_truth/pose``: ``geometry_msgs/msg/PoseStamped``, the true base pose in ``map``
+- ``/ground_truth/markers``: ``tf2_msgs/msg/TFMessage``, map -> ``aruco_<id>`` for each marker
+- ``/ground_truth/world``: ``std_msgs/msg/String``, the world as JSON
+
+The map frame is the home marker's frame, as everywhere in markergraph.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import BinaryIO
+
+import cv2
+import gtsam
+import numpy as np
+from mcap.records import Schema
+from mcap.writer import CompressionType
+from mcap_ros2.writer import Writer
+
+from markergraph.datasets.render import Renderer
+from markergraph.datasets.route import Drive, Route, WheelErrors, drive
+from markergraph.datasets.world import World
+from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.ros2 import (
+    MESSAGE_DEFINITIONS,
+    header,
+    quaternion_from_matrix,
+    quaternion_from_yaw,
+    transform_stamped,
+)
+
+__all__ = ["LogSummary", "Topics", "write_log"]
+
+IMAGE_LATENCY_NS = 30_000_000  # capture to recording, for the MCAP log time
+ODOMETRY_LATENCY_NS = 2_000_000
+
+
+@dataclass(frozen=True)
+class Topics:
+    """Topic names; realsense-ros 4.x defaults."""
+
+    color: str = "/camera/camera/color/image_raw"
+    color_compressed: str = "/camera/camera/color/image_raw/compressed"
+    depth: str = "/camera/camera/aligned_depth_to_color/image_raw"
+    color_info: str = "/camera/camera/color/camera_info"
+    depth_info: str = "/camera/camera/aligned_depth_to_color/camera_info"
+    odom: str = "/odom"
+    tf: str = "/tf"
+    tf_static: str = "/tf_static"
+    true_pose: str = "/ground_truth/pose"
+    true_markers: str = "/ground_truth/markers"
+    world: str = "/ground_truth/world"
+
+
+OPTICAL_FRAME = "camera_color_optical_frame"
+
+
+@dataclass
+class LogSummary:
+    """What was written.
+
+    Attributes:
+        path: the log.
+        frames: camera frames written.
+        messages: topic -> number of messages.
+        bytes: the file's size.
+    """
+
+    path: Path
+    frames: int
+    messages: dict[str, int] = field(default_factory=dict)
+    bytes: int = 0
+
+
+def _camera_info(t_ns: int, camera: Camera) -> dict[str, object]:
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    return {
+        "header": header(t_ns, OPTICAL_FRAME),
+        "height": camera.height,
+        "width": camera.width,
+        "distortion_model": "plumb_bob",
+        "d": [0.0] * 5,
+        "k": [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+        "r": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        "p": [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+        "binning_x": 0,
+        "binning_y": 0,
+        "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False},
+    }
+
+
+def _pose(x: float, y: float, yaw: float) -> dict[str, object]:
+    return {"position": {"x": x, "y": y, "z": 0.0}, "orientation": quaternion_from_yaw(yaw)}
+
+
+class _Bag:
+    """An ``mcap_ros2`` writer that registers each schema once and counts messages."""
+
+    def __init__(self, stream: BinaryIO, compression: CompressionType) -> None:
+        self.writer = Writer(stream, compression=compression)
+        self.schemas: dict[str, Schema] = {}
+        self.counts: dict[str, int] = {}
+
+    def write(
+        self, topic: str, schema: str, message: dict[str, object], t_ns: int, log_time_ns: int
+    ) -> None:
+        if schema not in self.schemas:
+            self.schemas[schema] = self.writer.register_msgdef(schema, MESSAGE_DEFINITIONS[schema])
+        self.writer.write_message(
+            topic,
+            self.schemas[schema],
+            message,
+            log_time=log_time_ns,
+            publish_time=t_ns,
+        )
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+
+def write_log(
+    world: World,
+    route: Route,
+    out: Path,
+    seed: int,
+    *,
+    duration_s: float | None = None,
+    compressed: bool = False,
+    frame_hz: float = 15.0,
+    odometry_hz: float = 50.0,
+    camera: Camera = Camera(),
+    mount: CameraMount = CameraMount(),
+    wheel: WheelErrors = WheelErrors(),
+    topics: Topics = Topics(),
+    progress: Callable[[int, int], None] | None = None,
+) -> LogSummary:
+    """Drive a route, render every frame, and write the run as a ROS 2 MCAP bag.
+
+    The file appears whole or not at all: it is written under a temporary name beside ``out``
+    and renamed at the end. The same arguments give the same bytes.
+
+    Args:
+        compressed: JPEG colour on ``.../compressed`` instead of raw rgb8 (depth stays raw).
+        progress: called with (frames done, frames in all).
+    """
+    rng = np.random.default_rng(seed)
+    motion = drive(
+        world,
+        route,
+        rng,
+        wheel=wheel,
+        frame_hz=frame_hz,
+        odometry_hz=odometry_hz,
+        duration_s=duration_s,
+    )
+    renderer = Renderer(world, camera, mount, texture_seed=seed)
+    out = Path(out)
+    partial = out.with_name(f".{out.name}.partial")
+    T_map_world = world.T_world_marker(world.home_id).inverse()
+    try:
+        with open(partial, "wb") as stream:
+            # zstd shrinks raw depth 4x (JPEG not at all) for a fifth of the writing speed.
+            bag = _Bag(stream, CompressionType.ZSTD)
+            start = int(min(motion.odometry_t_ns[0], motion.frame_t_ns[0]))
+            _write_static(bag, world, mount, topics, start, T_map_world)
+            _write_stream(
+                bag, motion, renderer, world, camera, topics, T_map_world, compressed, rng, progress
+            )
+            bag.writer.finish()
+        os.replace(partial, out)
+    finally:
+        partial.unlink(missing_ok=True)
+    return LogSummary(out, len(motion.frame_t_ns), dict(bag.counts), out.stat().st_size)
+
+
+def _write_static(
+    bag: _Bag, world: World, mount: CameraMount, topics: Topics, t_ns: int, T_map_world: gtsam.Pose2
+) -> None:
+    """The camera mount, the true marker poses and the world, once at the start."""
+    pitch_yaw = quaternion_from_matrix(
+        mount.R_base_optical @ np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+    )  # camera_link: x fwd, z up
+    optical_in_link = quaternion_from_matrix(
+        np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    )
+    bag.write(
+        topics.tf_static,
+        "tf2_msgs/msg/TFMessage",
+        {
+            "transforms": [
+                transform_stamped(
+                    t_ns,
+                    "base_link",
+                    "camera_link",
+                    (mount.x_m, mount.y_m, mount.height_m),
+                    pitch_yaw,
+                ),
+                transform_stamped(
+                    t_ns, "camera_link", OPTICAL_FRAME, (0.0, 0.0, 0.0), optical_in_link
+                ),
+            ]
+        },
+        t_ns,
+        t_ns,
+    )
+    markers = []
+    for marker in world.markers:
+        T = T_map_world.compose(world.T_world_marker(marker.id))
+        markers.append(
+            transform_stamped(
+                t_ns,
+                "map",
+                f"aruco_{marker.id}",
+                (T.x(), T.y(), marker.height_m),
+                quaternion_from_yaw(T.theta()),
+            )
+        )
+    bag.write(topics.true_markers, "tf2_msgs/msg/TFMessage", {"transforms": markers}, t_ns, t_ns)
+    bag.write(topics.world, "std_msgs/msg/String", {"data": world.to_json()}, t_ns, t_ns)
+
+
+def _write_stream(
+    bag: _Bag,
+    motion: Drive,
+    renderer: Renderer,
+    world: World,
+    camera: Camera,
+    topics: Topics,
+    T_map_world: gtsam.Pose2,
+    compressed: bool,
+    rng: np.random.Generator,
+    progress: Callable[[int, int], None] | None,
+) -> None:
+    """Odometry, tf, ground truth and camera frames, in the order they would be recorded."""
+    odometry_t, frame_t = motion.odometry_t_ns, motion.frame_t_ns
+    i = j = 0
+    exposure = 1.0
+    while i < len(odometry_t) or j < len(frame_t):
+        next_odometry = odometry_t[i] + ODOMETRY_LATENCY_NS if i < len(odometry_t) else math.inf
+        next_frame = frame_t[j] + IMAGE_LATENCY_NS if j < len(frame_t) else math.inf
+        if next_odometry <= next_frame:
+            t_ns = int(odometry_t[i])
+            x, y, yaw = motion.odometry[i]
+            bag.write(
+                topics.odom,
+                "nav_msgs/msg/Odometry",
+                {
+                    "header": header(t_ns, "odom"),
+                    "child_frame_id": "base_link",
+                    "pose": {"pose": _pose(x, y, yaw), "covariance": [0.0] * 36},
+                    "twist": {
+                        "twist": {
+                            "linear": {"x": 0.0, "y": 0.0, "z": 0.0},
+                            "angular": {"x": 0.0, "y": 0.0, "z": 0.0},
+                        },
+                        "covariance": [0.0] * 36,
+                    },
+                },
+                t_ns,
+                int(next_odometry),
+            )
+            bag.write(
+                topics.tf,
+                "tf2_msgs/msg/TFMessage",
+                {
+                    "transforms": [
+                        transform_stamped(
+                            t_ns, "odom", "base_link", (x, y, 0.0), quaternion_from_yaw(yaw)
+                        )
+                    ]
+                },
+                t_ns,
+                int(next_odometry),
+            )
+            T_map_base = T_map_world.compose(gtsam.Pose2(*motion.odometry_truth[i]))
+            bag.write(
+                topics.true_pose,
+                "geometry_msgs/msg/PoseStamped",
+                {
+                    "header": header(t_ns, "map"),
+                    "pose": _pose(T_map_base.x(), T_map_base.y(), T_map_base.theta()),
+                },
+                t_ns,
+                int(next_odometry),
+            )
+            i += 1
+            continue
+        t_ns = int(frame_t[j])
+        exposure = float(
+            np.clip(exposure + rng.normal(0.0, renderer.effects.exposure_sigma), 0.8, 1.2)
+        )
+        frame = renderer.render(gtsam.Pose2(*motion.frame_poses[j]), rng, exposure)
+        log_time = int(next_frame)
+        if compressed:
+            ok, jpeg = cv2.imencode(
+                ".jpg", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
+            )
+            if not ok:
+                raise RuntimeError(f"JPEG encoding failed for the frame at t_ns={t_ns}")
+            bag.write(
+                topics.color_compressed,
+                "sensor_msgs/msg/CompressedImage",
+                {
+                    "header": header(t_ns, OPTICAL_FRAME),
+                    "format": "rgb8; jpeg compressed bgr8",
+                    "data": jpeg.tobytes(),
+                },
+                t_ns,
+                log_time,
+            )
+        else:
+            bag.write(
+                topics.color,
+                "sensor_msgs/msg/Image",
+                {
+                    "header": header(t_ns, OPTICAL_FRAME),
+                    "height": camera.height,
+                    "width": camera.width,
+                    "encoding": "rgb8",
+                    "is_bigendian": 0,
+                    "step": 3 * camera.width,
+                    "data": frame.rgb.tobytes(),
+                },
+                t_ns,
+                log_time,
+            )
+        bag.write(
+            topics.depth,
+            "sensor_msgs/msg/Image",
+            {
+                "header": header(t_ns, OPTICAL_FRAME),
+                "height": camera.height,
+                "width": camera.width,
+                "encoding": "16UC1",
+                "is_bigendian": 0,
+                "step": 2 * camera.width,
+                "data": frame.depth_mm.tobytes(),
+            },
+            t_ns,
+            log_time,
+        )
+        bag.write(
+            topics.color_info,
+            "sensor_msgs/msg/CameraInfo",
+            _camera_info(t_ns, camera),
+            t_ns,
+            log_time,
+        )
+        bag.write(
+            topics.depth_info,
+            "sensor_msgs/msg/CameraInfo",
+            _camera_info(t_ns, camera),
+            t_ns,
+            log_time,
+        )
+        j += 1
+        if progress is not None:
+            progress(j, len(frame_t))
