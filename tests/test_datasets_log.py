@@ -206,3 +206,17 @@ def test_simulate_command_refuses_to_overwrite(tmp_path: Path) -> None:
     second = subprocess.run(command, capture_output=True, text=True)
     assert second.returncode == 1 and "--force" in second.stderr
     assert len(second.stderr.strip().splitlines()) == 1 and out.stat().st_size == size
+
+
+def test_sample_log_is_generated_once_and_reused(tmp_path: Path, monkeypatch) -> None:
+    """The first call renders the sample into the cache (saying so); the second reuses it."""
+    from markergraph.datasets import samples
+
+    monkeypatch.setenv("MARKERGRAPH_CACHE", str(tmp_path))
+    monkeypatch.setitem(samples.SAMPLES, "paper-room", ("paper-room", 1, 1, 2.0))  # a short one
+    path = samples.sample_log("paper-room")
+    assert path.parent == tmp_path and path.stat().st_size > 1_000_000
+    written = path.stat().st_mtime_ns
+    assert samples.sample_log("paper-room") == path and path.stat().st_mtime_ns == written
+    with pytest.raises(ValueError, match="unknown sample"):
+        samples.sample_log("moon-base")
