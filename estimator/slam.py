@@ -142,17 +142,34 @@ def solve_slam(
     result = optimizer.optimize()
     timings["optimize"] = time.perf_counter() - start
     converged = optimizer.iterations() < MAX_ITERATIONS
+    stop_note = (
+        f"Levenberg-Marquardt stopped after {MAX_ITERATIONS} iterations without "
+        "converging; the map is its last estimate"
+    )
+    return _slam_estimate(
+        Method.SLAM, frames, T_base_camera, graph, kinds, result, converged, stop_note, timings
+    )
+
+
+def _slam_estimate(
+    method: Method,
+    frames: Frames,
+    T_base_camera: gtsam.Pose2,
+    graph: gtsam.NonlinearFactorGraph,
+    kinds: list[str],
+    result: gtsam.Values,
+    converged: bool,
+    stop_note: str,
+    timings: dict[str, float],
+) -> Estimate:
+    """The Estimate of a solved SLAM graph, batch or incremental: markers with marginals,
+    the trajectory, residuals, links and notes."""
     links, notes = _slam_notes(frames, T_base_camera)
-    notes = frames.notes + notes
-    if not converged:
-        notes.append(
-            f"Levenberg-Marquardt stopped after {MAX_ITERATIONS} iterations without "
-            "converging; the map is its last estimate"
-        )
+    notes = frames.notes + notes + ([] if converged else [stop_note])
     start = time.perf_counter()
     marginals = _marginals(graph, result, notes)
     estimate = Estimate(
-        method=Method.SLAM,
+        method=method,
         home_id=frames.home_id,
         markers=_marker_estimates(
             result, frames.marker_ids(), _observation_counts(frames), marginals
@@ -274,28 +291,17 @@ def solve_isam2(
     converged = slam.finish()
     timings["finish"] = time.perf_counter() - start
     result = slam.isam.calculateEstimate()
-    links, notes = _slam_notes(frames, T_base_camera)
-    notes = frames.notes + notes
-    if not converged:
-        notes.append("iSAM2 did not come to rest after its final relinearisations")
-    start = time.perf_counter()
-    marginals = gtsam.Marginals(slam.isam.getFactorsUnsafe(), result)
-    estimate = Estimate(
-        method=Method.ISAM2,
-        home_id=frames.home_id,
-        markers=_marker_estimates(
-            result, frames.marker_ids(), _observation_counts(frames), marginals
-        ),
-        trajectory_t_ns=np.array([f.t_ns for f in frames.frames], dtype=np.int64),
-        trajectory=_trajectory(result, len(frames.frames)),
-        residuals=read_residuals(slam.graph, result, slam.kinds),
-        links=links,
-        converged=converged,
-        notes=notes,
+    return _slam_estimate(
+        Method.ISAM2,
+        frames,
+        T_base_camera,
+        slam.graph,
+        slam.kinds,
+        result,
+        converged,
+        "iSAM2 did not come to rest after its final relinearisations",
+        timings,
     )
-    timings["marginals"] = time.perf_counter() - start
-    estimate.timings_s = timings
-    return estimate
 
 
 def _localise_on_markers(
