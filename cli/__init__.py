@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 from typing import NoReturn
 
-from markergraph.cli import _simulate
+from markergraph.cli import _frontend, _simulate
 from markergraph.estimator.types import MarkerGraphError
 
 __all__ = ["main"]
@@ -22,8 +22,6 @@ EXIT_OK, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR = 0, 1, 2
 # Subcommands that later issues fill in; each still answers --help and says what it will do.
 PLANNED_COMMANDS = {
     "map": "estimate a corrected marker map from an MCAP log (default: the bundled sample)",
-    "detect": "detect markers in an MCAP log and write observations as JSON lines",
-    "info": "list what an MCAP log holds and which topics would be used",
     "export": "write a map.json in another tool's format",
     "heading": "the paper's target heading from a localisation on one marker to another",
 }
@@ -58,6 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"markergraph {_version()}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     _simulate.add_parser(commands)
+    _frontend.add_parsers(commands)
     for name, summary in PLANNED_COMMANDS.items():
         commands.add_parser(name, help=summary, description=summary)
     return parser
@@ -73,6 +72,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "simulate":
             return _simulate.run(args)
+        if args.command == "detect":
+            return _frontend.run_detect(args)
+        if args.command == "info":
+            return _frontend.run_info(args)
         print(f"markergraph {args.command}: not built yet in {_version()}", file=sys.stderr)
         return EXIT_USER_ERROR
     except (UserError, MarkerGraphError, ValueError, OSError) as error:

@@ -29,6 +29,10 @@ from markergraph.estimator.types import Estimate, MarkerEstimate, MarkerLink, Me
 
 __all__ = ["solve_closed_form"]
 
+# The paper measures theta only on a marker it has turned to face; an observation whose theta
+# is this uncertain (a grazing view, where the square's two poses look alike) is not used.
+MAX_SIGMA_THETA_RAD = math.radians(10.0)
+
 
 def _edge_to_new_marker(
     T_a_base: gtsam.Pose2, obs_b: Observation, T_base_camera: gtsam.Pose2, form: Form
@@ -60,7 +64,8 @@ def solve_closed_form(
     for k, frame in enumerate(frames.frames):
         if k < frames.home_frame:
             continue
-        placed = [o for o in frame.observations if o.marker_id in T_map_marker]
+        usable = [o for o in frame.observations if o.sigma_theta <= MAX_SIGMA_THETA_RAD]
+        placed = [o for o in usable if o.marker_id in T_map_marker]
         if placed:  # localise on the nearest placed marker
             nearest = min(placed, key=lambda o: o.range_m)
             T_base_a, _ = observation_measurement(nearest, T_base_camera)
@@ -69,7 +74,7 @@ def solve_closed_form(
             continue
         a, T_a_base_then, T_odom_base_then = localised
         T_a_base = T_a_base_then.compose(T_odom_base_then.between(frame.T_odom_base))
-        for obs in frame.observations:
+        for obs in usable:
             b = obs.marker_id
             if b in T_map_marker:
                 continue

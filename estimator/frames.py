@@ -19,7 +19,7 @@ from markergraph.estimator.types import (
     RejectedObservationError,
 )
 
-__all__ = ["Frame", "Frames", "build_frames"]
+__all__ = ["Frame", "Frames", "build_frames", "odometry_at_stamps"]
 
 # Frames this far outside the odometry's time span still take its first or last pose.
 MAX_EXTRAPOLATION_NS = 100_000_000
@@ -168,3 +168,14 @@ def _odometry_at(
         return samples[-1].pose() if t_ns - stamps[-1] <= MAX_EXTRAPOLATION_NS else None
     t0, t1 = stamps[i - 1], stamps[i]
     return interpolate_pose(samples[i - 1].pose(), samples[i].pose(), (t_ns - t0) / (t1 - t0))
+
+
+def odometry_at_stamps(
+    odometry: Iterable[OdometrySample], stamps_ns: Iterable[int]
+) -> list[gtsam.Pose2 | None]:
+    """``T_odom_base`` at each stamp, interpolated in SE(2); None where odometry does not reach."""
+    samples = sorted(odometry, key=lambda sample: sample.t_ns)
+    if not samples:
+        return [None for _ in stamps_ns]
+    stamps = np.array([sample.t_ns for sample in samples], dtype=np.int64)
+    return [_odometry_at(samples, stamps, int(t_ns)) for t_ns in stamps_ns]

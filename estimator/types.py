@@ -59,6 +59,10 @@ class Observation:
         theta: the paper's yaw [rad]: the camera's polar angle in the marker's frame.
         range_m: horizontal distance from the camera to the marker centre [m].
         sigma_bearing, sigma_theta, sigma_range: standard deviations of the three [rad, rad, m].
+        corners: the detected corners as (u, v) pixel pairs in OpenCV's order (top-left,
+            top-right, bottom-right, bottom-left), empty when the observation was not detected.
+        flags: quality flags set by the front end (``near-edge``, ``small``, ``grazing``,
+            ``ambiguous``, ``no-depth``); the estimators weight by the sigmas, not by these.
     """
 
     t_ns: int
@@ -69,6 +73,8 @@ class Observation:
     sigma_bearing: float
     sigma_theta: float
     sigma_range: float
+    corners: tuple[tuple[float, float], ...] = ()
+    flags: frozenset[str] = frozenset()
 
     def validate(self) -> None:
         """Raise :class:`RejectedObservationError` naming this record if it is unusable."""

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
+import cv2
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
@@ -18,12 +21,13 @@ _R_LEVEL_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]
 
 @dataclass(frozen=True, slots=True)
 class Camera:
-    """Pinhole intrinsics of an undistorted (or rectified) image.
+    """Pinhole intrinsics, with OpenCV's (plumb_bob) distortion coefficients if any.
 
     Attributes:
         fx, fy: focal lengths [px].
         cx, cy: principal point [px].
         width, height: image size [px].
+        distortion: (k1, k2, p1, p2[, k3...]) as OpenCV orders them; empty for none.
     """
 
     fx: float = 615.0
@@ -32,6 +36,63 @@ class Camera:
     cy: float = 240.0
     width: int = 640
     height: int = 480
+    distortion: tuple[float, ...] = ()
+
+    @classmethod
+    def from_camera_info(cls, info: Any) -> Camera:
+        """From a decoded ``sensor_msgs/msg/CameraInfo`` (or Foxglove ``CameraCalibration``,
+        whose fields are ``K``, ``D``)."""
+        k = list(getattr(info, "k", None) or getattr(info, "K", None) or [])
+        d = list(getattr(info, "d", None) or getattr(info, "D", None) or [])
+        if len(k) != 9 or k[0] <= 0 or k[4] <= 0:
+            raise ValueError(f"camera info has no usable intrinsic matrix K: {k}")
+        distortion = tuple(float(v) for v in d) if any(v != 0.0 for v in d) else ()
+        return cls(
+            float(k[0]),
+            float(k[4]),
+            float(k[2]),
+            float(k[5]),
+            int(info.width),
+            int(info.height),
+            distortion,
+        )
+
+    @classmethod
+    def from_opencv_yaml(
+        cls, path: str | Path, width: int | None = None, height: int | None = None
+    ) -> Camera:
+        """From an OpenCV calibration file (``camera_matrix``, ``distortion_coefficients``,
+        optionally ``image_width``/``image_height``)."""
+        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        if not storage.isOpened():
+            raise ValueError(f"{path}: not a readable OpenCV calibration file")
+        try:
+            K = storage.getNode("camera_matrix").mat()
+            if K is None or K.shape != (3, 3):
+                raise ValueError(f"{path}: no 3x3 camera_matrix")
+            D = storage.getNode("distortion_coefficients").mat()
+            width = width or int(storage.getNode("image_width").real() or 0)
+            height = height or int(storage.getNode("image_height").real() or 0)
+        finally:
+            storage.release()
+        distortion = () if D is None or not np.any(D) else tuple(float(v) for v in D.ravel())
+        return cls(
+            float(K[0, 0]),
+            float(K[1, 1]),
+            float(K[0, 2]),
+            float(K[1, 2]),
+            width or round(2 * K[0, 2]),
+            height or round(2 * K[1, 2]),
+            distortion,
+        )
+
+    def undistort(self, pixels: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Pixels (N, 2) as an undistorted camera with the same K would see them."""
+        if not self.distortion:
+            return np.asarray(pixels, dtype=np.float64)
+        points = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        undistorted = cv2.undistortPoints(points, self.K, np.array(self.distortion), P=self.K)
+        return np.asarray(undistorted, dtype=np.float64).reshape(-1, 2)
 
     @property
     def K(self) -> NDArray[np.float64]:

@@ -1,0 +1,291 @@
+"""Reading ROS 2 MCAP logs without ROS: a single ``.mcap`` or a rosbag2 folder, its topics,
+and the decoding of images, depth, camera info, odometry and transforms."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from numpy.typing import NDArray
+
+from markergraph.estimator.types import MarkerGraphError, OdometrySample
+from markergraph.frontend.camera import CameraMount
+from markergraph.frontend.ros2 import yaw_from_quaternion
+
+__all__ = [
+    "LogError",
+    "LogTopic",
+    "Message",
+    "decode_depth",
+    "decode_image",
+    "log_files",
+    "log_topics",
+    "messages",
+    "mount_from_transforms",
+    "odometry_sample",
+    "stamp_ns",
+]
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+class LogError(MarkerGraphError):
+    """A log that cannot be read, or a message that cannot be decoded; the message names it."""
+
+
+@dataclass(frozen=True)
+class LogTopic:
+    """One topic of a log: its name, message type and number of messages."""
+
+    topic: str
+    schema: str
+    count: int
+
+
+@dataclass(frozen=True)
+class Message:
+    """A decoded message with where it came from."""
+
+    topic: str
+    schema: str
+    log_time_ns: int
+    decoded: Any
+
+
+def log_files(path: Path) -> list[Path]:
+    """The MCAP files of a log: the file itself, or a rosbag2 folder's files in order.
+
+    A rosbag2 folder lists its files in ``metadata.yaml`` (``relative_file_paths``); without
+    one, its ``.mcap`` files are read in name order.
+    """
+    path = Path(path)
+    if path.is_dir():
+        metadata = path / "metadata.yaml"
+        files: list[Path] = []
+        if metadata.is_file():
+            files = [path / name for name in _relative_file_paths(metadata.read_text())]
+        files = files or sorted(path.glob("*.mcap"))
+        if not files:
+            raise LogError(f"{path}: a folder with no .mcap files and no metadata.yaml listing any")
+        missing = [f for f in files if not f.is_file()]
+        if missing:
+            raise LogError(f"{path}: metadata.yaml lists {missing[0].name}, which is missing")
+    elif path.is_file():
+        files = [path]
+    else:
+        raise LogError(f"{path}: no such file or folder")
+    for file in files:
+        with open(file, "rb") as stream:
+            if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                raise LogError(f"{file}: not an MCAP file")
+    return files
+
+
+def _relative_file_paths(text: str) -> list[str]:
+    """``relative_file_paths`` of a rosbag2 ``metadata.yaml`` (without a YAML dependency: the
+    key is followed by a block list of ``- name`` lines)."""
+    names: list[str] = []
+    lines = iter(text.splitlines())
+    for line in lines:
+        if line.strip().startswith("relative_file_paths:"):
+            for item in lines:
+                stripped = item.strip()
+                if not stripped.startswith("- "):
+                    break
+                names.append(stripped[2:].strip().strip("'\""))
+            break
+    return names
+
+
+def log_topics(path: Path) -> list[LogTopic]:
+    """Every topic with its type and message count, over all the log's files."""
+    counts: dict[str, LogTopic] = {}
+    for file in log_files(path):
+        with open(file, "rb") as stream:
+            try:
+                summary = make_reader(stream).get_summary()
+            except (McapError, ValueError, EOFError) as error:
+                raise LogError(
+                    f"{file}: not a complete MCAP file (truncated, or still being written): {error}"
+                ) from error
+            if summary is None or summary.statistics is None:
+                raise LogError(f"{file}: no summary section (a truncated or unfinished recording)")
+            for channel in summary.channels.values():
+                schema = summary.schemas.get(channel.schema_id)
+                n = summary.statistics.channel_message_counts.get(channel.id, 0)
+                previous = counts.get(channel.topic)
+                counts[channel.topic] = LogTopic(
+                    channel.topic,
+                    schema.name if schema else "",
+                    n + (previous.count if previous else 0),
+                )
+    return sorted(counts.values(), key=lambda t: t.topic)
+
+
+def messages(path: Path, topics: list[str]) -> Iterator[Message]:
+    """Decoded messages of the given topics, file after file, in log-time order within each.
+
+    Raises:
+        LogError: a file that cannot be read or a message that cannot be decoded.
+    """
+    for file in log_files(path):
+        with open(file, "rb") as stream:
+            reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+            try:
+                for schema, channel, message, decoded in reader.iter_decoded_messages(
+                    topics=topics, log_time_order=True
+                ):
+                    yield Message(
+                        channel.topic, schema.name if schema else "", message.log_time, decoded
+                    )
+            except Exception as error:  # decoders raise their own types (McapError, parser
+                # errors of the vendored rosidl adapter, ...): all mean this file cannot be read
+                raise LogError(
+                    f"{file}: cannot decode ({type(error).__name__}: {error})"
+                ) from error
+
+
+def stamp_ns(decoded: Any) -> int:
+    """A message's header stamp in nanoseconds."""
+    stamp = decoded.header.stamp
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def decode_image(message: Message) -> NDArray[np.uint8]:
+    """A grey image from ``sensor_msgs/msg/Image`` (rgb8, bgr8, mono8) or ``CompressedImage``."""
+    msg = message.decoded
+    if "CompressedImage" in message.schema:
+        image = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise LogError(
+                f"{message.topic}: a compressed image OpenCV cannot decode (format {msg.format!r})"
+            )
+        return np.asarray(image, dtype=np.uint8)
+    encoding = msg.encoding.lower()
+    channels = {"rgb8": 3, "bgr8": 3, "mono8": 1, "8uc1": 1, "rgba8": 4, "bgra8": 4}.get(encoding)
+    if channels is None:
+        raise LogError(
+            f"{message.topic}: unsupported image encoding {msg.encoding!r} (rgb8, bgr8, mono8 are)"
+        )
+    data = np.frombuffer(msg.data, np.uint8)
+    if data.size < msg.step * msg.height:
+        raise LogError(f"{message.topic}: image data shorter than height x step")
+    rows = data[: msg.step * msg.height].reshape(msg.height, msg.step)
+    pixels = rows[:, : msg.width * channels].reshape(msg.height, msg.width, channels)
+    if channels == 1:
+        return np.ascontiguousarray(pixels[..., 0])
+    code = {
+        "rgb8": cv2.COLOR_RGB2GRAY,
+        "bgr8": cv2.COLOR_BGR2GRAY,
+        "rgba8": cv2.COLOR_RGBA2GRAY,
+        "bgra8": cv2.COLOR_BGRA2GRAY,
+    }[encoding]
+    return np.asarray(cv2.cvtColor(np.ascontiguousarray(pixels), code), dtype=np.uint8)
+
+
+def decode_depth(message: Message) -> NDArray:
+    """Aligned depth: 16UC1 in millimetres or 32FC1 in metres (``Image``), or a
+    ``compressedDepth`` ``CompressedImage`` (12-byte header, then a 16-bit PNG)."""
+    msg = message.decoded
+    if "CompressedImage" in message.schema:
+        depth = cv2.imdecode(np.frombuffer(bytes(msg.data[12:]), np.uint8), cv2.IMREAD_UNCHANGED)
+        if depth is None or depth.dtype != np.uint16:
+            raise LogError(f"{message.topic}: compressedDepth that is not a 16-bit PNG")
+        return depth
+    encoding = msg.encoding.upper()
+    dtype: np.dtype[Any]
+    if encoding in ("16UC1", "MONO16"):
+        dtype = np.dtype(np.uint16)
+    elif encoding == "32FC1":
+        dtype = np.dtype(np.float32)
+    else:
+        raise LogError(
+            f"{message.topic}: unsupported depth encoding {msg.encoding!r} (16UC1 and 32FC1 are)"
+        )
+    dtype = dtype.newbyteorder(">" if msg.is_bigendian else "<")
+    data = np.frombuffer(msg.data, np.uint8)
+    if data.size < msg.step * msg.height:
+        raise LogError(f"{message.topic}: depth data shorter than height x step")
+    rows = data[: msg.step * msg.height].reshape(msg.height, msg.step)
+    width_bytes = int(msg.width) * dtype.itemsize
+    return np.ascontiguousarray(rows[:, :width_bytes]).view(dtype).reshape(msg.height, msg.width)
+
+
+def odometry_sample(message: Message) -> OdometrySample:
+    """``T_odom_base`` from ``nav_msgs/msg/Odometry``."""
+    pose = message.decoded.pose.pose
+    q = pose.orientation
+    return OdometrySample(
+        stamp_ns(message.decoded),
+        float(pose.position.x),
+        float(pose.position.y),
+        yaw_from_quaternion(q.x, q.y, q.z, q.w),
+    )
+
+
+def _rotation(q: Any) -> NDArray[np.float64]:
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@dataclass
+class _TransformTree:
+    """Static transforms parent -> child as (R, t)."""
+
+    edges: dict[str, tuple[str, NDArray[np.float64], NDArray[np.float64]]] = field(
+        default_factory=dict
+    )
+
+    def add(self, transform: Any) -> None:
+        t = transform.transform.translation
+        self.edges[transform.child_frame_id] = (
+            transform.header.frame_id,
+            _rotation(transform.transform.rotation),
+            np.array([t.x, t.y, t.z]),
+        )
+
+    def chain(self, base: str, frame: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(R, t) of ``frame`` in ``base``, or raise if they are not joined."""
+        R, t = np.eye(3), np.zeros(3)
+        current = frame
+        while current != base:
+            if current not in self.edges:
+                raise LogError(f"/tf_static does not join {frame} to {base}")
+            parent, R_parent_child, t_parent_child = self.edges[current]
+            R, t = R_parent_child @ R, R_parent_child @ t + t_parent_child
+            current = parent
+        return R, t
+
+
+def mount_from_transforms(transforms: list[Any], base: str, optical_frame: str) -> CameraMount:
+    """The camera's mount from ``/tf_static``: the chain from ``base`` to the optical frame.
+
+    The optical frame is x right, y down, z forward; its z axis gives the heading and pitch
+    (roll is assumed zero, as on a wheeled robot).
+    """
+    tree = _TransformTree()
+    for transform in transforms:
+        tree.add(transform)
+    R, t = tree.chain(base, optical_frame)
+    forward = R[:, 2]
+    return CameraMount(
+        x_m=float(t[0]),
+        y_m=float(t[1]),
+        height_m=float(t[2]),
+        yaw_rad=math.atan2(forward[1], forward[0]),
+        pitch_rad=math.atan2(forward[2], math.hypot(forward[0], forward[1])),
+    )

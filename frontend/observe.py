@@ -1,0 +1,192 @@
+"""One frame to marker observations: detection, yaw, bearing, range from depth, sigmas, flags."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.estimator.types import Observation
+from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.detect import Detection, Detector
+from markergraph.frontend.yaw import YawMethod, marker_centre, yaw_from_corners, yaw_sigma
+
+__all__ = ["DepthModel", "Flags", "observe", "observe_detections"]
+
+
+class Flags:
+    """Quality flags an observation may carry."""
+
+    NEAR_EDGE = "near-edge"  # a corner within EDGE_MARGIN_PX of the image border
+    SMALL = "small"  # a vertical edge shorter than SMALL_EDGE_PX
+    GRAZING = "grazing"  # |theta| beyond GRAZING_RAD: corners foreshortened, yaw poor
+    AMBIGUOUS = "ambiguous"  # |theta| under AMBIGUOUS_RAD: the yaw's sign is unreliable
+    NO_DEPTH = "no-depth"  # range from the marker's size, not the depth image
+
+
+EDGE_MARGIN_PX = 10.0
+SMALL_EDGE_PX = 20.0
+GRAZING_RAD = math.radians(60.0)
+GRAZING_SIGMA_RAD = math.radians(90.0)
+AMBIGUOUS_RAD = math.radians(5.0)
+
+
+@dataclass(frozen=True, slots=True)
+class DepthModel:
+    """The depth camera's error: ``sigma = base_m + per_m2 * Z^2`` (structured light).
+
+    Attributes:
+        base_m, per_m2: the model's terms [m, 1/m].
+        max_range_m: depths beyond this are not trusted (treated as no return).
+    """
+
+    base_m: float = 0.002
+    per_m2: float = 0.003
+    max_range_m: float = 8.0
+
+    def sigma(self, z_m: float) -> float:
+        return self.base_m + self.per_m2 * z_m * z_m
+
+
+def _marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthModel) -> float | None:
+    """Median depth [m] of valid pixels inside the marker, shrunk by a fifth toward its centre
+    to stay clear of the edge where depth mixes with the wall; None without a valid pixel."""
+    centre = marker_centre(corners)
+    inner = centre + 0.8 * (corners - centre)
+    x0, y0 = np.floor(inner.min(axis=0)).astype(int)
+    x1, y1 = np.ceil(inner.max(axis=0)).astype(int) + 1
+    x0, y0 = max(x0, 0), max(y0, 0)
+    x1, y1 = min(x1, depth.shape[1]), min(y1, depth.shape[0])
+    if x0 >= x1 or y0 >= y1:
+        return None
+    mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillConvexPoly(mask, np.rint(inner - [x0, y0]).astype(np.int32), 1)
+    window = depth[y0:y1, x0:x1][mask.astype(bool)]
+    metres = window.astype(np.float64) / 1000.0 if depth.dtype == np.uint16 else window
+    valid = metres[np.isfinite(metres) & (metres > 0.0) & (metres <= model.max_range_m)]
+    return float(np.median(valid)) if valid.size else None
+
+
+def observe_detections(
+    detections: list[Detection],
+    camera: Camera,
+    marker_length_m: float,
+    *,
+    depth: NDArray | None = None,
+    method: YawMethod = YawMethod.PNP,
+    mount: CameraMount = CameraMount(),
+    t_ns: int = 0,
+    corner_sigma_px: float = 0.3,
+    depth_model: DepthModel = DepthModel(),
+) -> list[Observation]:
+    """Observations of already detected markers; see :func:`observe`."""
+    observations = []
+    R_base_optical = mount.R_base_optical
+    for detection in detections:
+        corners = camera.undistort(detection.corners)
+        theta = yaw_from_corners(corners, method, camera, marker_length_m)
+        if not math.isfinite(theta):
+            continue  # PAPER has no solution here; nothing honest to report
+        centre = marker_centre(corners)
+        ray = np.array(
+            [(centre[0] - camera.cx) / camera.fx, (centre[1] - camera.cy) / camera.fy, 1.0]
+        )
+        left = float(np.linalg.norm(corners[0] - corners[3]))
+        right = float(np.linalg.norm(corners[1] - corners[2]))
+        flags = set()
+        z = None if depth is None else _marker_depth(depth, corners, depth_model)
+        if z is None:
+            # Without depth: the mean vertical edge images f * L / Z for a level camera.
+            z = camera.fy * marker_length_m / ((left + right) / 2.0)
+            flags.add(Flags.NO_DEPTH)
+            sigma_z = z * corner_sigma_px * math.sqrt(2.0) / ((left + right) / 2.0)
+        else:
+            sigma_z = depth_model.sigma(z)
+        # The centre in the base frame, then horizontal range and bearing from the camera.
+        p_base = R_base_optical @ (z * ray)
+        range_m = math.hypot(p_base[0], p_base[1])
+        bearing = math.atan2(p_base[1], p_base[0]) - mount.yaw_rad
+        sigma_range = sigma_z * range_m / z  # the horizontal range scales with Z
+        sigma_theta = yaw_sigma(corners, method, corner_sigma_px, camera, marker_length_m)
+        if abs(theta) > GRAZING_RAD:
+            # A foreshortened square's two planar poses reproject alike; beyond 60 degrees
+            # the detector's corners cannot tell them apart and theta may be mirrored. Keep
+            # bearing and range, which stay accurate, and let theta weigh next to nothing.
+            sigma_theta = max(sigma_theta, GRAZING_SIGMA_RAD)
+        if np.any(detection.corners < EDGE_MARGIN_PX) or np.any(
+            detection.corners > [camera.width - EDGE_MARGIN_PX, camera.height - EDGE_MARGIN_PX]
+        ):
+            flags.add(Flags.NEAR_EDGE)
+        if min(left, right) < SMALL_EDGE_PX:
+            flags.add(Flags.SMALL)
+        if abs(theta) > GRAZING_RAD:
+            flags.add(Flags.GRAZING)
+        if abs(theta) < AMBIGUOUS_RAD:
+            flags.add(Flags.AMBIGUOUS)
+        observations.append(
+            Observation(
+                t_ns,
+                detection.marker_id,
+                float(bearing),
+                float(theta),
+                float(range_m),
+                corner_sigma_px / camera.fx,
+                float(sigma_theta),
+                float(sigma_range),
+                tuple((float(u), float(v)) for u, v in detection.corners),
+                frozenset(flags),
+            )
+        )
+    return observations
+
+
+def observe(
+    image: NDArray[np.uint8],
+    camera: Camera,
+    marker_length_m: float,
+    dictionary: str = "DICT_4X4_50",
+    *,
+    depth: NDArray | None = None,
+    method: YawMethod = YawMethod.PNP,
+    mount: CameraMount = CameraMount(),
+    t_ns: int = 0,
+    detector: Detector | None = None,
+    corner_sigma_px: float = 0.3,
+    depth_model: DepthModel = DepthModel(),
+) -> list[Observation]:
+    """Every marker in one frame as an :class:`Observation` (bearing, theta, range, sigmas).
+
+    Args:
+        image: grey or RGB image.
+        camera: its intrinsics (corners are undistorted with its distortion first).
+        marker_length_m: the black square's side.
+        dictionary: the markers' dictionary (ignored when ``detector`` is given).
+        depth: aligned depth, uint16 millimetres or float32 metres, 0 or NaN for no return;
+            without it, range comes from the marker's size and is flagged ``no-depth``.
+        method: how theta is computed from the corners.
+        mount: the camera's height, pitch and offset on the base, for the horizontal range.
+        t_ns: the frame's stamp, copied into each observation.
+        detector: a prepared detector (build one per log, not per frame).
+        corner_sigma_px: corner noise after sub-pixel refinement, propagated into theta.
+        depth_model: the depth camera's error model.
+    """
+    if depth is not None and depth.shape[:2] != image.shape[:2]:
+        raise ValueError(
+            f"depth image {depth.shape[1]}x{depth.shape[0]} is not aligned to the "
+            f"{image.shape[1]}x{image.shape[0]} colour image"
+        )
+    detections = (detector or Detector(dictionary)).detect(image)
+    return observe_detections(
+        detections,
+        camera,
+        marker_length_m,
+        depth=depth,
+        method=method,
+        mount=mount,
+        t_ns=t_ns,
+        corner_sigma_px=corner_sigma_px,
+        depth_model=depth_model,
+    )

@@ -1,0 +1,330 @@
+"""A log to observations and odometry: pick topics, pair colour with depth, detect, observe.
+
+Streams: only a few frames are held while colour waits for its depth, however long the log.
+Nothing is dropped silently: every skipped frame is counted with its reason.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.estimator.types import Observation, OdometrySample
+from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.detect import Detector
+from markergraph.frontend.log import (
+    LogError,
+    LogTopic,
+    decode_depth,
+    decode_image,
+    log_topics,
+    messages,
+    mount_from_transforms,
+    odometry_sample,
+    stamp_ns,
+)
+from markergraph.frontend.observe import DepthModel, observe_detections
+from markergraph.frontend.ros2 import yaw_from_quaternion
+from markergraph.frontend.yaw import YawMethod
+
+__all__ = ["Extraction", "FrontendConfig", "TopicChoice", "choose_topics", "extract"]
+
+# realsense-ros 4.x first, then the older single namespace.
+COLOR_TOPICS = (
+    "/camera/camera/color/image_raw/compressed",
+    "/camera/camera/color/image_raw",
+    "/camera/color/image_raw/compressed",
+    "/camera/color/image_raw",
+)
+DEPTH_TOPICS = (
+    "/camera/camera/aligned_depth_to_color/image_raw",
+    "/camera/camera/aligned_depth_to_color/image_raw/compressedDepth",
+    "/camera/aligned_depth_to_color/image_raw",
+    "/camera/aligned_depth_to_color/image_raw/compressedDepth",
+)
+TRUE_MARKERS, TRUE_POSE = "/ground_truth/markers", "/ground_truth/pose"
+MAX_WAITING_FRAMES = 30
+
+
+@dataclass(frozen=True)
+class FrontendConfig:
+    """How to read a log. Topics left as None are chosen automatically.
+
+    Attributes:
+        dictionary: the markers' dictionary.
+        marker_length_m: side of the markers' black square [m].
+        method: how theta is computed.
+        allowed_ids: if given, only these marker ids are kept.
+        color_topic, depth_topic, camera_info_topic, odom_topic: topics to read.
+        base_frame: the robot's base frame in /tf_static.
+        mount: the camera's mount; None reads it from /tf_static.
+        camera: intrinsics; None reads them from the camera info topic.
+        pair_tolerance_ns: largest stamp difference between a colour frame and its depth.
+        depth_model: the depth camera's error model.
+    """
+
+    dictionary: str = "DICT_4X4_50"
+    marker_length_m: float = 0.2
+    method: YawMethod = YawMethod.PNP
+    allowed_ids: tuple[int, ...] | None = None
+    color_topic: str | None = None
+    depth_topic: str | None = None
+    camera_info_topic: str | None = None
+    odom_topic: str | None = None
+    base_frame: str = "base_link"
+    mount: CameraMount | None = None
+    camera: Camera | None = None
+    pair_tolerance_ns: int = 20_000_000
+    depth_model: DepthModel = DepthModel()
+
+
+@dataclass(frozen=True)
+class TopicChoice:
+    """The topics a log will be read from (None where the log has none)."""
+
+    color: str | None
+    depth: str | None
+    camera_info: str | None
+    odom: str | None
+    tf_static: str | None
+
+
+def _camera_info_for(color: str) -> str:
+    namespace = re.sub(r"/image_raw(/compressed)?$", "", color)
+    return f"{namespace}/camera_info"
+
+
+def choose_topics(path: Path, topics: list[LogTopic], config: FrontendConfig) -> TopicChoice:
+    """The colour, depth, camera info, odometry and tf_static topics to use.
+
+    Raises:
+        LogError: a configured topic is not in the log.
+    """
+    by_name = {t.topic: t for t in topics}
+    for name in (
+        config.color_topic,
+        config.depth_topic,
+        config.camera_info_topic,
+        config.odom_topic,
+    ):
+        if name is not None and name not in by_name:
+            raise LogError(f"{path}: no topic {name}; it has {', '.join(sorted(by_name))}")
+    color = config.color_topic or next((t for t in COLOR_TOPICS if t in by_name), None)
+    if color is None:
+        images = [
+            t.topic
+            for t in topics
+            if t.schema.endswith(("msg/Image", "CompressedImage"))
+            and "depth" not in t.topic.lower()
+        ]
+        color = images[0] if images else None
+    depth = config.depth_topic or next((t for t in DEPTH_TOPICS if t in by_name), None)
+    info = config.camera_info_topic or (_camera_info_for(color) if color else None)
+    odom = config.odom_topic or next(
+        (t.topic for t in topics if t.schema == "nav_msgs/msg/Odometry"), None
+    )
+    if info not in by_name:  # not beside the image: any single camera info will do
+        infos = [t.topic for t in topics if t.schema == "sensor_msgs/msg/CameraInfo"]
+        info = infos[0] if len(infos) == 1 else None
+    return TopicChoice(color, depth, info, odom, "/tf_static" if "/tf_static" in by_name else None)
+
+
+@dataclass
+class Extraction:
+    """What a log gave.
+
+    Attributes:
+        observations: every marker observation, in time order.
+        odometry: ``T_odom_base`` samples.
+        camera, mount: the intrinsics and mount used.
+        topics: the topics read.
+        frames: colour frames read; frames_with_depth: of them, paired with depth.
+        skipped: reason -> frames skipped for it.
+        notes: what was assumed.
+        true_markers: ground truth ``T_map_marker`` when the log carries it (simulated logs).
+        true_poses: (N, 4) rows (t_ns, x, y, yaw) of the true base pose in ``map``, if carried.
+    """
+
+    observations: list[Observation]
+    odometry: list[OdometrySample]
+    camera: Camera | None
+    mount: CameraMount
+    topics: TopicChoice
+    frames: int = 0
+    frames_with_depth: int = 0
+    skipped: Counter[str] = field(default_factory=Counter)
+    notes: list[str] = field(default_factory=list)
+    true_markers: dict[int, gtsam.Pose2] = field(default_factory=dict)
+    true_poses: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 4)))
+
+
+class _Pairing:
+    """Colour frames wait here for the depth image with the nearest stamp."""
+
+    def __init__(self, tolerance_ns: int) -> None:
+        self.tolerance = tolerance_ns
+        self.colour: deque[tuple[int, NDArray[np.uint8]]] = deque()
+        self.depth: deque[tuple[int, NDArray]] = deque(maxlen=16)
+
+    def matched_depth(self, t_ns: int) -> NDArray | None:
+        best = min(self.depth, key=lambda d: abs(d[0] - t_ns), default=None)
+        return best[1] if best is not None and abs(best[0] - t_ns) <= self.tolerance else None
+
+    def ready(
+        self, latest_ns: int, flush: bool = False
+    ) -> list[tuple[int, NDArray, NDArray | None]]:
+        """Colour frames that have their depth, or can no longer get it."""
+        out = []
+        while self.colour:
+            t_ns, image = self.colour[0]
+            depth = self.matched_depth(t_ns)
+            if depth is None and not flush and latest_ns - t_ns <= 3 * self.tolerance:
+                break
+            self.colour.popleft()
+            out.append((t_ns, image, depth))
+        return out
+
+
+def extract(
+    path: Path,
+    config: FrontendConfig = FrontendConfig(),
+    progress: Callable[[int, int], None] | None = None,
+) -> Extraction:
+    """Observations and odometry from a ROS 2 MCAP log (a file or a rosbag2 folder).
+
+    Raises:
+        LogError: the log cannot be read, has no camera, or a message cannot be decoded.
+    """
+    path = Path(path)
+    topics = log_topics(path)
+    choice = choose_topics(path, topics, config)
+    if choice.color is None:
+        raise LogError(
+            f"{path}: no camera image topic (looked for {', '.join(COLOR_TOPICS)} "
+            "and any sensor_msgs Image)"
+        )
+    counts = {t.topic: t.count for t in topics}
+    wanted = [
+        t
+        for t in (
+            choice.color,
+            choice.depth,
+            choice.camera_info,
+            choice.odom,
+            choice.tf_static,
+            TRUE_MARKERS,
+            TRUE_POSE,
+        )
+        if t and t in counts
+    ]
+    total = sum(counts[t] for t in wanted)
+    detector = Detector(config.dictionary, allowed_ids=config.allowed_ids)
+    result = Extraction([], [], config.camera, config.mount or CameraMount(), choice)
+    static: list[Any] = []
+    image_frame: str | None = None
+    mount_known = config.mount is not None
+    pairing = _Pairing(config.pair_tolerance_ns)
+    true_poses: list[tuple[int, float, float, float]] = []
+
+    def process(ready: list[tuple[int, NDArray, NDArray | None]]) -> None:
+        nonlocal mount_known
+        camera = result.camera
+        if camera is None:  # drain() waits for it; nothing to do without
+            return
+        for t_ns, image, depth in ready:
+            if not mount_known:
+                mount_known = True
+                if static and image_frame:
+                    try:
+                        result.mount = mount_from_transforms(static, config.base_frame, image_frame)
+                    except LogError as error:
+                        result.notes.append(f"{error}; assuming the default camera mount")
+                else:
+                    result.notes.append(
+                        f"no /tf_static: assuming the default camera mount ({result.mount})"
+                    )
+            if depth is not None and depth.shape[:2] != image.shape[:2]:
+                raise LogError(
+                    f"{path}: depth on {choice.depth} is {depth.shape[1]}x"
+                    f"{depth.shape[0]} but colour on {choice.color} is "
+                    f"{image.shape[1]}x{image.shape[0]}: not aligned"
+                )
+            result.frames_with_depth += depth is not None
+            if choice.depth and depth is None:
+                result.skipped["no depth within the pairing tolerance (used without)"] += 1
+            result.observations += observe_detections(
+                detector.detect(image),
+                camera,
+                config.marker_length_m,
+                depth=depth,
+                method=config.method,
+                mount=result.mount,
+                t_ns=t_ns,
+                depth_model=config.depth_model,
+            )
+
+    def drain(latest_ns: int, flush: bool = False) -> None:
+        # Frames wait for the camera info (it may come a message later), but not forever.
+        if result.camera is None:
+            while len(pairing.colour) > MAX_WAITING_FRAMES or (flush and pairing.colour):
+                pairing.colour.popleft()
+                result.skipped["no camera info before it"] += 1
+            return
+        process(pairing.ready(latest_ns, flush))
+
+    for done, message in enumerate(messages(path, wanted), start=1):
+        if progress is not None and done % 50 == 0:
+            progress(done, total)
+        topic, decoded = message.topic, message.decoded
+        if topic == choice.color:
+            result.frames += 1
+            image_frame = image_frame or decoded.header.frame_id
+            try:
+                pairing.colour.append((stamp_ns(decoded), decode_image(message)))
+            except LogError as error:
+                result.skipped[str(error)] += 1
+            drain(stamp_ns(decoded))
+        elif topic == choice.depth:
+            pairing.depth.append((stamp_ns(decoded), decode_depth(message)))
+            drain(stamp_ns(decoded))
+        elif topic == choice.camera_info and result.camera is None:
+            result.camera = config.camera or Camera.from_camera_info(decoded)
+            drain(stamp_ns(decoded))
+        elif topic == choice.odom:
+            result.odometry.append(odometry_sample(message))
+        elif topic == choice.tf_static:
+            static += list(decoded.transforms)
+        elif topic == TRUE_MARKERS:
+            for transform in decoded.transforms:
+                if transform.child_frame_id.startswith("aruco_"):
+                    q, t = transform.transform.rotation, transform.transform.translation
+                    result.true_markers[int(transform.child_frame_id[6:])] = gtsam.Pose2(
+                        t.x, t.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
+                    )
+        elif topic == TRUE_POSE:
+            q, p = decoded.pose.orientation, decoded.pose.position
+            true_poses.append(
+                (stamp_ns(decoded), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+            )
+    drain(0, flush=True)
+    if progress is not None:
+        progress(total, total)
+    if result.camera is None:
+        raise LogError(
+            f"{path}: no camera intrinsics: "
+            + (
+                f"no messages on {choice.camera_info}"
+                if choice.camera_info
+                else "no camera info topic found (pass --camera-info-topic)"
+            )
+        )
+    result.true_poses = np.array(true_poses, dtype=np.float64).reshape(-1, 4)
+    return result

@@ -1,0 +1,371 @@
+"""The front end against OpenCV's published corners, exact geometry, simulated and real logs."""
+
+from __future__ import annotations
+
+import math
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import gtsam
+import numpy as np
+import pytest
+import yaml
+from mcap_ros2.writer import Writer
+
+from markergraph.datasets import Marker, Wall, World, scenario
+from markergraph.datasets.write import write_log
+from markergraph.estimator import MarkerGraphError
+from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.detect import Detector
+from markergraph.frontend.jsonl import read_observations
+from markergraph.frontend.log import LogError, decode_image, log_topics, messages
+from markergraph.frontend.observe import observe
+from markergraph.frontend.pipeline import FrontendConfig, extract
+from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, header
+from markergraph.frontend.yaw import YawMethod, yaw_from_corners
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+TUTORIAL = DATA / "opencv-aruco-tutorial" / "modules" / "aruco"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data is not beside the repo")
+
+
+def gold_corners() -> dict[int, np.ndarray]:
+    """OpenCV's expected corners for singlemarkersoriginal.jpg, read from its own test file."""
+    text = (TUTORIAL / "test_aruco_tutorial.cpp.txt").read_text()
+    block = text[text.index("can_find_singlemarkersoriginal") :]
+    corners = re.search(r"goldCorners\[N\]\[8\] = \{(.*?)\};", block, re.S).group(1)
+    ids = re.search(r"goldCornersIds\[N\] = \{(.*?)\};", block, re.S).group(1)
+    rows = [
+        np.array(list(map(float, row.split(",")))).reshape(4, 2)
+        for row in re.findall(r"\{([^{}]*)\}", corners)
+    ]
+    return dict(zip(map(int, ids.split(",")), rows, strict=True))
+
+
+@needs_data
+@pytest.mark.parametrize("subpixel", [False, True])
+def test_tutorial_photo_ids_and_corners_match_opencv(subpixel: bool) -> None:
+    """On OpenCV's tutorial photo the ids and corners match OpenCV's expected values (1 px)."""
+    image = cv2.imread(str(TUTORIAL / "tutorials/aruco_detection/images/singlemarkersoriginal.jpg"))
+    found = Detector("DICT_6X6_250", subpixel=subpixel).detect(image[..., ::-1].copy())
+    gold = gold_corners()
+    assert sorted(d.marker_id for d in found) == sorted(gold)
+    for detection in found:
+        np.testing.assert_allclose(detection.corners, gold[detection.marker_id], atol=1.0)
+
+
+@needs_data
+def test_custom_dictionary_file_and_allow_list() -> None:
+    """The board photo's custom dictionary loads from its file; an allow list filters ids."""
+    image = cv2.imread(str(TUTORIAL / "tutorials/aruco_board_detection/images/gboriginal.png"))
+    dictionary = str(TUTORIAL / "samples/tutorial_dict.yml")
+    assert len(Detector(dictionary).detect(image)) == 35
+    assert {d.marker_id for d in Detector(dictionary, allowed_ids=[0, 1, 2]).detect(image)} == {
+        0,
+        1,
+        2,
+    }
+
+
+@needs_data
+def test_camera_from_opencv_calibration_file() -> None:
+    """Intrinsics and distortion load from OpenCV's calibration YAML."""
+    camera = Camera.from_opencv_yaml(TUTORIAL / "samples/tutorial_camera_params.yml")
+    assert (camera.fx, camera.fy, camera.cx, camera.cy) == (628.158, 628.156, 324.099, 260.908)
+    assert camera.distortion[:2] == (0.0995485, -0.206384)
+
+
+# --- yaw on exact projected corners -----------------------------------------------------------
+
+LEVEL = CameraMount(x_m=0.0, height_m=1.0, pitch_rad=0.0)  # at the marker's height, level
+
+
+def exact_corners(
+    d: float, theta: float, bearing: float, mount: CameraMount = LEVEL, dither_px: float = 0.0
+) -> tuple[np.ndarray, Camera]:
+    """Corners of a 0.2 m marker seen from polar (d, theta) in its frame, at a bearing."""
+    world = World("one", (Wall((-5.0, 0.0), (5.0, 0.0)),), (Marker(0, 0, 5.0, side=1),), 0)
+    T_marker = world.T_world_marker(0)
+    p_camera = T_marker.transformFrom(np.array([d * math.cos(theta), d * math.sin(theta)]))
+    facing = T_marker.theta() + theta + math.pi  # straight at the marker ...
+    T_world_base = gtsam.Pose2(p_camera[0], p_camera[1], facing - bearing)  # ... then turned
+    camera = Camera()
+    corners = camera.project(mount.world_to_optical(T_world_base, world.marker_corners(0)))
+    rng = np.random.default_rng(0)
+    return corners + rng.uniform(-dither_px, dither_px, corners.shape), camera
+
+
+@pytest.mark.parametrize("theta_deg", [-60, -30, -10, 10, 30, 60])
+@pytest.mark.parametrize("d", [1.0, 3.0])
+def test_mean_edge_is_exact_for_a_centred_marker(theta_deg: float, d: float) -> None:
+    """Level camera, centred marker: s_a / mean vertical edge = cos(theta) exactly."""
+    corners, _ = exact_corners(d, math.radians(theta_deg), 0.0)
+    assert yaw_from_corners(corners, YawMethod.MEAN_EDGE) == pytest.approx(
+        math.radians(theta_deg), abs=1e-9
+    )
+
+
+@pytest.mark.parametrize("bearing_deg", [-20, -8, 8, 20])
+@pytest.mark.parametrize("theta_deg", [-45, -20, -5, 5, 20, 45])
+def test_calibrated_undoes_the_bearing(theta_deg: float, bearing_deg: float) -> None:
+    """Off-centre the ratio is cos(theta)/cos(bearing) exactly; CALIBRATED is exact, also
+    where the paper's sign rule (left edge shorter => theta > 0) picks the wrong side."""
+    theta, bearing = math.radians(theta_deg), math.radians(bearing_deg)
+    corners, camera = exact_corners(2.0, theta, bearing)
+    s_a = (abs(corners[0, 0] - corners[1, 0]) + abs(corners[2, 0] - corners[3, 0])) / 2
+    mean_edge = (abs(corners[0, 1] - corners[3, 1]) + abs(corners[1, 1] - corners[2, 1])) / 2
+    assert s_a / mean_edge == pytest.approx(math.cos(theta) / math.cos(bearing), abs=1e-9)
+    assert yaw_from_corners(corners, YawMethod.CALIBRATED, camera) == pytest.approx(theta, abs=1e-6)
+    assert abs(yaw_from_corners(corners, YawMethod.MEAN_EDGE) - theta) > 1e-3
+
+
+def test_paper_formula_uses_one_edge_and_fails_for_small_positive_theta() -> None:
+    """PAPER is arccos(s_a / left edge) with the paper's sign: biased, and NaN for small
+    theta > 0, where the left edge is the farther one and images shorter than s_a."""
+    corners, _ = exact_corners(1.0, math.radians(30.0), 0.0)
+    left = abs(corners[0, 1] - corners[3, 1])
+    s_a = (abs(corners[0, 0] - corners[1, 0]) + abs(corners[2, 0] - corners[3, 0])) / 2
+    assert yaw_from_corners(corners, YawMethod.PAPER) == pytest.approx(math.acos(s_a / left))
+    # Biased by about -5.7 degrees / d[m] at 30 degrees and 1 m:
+    bias = math.degrees(yaw_from_corners(corners, YawMethod.PAPER)) - 30.0
+    assert -8.0 < bias < -4.0
+    small, _ = exact_corners(1.0, math.radians(3.0), 0.0)
+    assert math.isnan(yaw_from_corners(small, YawMethod.PAPER))
+    mirrored, _ = exact_corners(1.0, math.radians(-3.0), 0.0)
+    assert yaw_from_corners(mirrored, YawMethod.PAPER) < 0.0
+
+
+@pytest.mark.parametrize("theta_deg", [-50, -20, 20, 50])
+def test_pnp_recovers_theta_on_dithered_corners(theta_deg: float) -> None:
+    """IPPE with the marker size recovers theta even with a pitched, raised camera (0.001 px
+    dither: exactly noise-free corners of a purely yawed marker trip IPPE)."""
+    mount = CameraMount(x_m=0.0, height_m=0.6, pitch_rad=math.radians(10.0))
+    corners, camera = exact_corners(2.0, math.radians(theta_deg), 0.1, mount, dither_px=0.001)
+    assert yaw_from_corners(corners, YawMethod.PNP, camera, 0.2) == pytest.approx(
+        math.radians(theta_deg), abs=2e-3
+    )
+
+
+def test_range_without_depth_comes_from_size_and_is_flagged() -> None:
+    """With no depth image the range is estimated from the marker's size and flagged no-depth."""
+    world, _ = scenario("paper-room")
+    from markergraph.datasets.render import Renderer
+
+    renderer = Renderer(world)
+    T_world_base = gtsam.Pose2(1.8, 1.5, math.pi)  # 1.7 m in front of the home marker
+    frame = renderer.render(T_world_base, np.random.default_rng(0))
+    with_depth = observe(
+        frame.rgb, renderer.camera, 0.2, depth=frame.depth_mm, mount=renderer.mount
+    )
+    without = observe(frame.rgb, renderer.camera, 0.2, mount=renderer.mount)
+    assert len(with_depth) == len(without) == 1
+    assert "no-depth" in without[0].flags and "no-depth" not in with_depth[0].flags
+    assert without[0].range_m == pytest.approx(with_depth[0].range_m, abs=0.1)
+    with pytest.raises(ValueError, match="not aligned"):
+        observe(frame.rgb, renderer.camera, 0.2, depth=frame.depth_mm[::2, ::2])
+
+
+# --- simulated logs ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[Path, object]]:
+    folder = tmp_path_factory.mktemp("logs")
+    runs = []
+    for name in ("paper-room", "office"):
+        world, route = scenario(name)
+        path = folder / f"{name}.mcap"
+        write_log(world, route, path, seed=4, compressed=True, frame_hz=3.0)
+        runs.append((path, extract(path, FrontendConfig(allowed_ids=tuple(range(30))))))
+    return runs
+
+
+def test_observations_match_ground_truth_on_simulated_logs(simulated) -> None:
+    """Median |theta error| <= 1 deg within 2 m and <= 2 deg within 3 m (|theta| >= 15 deg);
+    median range error <= 2 cm; bearings within 0.2 deg."""
+    rows = []
+    for _, result in simulated:
+        poses = result.true_poses
+        T_base_camera = result.mount.T_base_camera
+        for obs in result.observations:
+            i = int(np.argmin(np.abs(poses[:, 0] - obs.t_ns)))
+            T_camera = gtsam.Pose2(*poses[i, 1:]).compose(T_base_camera)
+            T_marker = result.true_markers[obs.marker_id]
+            local = T_marker.transformTo(T_camera.translation())
+            seen = T_camera.transformTo(T_marker.translation())
+            rows.append(
+                (
+                    math.hypot(*local),
+                    math.atan2(local[1], local[0]),
+                    abs(obs.theta - math.atan2(local[1], local[0])),
+                    abs(obs.range_m - math.hypot(*local)),
+                    abs(obs.bearing - math.atan2(seen[1], seen[0])),
+                )
+            )
+    rows = np.array(rows)
+    oblique = np.abs(rows[:, 1]) >= math.radians(15.0)
+    near = oblique & (rows[:, 0] < 2.0)
+    mid = oblique & (rows[:, 0] < 3.0)
+    assert near.sum() >= 10 and mid.sum() >= 30
+    assert np.degrees(np.median(rows[near, 2])) <= 1.0
+    assert np.degrees(np.median(rows[mid, 2])) <= 2.0
+    assert np.median(rows[:, 3]) <= 0.02
+    assert np.degrees(np.median(rows[:, 4])) <= 0.2
+
+
+def test_log_frames_are_all_accounted_for(simulated) -> None:
+    """Every colour frame is read and paired with its depth; the mount comes from /tf_static."""
+    for path, result in simulated:
+        counts = {t.topic: t.count for t in log_topics(path)}
+        assert result.frames == counts["/camera/camera/color/image_raw/compressed"]
+        assert result.frames_with_depth == result.frames and not result.skipped
+        assert result.mount.height_m == pytest.approx(0.6)
+        assert result.mount.pitch_rad == pytest.approx(math.radians(10.0))
+        assert len(result.odometry) == counts["/odom"]
+
+
+def test_detect_command_writes_json_lines(simulated, tmp_path: Path) -> None:
+    """`markergraph detect` writes one line per observation, each with its odometry pose."""
+    path, result = simulated[0]
+    out = tmp_path / "obs.jsonl"
+    run = subprocess.run(
+        [sys.executable, "-m", "markergraph.cli", "detect", str(path), "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stderr
+    observations, odometry = read_observations(out)
+    assert len(observations) == len(result.observations) > 50
+    assert observations[0].marker_id == result.observations[0].marker_id
+    assert len(odometry) == len({o.t_ns for o in observations})
+
+
+# --- real bags and bad input ------------------------------------------------------------------
+
+
+def rosbag2_folders() -> list[Path]:
+    return (
+        sorted({p.parent for p in (DATA / "rosbag2-mcap").rglob("*.mcap")}) if DATA.is_dir() else []
+    )
+
+
+@needs_data
+@pytest.mark.parametrize("folder", rosbag2_folders(), ids=lambda p: p.name)
+def test_shared_rosbag2_bags_read_with_their_counts_or_fail_clearly(folder: Path) -> None:
+    """Every shared rosbag2 bag decodes with the per-topic counts its metadata.yaml states, or
+    fails with one LogError line naming the file."""
+    metadata = folder / "metadata.yaml"
+    expected = None
+    if metadata.is_file():
+        info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
+        expected = {
+            t["topic_metadata"]["name"]: t["message_count"]
+            for t in info["topics_with_message_count"]
+        }
+    names = [t.topic for t in log_topics(folder)]
+    try:
+        decoded: dict[str, int] = {}
+        for message in messages(folder, names):
+            decoded[message.topic] = decoded.get(message.topic, 0) + 1
+    except LogError as error:
+        assert "\n" not in str(error) and ".mcap" in str(error)
+        return
+    if expected is not None:
+        assert {t: n for t, n in expected.items() if n} == decoded
+
+
+@needs_data
+def test_real_ros2_images_decode() -> None:
+    """A real rosbag2 recording's rgb8 Image and JPEG CompressedImage decode to 640x480 grey."""
+    path = DATA / "mcap-rerun-fixtures" / "rosbag2_2025_09_10-13_03_56_0.mcap"
+    shapes = [decode_image(m).shape for m in messages(path, ["/image", "/compressed_image"])]
+    assert shapes == [(480, 640), (480, 640)]
+
+
+def write_mismatched_log(path: Path) -> None:
+    """A log whose depth image is half the colour image's size."""
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        schemas = {
+            name: writer.register_msgdef(name, MESSAGE_DEFINITIONS[name])
+            for name in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo")
+        }
+        for topic, width, height, encoding, channels in (
+            ("/camera/camera/color/image_raw", 64, 48, "mono8", 1),
+            ("/camera/camera/aligned_depth_to_color/image_raw", 32, 24, "16UC1", 2),
+        ):
+            writer.write_message(
+                topic,
+                schemas["sensor_msgs/msg/Image"],
+                {
+                    "header": header(1000, "camera_color_optical_frame"),
+                    "height": height,
+                    "width": width,
+                    "encoding": encoding,
+                    "is_bigendian": 0,
+                    "step": width * channels,
+                    "data": bytes(width * height * channels),
+                },
+                log_time=1000,
+            )
+        writer.write_message(
+            "/camera/camera/color/camera_info",
+            schemas["sensor_msgs/msg/CameraInfo"],
+            {
+                "header": header(1000, "x"),
+                "height": 48,
+                "width": 64,
+                "k": [50.0, 0, 32, 0, 50.0, 24, 0, 0, 1],
+            },
+            log_time=1000,
+        )
+        writer.finish()
+
+
+def test_bad_logs_fail_with_one_line_naming_file_and_topic(tmp_path: Path) -> None:
+    """Not MCAP, truncated, no camera, misaligned depth: exit 1 and one line naming the file."""
+    not_mcap = tmp_path / "notes.mcap"
+    not_mcap.write_text("hello")
+    truncated = tmp_path / "cut.mcap"
+    world, route = scenario("paper-room")
+    write_log(world, route, tmp_path / "whole.mcap", seed=1, duration_s=2.0, compressed=True)
+    truncated.write_bytes((tmp_path / "whole.mcap").read_bytes()[:100_000])
+    no_camera = tmp_path / "odom-only.mcap"
+    with open(no_camera, "wb") as stream:
+        writer = Writer(stream)
+        schema = writer.register_msgdef(
+            "std_msgs/msg/String", MESSAGE_DEFINITIONS["std_msgs/msg/String"]
+        )
+        writer.write_message("/chatter", schema, {"data": "hi"}, log_time=1)
+        writer.finish()
+    misaligned = tmp_path / "misaligned.mcap"
+    write_mismatched_log(misaligned)
+    cases = [
+        (not_mcap, "not an MCAP file"),
+        (truncated, "not a complete MCAP file"),
+        (no_camera, "no camera image topic"),
+        (misaligned, "/camera/camera/aligned_depth_to_color/image_raw"),
+    ]
+    for path, message in cases:
+        run = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "markergraph.cli",
+                "detect",
+                str(path),
+                "--out",
+                str(tmp_path / "out.jsonl"),
+            ],
+            capture_output=True,
+            text=True,
+        )
+        assert run.returncode == 1, (path, run.stderr)
+        lines = run.stderr.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0] and str(path) in lines[0]
+        assert not (tmp_path / "out.jsonl").exists()
+    with pytest.raises(MarkerGraphError):
+        extract(not_mcap)
