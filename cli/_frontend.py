@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from markergraph.frontend.jsonl import write_observations
@@ -70,6 +71,13 @@ def add_parsers(commands: argparse._SubParsersAction) -> None:
     detect.add_argument("log", type=Path, help="an .mcap file or a rosbag2 folder")
     detect.add_argument("--out", type=Path, required=True, help="the .jsonl file to write")
     detect.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    detect.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        metavar="N",
+        help="processes that decode and detect (default 1)",
+    )
     add_frontend_options(detect)
     info = commands.add_parser("info", help=INFO, description=INFO)
     info.add_argument("log", type=Path, help="an .mcap file or a rosbag2 folder")
@@ -83,7 +91,7 @@ def run_detect(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise FileNotFoundError(f"cannot write {out}: {out.parent} is not a folder")
     with ProgressBar(f"reading {args.log.name}") as bar:
-        result = extract(args.log, frontend_config(args), progress=bar)
+        result = extract(args.log, frontend_config(args), progress=bar, workers=args.workers)
     written = write_observations(out, result.observations, result.odometry)
     markers = sorted({o.marker_id for o in result.observations})
     print(
@@ -95,6 +103,8 @@ def run_detect(args: argparse.Namespace) -> int:
         print(f"  {count} frame(s): {reason}")
     for note in result.notes:
         print(f"  note: {note}")
+    for warning in result.warnings:
+        print(f"markergraph detect: warning: {warning}", file=sys.stderr)
     return 0
 
 

@@ -4,13 +4,16 @@ and the decoding of images, depth, camera info, odometry and transforms."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+import struct
+from collections import Counter
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
+import zstandard
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -18,9 +21,11 @@ from numpy.typing import NDArray
 
 from markergraph.estimator.types import MarkerGraphError, OdometrySample
 from markergraph.frontend.camera import CameraMount
+from markergraph.frontend.cdr import FAST_DECODERS
 from markergraph.frontend.ros2 import yaw_from_quaternion
 
 __all__ = [
+    "DecodeFailures",
     "LogError",
     "LogTopic",
     "Message",
@@ -130,27 +135,93 @@ def log_topics(path: Path) -> list[LogTopic]:
     return sorted(counts.values(), key=lambda t: t.topic)
 
 
-def messages(path: Path, topics: list[str]) -> Iterator[Message]:
+@dataclass
+class DecodeFailures:
+    """Messages that could not be decoded and were skipped: (file, topic) -> count, and the
+    first error of each, for one warning line apiece."""
+
+    counts: Counter[tuple[str, str]] = field(default_factory=Counter)
+    first_error: dict[tuple[str, str], str] = field(default_factory=dict)
+
+    def add(self, file: Path, topic: str, error: Exception) -> None:
+        key = (str(file), topic)
+        self.counts[key] += 1
+        self.first_error.setdefault(key, f"{type(error).__name__}: {error}")
+
+    def warnings(self) -> list[str]:
+        return [
+            f"{file}: skipped {n} undecodable message(s) on {topic} "
+            f"({self.first_error[(file, topic)]})"
+            for (file, topic), n in sorted(self.counts.items())
+        ]
+
+
+def messages(
+    path: Path, topics: list[str], failures: DecodeFailures | None = None
+) -> Iterator[Message]:
     """Decoded messages of the given topics, file after file, in log-time order within each.
 
+    A few high-rate types use fixed-layout readers (:mod:`markergraph.frontend.cdr`); the rest
+    go through mcap-ros2-support. A message that does not decode is skipped and counted in
+    ``failures`` when given (a damaged stretch of a long log); without it, it raises.
+
     Raises:
-        LogError: a file that cannot be read or a message that cannot be decoded.
+        LogError: an unreadable file, a channel whose encoding or schema cannot be decoded, or
+            (without ``failures``) an undecodable message.
     """
+    factory = DecoderFactory()
     for file in log_files(path):
         with open(file, "rb") as stream:
-            reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+            reader = make_reader(stream)
+            decoders: dict[int, Callable[[bytes], Any]] = {}
             try:
-                for schema, channel, message, decoded in reader.iter_decoded_messages(
+                for schema, channel, message in reader.iter_messages(
                     topics=topics, log_time_order=True
                 ):
-                    yield Message(
-                        channel.topic, schema.name if schema else "", message.log_time, decoded
-                    )
-            except Exception as error:  # decoders raise their own types (McapError, parser
-                # errors of the vendored rosidl adapter, ...): all mean this file cannot be read
-                raise LogError(
-                    f"{file}: cannot decode ({type(error).__name__}: {error})"
-                ) from error
+                    name = schema.name if schema else ""
+                    decode = decoders.get(channel.id)
+                    if decode is None:
+                        decode = _decoder_for(file, channel, schema, factory)
+                        decoders[channel.id] = decode
+                    try:
+                        decoded = decode(message.data)
+                    except Exception as error:  # decoders raise types of their own
+                        if failures is None:
+                            raise LogError(
+                                f"{file}: cannot decode a message on {channel.topic} "
+                                f"({type(error).__name__}: {error})"
+                            ) from error
+                        failures.add(file, channel.topic, error)
+                        continue
+                    yield Message(channel.topic, name, message.log_time, decoded)
+            except (McapError, EOFError, struct.error, zstandard.ZstdError) as error:
+                raise LogError(f"{file}: damaged ({type(error).__name__}: {error})") from error
+
+
+def _decoder_for(
+    file: Path, channel: Any, schema: Any, factory: DecoderFactory
+) -> Callable[[bytes], Any]:
+    """The fast reader for the channel's type if there is one, else mcap-ros2-support's."""
+    if channel.message_encoding != "cdr":
+        raise LogError(
+            f"{file}: topic {channel.topic} has message encoding "
+            f"{channel.message_encoding!r}; only ROS 2 CDR is read"
+        )
+    if schema is not None and schema.name in FAST_DECODERS:
+        return FAST_DECODERS[schema.name]
+    try:
+        decoder = factory.decoder_for(channel.message_encoding, schema)
+    except Exception as error:  # the vendored rosidl parser raises its own types
+        raise LogError(
+            f"{file}: topic {channel.topic} has a schema that cannot be parsed "
+            f"({type(error).__name__}: {error})"
+        ) from error
+    if decoder is None:
+        raise LogError(
+            f"{file}: no decoder for topic {channel.topic} "
+            f"(schema {schema.name if schema else None!r})"
+        )
+    return decoder
 
 
 def stamp_ns(decoded: Any) -> int:

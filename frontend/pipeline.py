@@ -6,13 +6,17 @@ Nothing is dropped silently: every skipped frame is counted with its reason.
 
 from __future__ import annotations
 
+import multiprocessing
 import re
 from collections import Counter, deque
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
+import cv2
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
@@ -21,8 +25,10 @@ from markergraph.estimator.types import Observation, OdometrySample
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.log import (
+    DecodeFailures,
     LogError,
     LogTopic,
+    Message,
     decode_depth,
     decode_image,
     log_topics,
@@ -52,6 +58,7 @@ DEPTH_TOPICS = (
 )
 TRUE_MARKERS, TRUE_POSE = "/ground_truth/markers", "/ground_truth/pose"
 MAX_WAITING_FRAMES = 30
+BATCH_FRAMES = 8  # frames per round trip to a worker; two batches a worker in flight
 
 
 @dataclass(frozen=True)
@@ -149,6 +156,7 @@ class Extraction:
         frames: colour frames read; frames_with_depth: of them, paired with depth.
         skipped: reason -> frames skipped for it.
         notes: what was assumed.
+        warnings: damaged stretches skipped (undecodable messages, per file and topic).
         true_markers: ground truth ``T_map_marker`` when the log carries it (simulated logs).
         true_poses: (N, 4) rows (t_ns, x, y, yaw) of the true base pose in ``map``, if carried.
     """
@@ -162,6 +170,7 @@ class Extraction:
     frames_with_depth: int = 0
     skipped: Counter[str] = field(default_factory=Counter)
     notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
     true_markers: dict[int, gtsam.Pose2] = field(default_factory=dict)
     true_poses: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 4)))
 
@@ -171,16 +180,14 @@ class _Pairing:
 
     def __init__(self, tolerance_ns: int) -> None:
         self.tolerance = tolerance_ns
-        self.colour: deque[tuple[int, NDArray[np.uint8]]] = deque()
+        self.colour: deque[tuple[int, Message]] = deque()
         self.depth: deque[tuple[int, NDArray]] = deque(maxlen=16)
 
     def matched_depth(self, t_ns: int) -> NDArray | None:
         best = min(self.depth, key=lambda d: abs(d[0] - t_ns), default=None)
         return best[1] if best is not None and abs(best[0] - t_ns) <= self.tolerance else None
 
-    def ready(
-        self, latest_ns: int, flush: bool = False
-    ) -> list[tuple[int, NDArray, NDArray | None]]:
+    def ready(self, latest_ns: int, flush: bool = False) -> list[_Job]:
         """Colour frames that have their depth, or can no longer get it."""
         out = []
         while self.colour:
@@ -193,12 +200,94 @@ class _Pairing:
         return out
 
 
+_Job = tuple[int, "Message", "NDArray | None"]  # (stamp, colour message, paired depth)
+
+
+@dataclass(frozen=True)
+class _FrameWork:
+    """Everything needed to turn one paired frame into observations, in any process."""
+
+    path: str
+    choice: TopicChoice
+    config: FrontendConfig
+    camera: Camera
+    mount: CameraMount
+
+    def __call__(self, job: _Job) -> tuple[list[Observation], bool]:
+        t_ns, message, depth = job
+        image = decode_image(message)
+        if depth is not None and depth.shape[:2] != image.shape[:2]:
+            raise LogError(
+                f"{self.path}: depth on {self.choice.depth} is {depth.shape[1]}x"
+                f"{depth.shape[0]} but colour on {self.choice.color} is "
+                f"{image.shape[1]}x{image.shape[0]}: not aligned"
+            )
+        detections = _detector(self.config).detect(image)
+        observations = observe_detections(
+            detections,
+            self.camera,
+            self.config.marker_length_m,
+            depth=depth,
+            method=self.config.method,
+            mount=self.mount,
+            t_ns=t_ns,
+            depth_model=self.config.depth_model,
+        )
+        return observations, depth is not None
+
+
+_DETECTORS: dict[tuple[str, tuple[int, ...] | None], Detector] = {}
+_WORKER: _FrameWork | None = None
+
+
+def _detector(config: FrontendConfig) -> Detector:
+    """One detector per process and configuration (building one costs more than a frame)."""
+    key = (config.dictionary, config.allowed_ids)
+    if key not in _DETECTORS:
+        _DETECTORS[key] = Detector(config.dictionary, allowed_ids=config.allowed_ids)
+    return _DETECTORS[key]
+
+
+def _start_worker(work: _FrameWork) -> None:
+    global _WORKER
+    # Each worker is one of the cores: OpenCV's and BLAS's own threads would only contend.
+    cv2.setNumThreads(1)
+    _WORKER = work
+
+
+def _run_in_worker(jobs: list[_Job]) -> list[tuple[list[Observation], bool]]:
+    if _WORKER is None:
+        raise RuntimeError("worker process started without its frame work")
+    return [_WORKER(job) for job in jobs]
+
+
+def _portable(message: Message) -> Message:
+    """The image message with just the fields decoding needs, so it pickles to a worker."""
+    msg = message.decoded
+    fields = (
+        ("format", "data")
+        if "CompressedImage" in message.schema
+        else ("encoding", "width", "height", "step", "data")
+    )
+    return Message(
+        message.topic,
+        message.schema,
+        message.log_time_ns,
+        SimpleNamespace(**{name: getattr(msg, name) for name in fields}),
+    )
+
+
 def extract(
     path: Path,
     config: FrontendConfig = FrontendConfig(),
     progress: Callable[[int, int], None] | None = None,
+    workers: int = 1,
 ) -> Extraction:
     """Observations and odometry from a ROS 2 MCAP log (a file or a rosbag2 folder).
+
+    Args:
+        workers: processes that decode and detect (``spawn``ed: forking after OpenCV has run
+            can deadlock); this process reads the log. Results keep the log's order.
 
     Raises:
         LogError: the log cannot be read, has no camera, or a message cannot be decoded.
@@ -226,7 +315,6 @@ def extract(
         if t and t in counts
     ]
     total = sum(counts[t] for t in wanted)
-    detector = Detector(config.dictionary, allowed_ids=config.allowed_ids)
     result = Extraction([], [], config.camera, config.mount or CameraMount(), choice)
     static: list[Any] = []
     image_frame: str | None = None
@@ -234,42 +322,52 @@ def extract(
     pairing = _Pairing(config.pair_tolerance_ns)
     true_poses: list[tuple[int, float, float, float]] = []
 
-    def process(ready: list[tuple[int, NDArray, NDArray | None]]) -> None:
-        nonlocal mount_known
-        camera = result.camera
-        if camera is None:  # drain() waits for it; nothing to do without
+    in_flight: deque[Any] = deque()  # futures, oldest first, when workers run
+    batch: list[_Job] = []
+    pool: ProcessPoolExecutor | None = None
+
+    def collect(outcome: tuple[list[Observation], bool]) -> None:
+        observations, had_depth = outcome
+        result.frames_with_depth += had_depth
+        if choice.depth and not had_depth:
+            result.skipped["no depth within the pairing tolerance (used without)"] += 1
+        result.observations += observations
+
+    def process(ready: list[_Job]) -> None:
+        nonlocal mount_known, pool
+        if not ready or result.camera is None:  # drain() waits for the camera
             return
-        for t_ns, image, depth in ready:
-            if not mount_known:
-                mount_known = True
-                if static and image_frame:
-                    try:
-                        result.mount = mount_from_transforms(static, config.base_frame, image_frame)
-                    except LogError as error:
-                        result.notes.append(f"{error}; assuming the default camera mount")
-                else:
-                    result.notes.append(
-                        f"no /tf_static: assuming the default camera mount ({result.mount})"
-                    )
-            if depth is not None and depth.shape[:2] != image.shape[:2]:
-                raise LogError(
-                    f"{path}: depth on {choice.depth} is {depth.shape[1]}x"
-                    f"{depth.shape[0]} but colour on {choice.color} is "
-                    f"{image.shape[1]}x{image.shape[0]}: not aligned"
+        if not mount_known:
+            mount_known = True
+            if static and image_frame:
+                try:
+                    result.mount = mount_from_transforms(static, config.base_frame, image_frame)
+                except LogError as error:
+                    result.notes.append(f"{error}; assuming the default camera mount")
+            else:
+                result.notes.append(
+                    f"no /tf_static: assuming the default camera mount ({result.mount})"
                 )
-            result.frames_with_depth += depth is not None
-            if choice.depth and depth is None:
-                result.skipped["no depth within the pairing tolerance (used without)"] += 1
-            result.observations += observe_detections(
-                detector.detect(image),
-                camera,
-                config.marker_length_m,
-                depth=depth,
-                method=config.method,
-                mount=result.mount,
-                t_ns=t_ns,
-                depth_model=config.depth_model,
+        work = _FrameWork(str(path), choice, config, result.camera, result.mount)
+        if workers <= 1:
+            for job in ready:
+                collect(work(job))
+            return
+        if pool is None:
+            pool = ProcessPoolExecutor(
+                workers,
+                mp_context=multiprocessing.get_context("spawn"),
+                initializer=_start_worker,
+                initargs=(work,),
             )
+        batch.extend(ready)
+        # Frames travel in batches: one round trip per frame costs as much as detecting it.
+        while len(batch) >= BATCH_FRAMES:
+            in_flight.append(pool.submit(_run_in_worker, batch[:BATCH_FRAMES]))
+            del batch[:BATCH_FRAMES]
+            while len(in_flight) > 2 * workers:
+                for outcome in in_flight.popleft().result():
+                    collect(outcome)
 
     def drain(latest_ns: int, flush: bool = False) -> None:
         # Frames wait for the camera info (it may come a message later), but not forever.
@@ -280,17 +378,15 @@ def extract(
             return
         process(pairing.ready(latest_ns, flush))
 
-    for done, message in enumerate(messages(path, wanted), start=1):
+    failures = DecodeFailures()
+    for done, message in enumerate(messages(path, wanted, failures), start=1):
         if progress is not None and done % 50 == 0:
             progress(done, total)
         topic, decoded = message.topic, message.decoded
         if topic == choice.color:
             result.frames += 1
             image_frame = image_frame or decoded.header.frame_id
-            try:
-                pairing.colour.append((stamp_ns(decoded), decode_image(message)))
-            except LogError as error:
-                result.skipped[str(error)] += 1
+            pairing.colour.append((stamp_ns(decoded), _portable(message)))
             drain(stamp_ns(decoded))
         elif topic == choice.depth:
             pairing.depth.append((stamp_ns(decoded), decode_depth(message)))
@@ -314,7 +410,16 @@ def extract(
             true_poses.append(
                 (stamp_ns(decoded), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
             )
-    drain(0, flush=True)
+    try:
+        drain(0, flush=True)
+        if batch and pool is not None:
+            in_flight.append(pool.submit(_run_in_worker, batch))
+        while in_flight:
+            for outcome in in_flight.popleft().result():
+                collect(outcome)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
     if progress is not None:
         progress(total, total)
     if result.camera is None:
@@ -327,4 +432,5 @@ def extract(
             )
         )
     result.true_poses = np.array(true_poses, dtype=np.float64).reshape(-1, 4)
+    result.warnings = failures.warnings()
     return result

@@ -130,17 +130,18 @@ def yaw_sigma(
 ) -> float:
     """Standard deviation of theta for independent corner noise of ``corner_sigma_px``.
 
-    Propagated through the method by central differences (0.01 px steps), so every method gets
-    the same honest treatment; near theta = 0 the arccos makes it large, as it should.
+    Propagated through the method by forward differences (0.01 px steps, 9 evaluations), so
+    every method gets the same honest treatment; near theta = 0 the arccos makes it large, as
+    it should.
     """
     corners = np.asarray(corners, dtype=np.float64).reshape(4, 2)
     step = 0.01
+    centre = yaw_from_corners(corners, method, camera, marker_length_m)
     gradient = np.zeros(8)
     for i in range(8):
         delta = np.zeros(8)
         delta[i] = step
-        plus = yaw_from_corners(corners + delta.reshape(4, 2), method, camera, marker_length_m)
-        minus = yaw_from_corners(corners - delta.reshape(4, 2), method, camera, marker_length_m)
-        gradient[i] = (plus - minus) / (2 * step)
+        moved = yaw_from_corners(corners + delta.reshape(4, 2), method, camera, marker_length_m)
+        gradient[i] = (moved - centre) / step
     sigma = corner_sigma_px * float(np.linalg.norm(gradient))
     return sigma if math.isfinite(sigma) else math.pi / 2

@@ -369,3 +369,11 @@ def test_bad_logs_fail_with_one_line_naming_file_and_topic(tmp_path: Path) -> No
         assert not (tmp_path / "out.jsonl").exists()
     with pytest.raises(MarkerGraphError):
         extract(not_mcap)
+
+
+def test_worker_processes_give_the_same_observations(simulated) -> None:
+    """Two spawned workers return exactly the single-process observations, in order."""
+    path, result = simulated[0]
+    parallel = extract(path, FrontendConfig(allowed_ids=tuple(range(30))), workers=2)
+    assert parallel.observations == result.observations
+    assert parallel.frames_with_depth == result.frames_with_depth
