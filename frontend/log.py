@@ -16,6 +16,7 @@ import numpy as np
 import zstandard
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 from mcap_ros2.decoder import DecoderFactory
 from numpy.typing import NDArray
 
@@ -31,12 +32,14 @@ __all__ = [
     "Message",
     "decode_depth",
     "decode_image",
+    "frame_id",
     "log_files",
     "log_topics",
     "messages",
     "mount_from_transforms",
     "odometry_sample",
     "stamp_ns",
+    "transforms_of",
 ]
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -202,15 +205,16 @@ def _decoder_for(
     file: Path, channel: Any, schema: Any, factory: DecoderFactory
 ) -> Callable[[bytes], Any]:
     """The fast reader for the channel's type if there is one, else mcap-ros2-support's."""
-    if channel.message_encoding != "cdr":
+    if channel.message_encoding not in ("cdr", "protobuf"):
         raise LogError(
             f"{file}: topic {channel.topic} has message encoding "
-            f"{channel.message_encoding!r}; only ROS 2 CDR is read"
+            f"{channel.message_encoding!r}; ROS 2 CDR and protobuf are read"
         )
-    if schema is not None and schema.name in FAST_DECODERS:
+    if channel.message_encoding == "cdr" and schema is not None and schema.name in FAST_DECODERS:
         return FAST_DECODERS[schema.name]
+    chosen = factory if channel.message_encoding == "cdr" else ProtobufDecoderFactory()
     try:
-        decoder = factory.decoder_for(channel.message_encoding, schema)
+        decoder = chosen.decoder_for(channel.message_encoding, schema)
     except Exception as error:  # the vendored rosidl parser raises its own types
         raise LogError(
             f"{file}: topic {channel.topic} has a schema that cannot be parsed "
@@ -225,9 +229,16 @@ def _decoder_for(
 
 
 def stamp_ns(decoded: Any) -> int:
-    """A message's header stamp in nanoseconds."""
-    stamp = decoded.header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    """A message's capture stamp in nanoseconds: a ROS header's, or a Foxglove ``timestamp``."""
+    if hasattr(decoded, "header"):
+        stamp = decoded.header.stamp
+        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return int(decoded.timestamp.seconds) * 1_000_000_000 + int(decoded.timestamp.nanos)
+
+
+def frame_id(decoded: Any) -> str:
+    """The frame a message is in: a ROS header's, or a Foxglove ``frame_id``."""
+    return str(decoded.header.frame_id if hasattr(decoded, "header") else decoded.frame_id)
 
 
 def decode_image(message: Message) -> NDArray[np.uint8]:
@@ -281,7 +292,7 @@ def decode_depth(message: Message) -> NDArray:
         raise LogError(
             f"{message.topic}: unsupported depth encoding {msg.encoding!r} (16UC1 and 32FC1 are)"
         )
-    dtype = dtype.newbyteorder(">" if msg.is_bigendian else "<")
+    dtype = dtype.newbyteorder(">" if getattr(msg, "is_bigendian", 0) else "<")
     data = np.frombuffer(msg.data, np.uint8)
     if data.size < msg.step * msg.height:
         raise LogError(f"{message.topic}: depth data shorter than height x step")
@@ -291,8 +302,9 @@ def decode_depth(message: Message) -> NDArray:
 
 
 def odometry_sample(message: Message) -> OdometrySample:
-    """``T_odom_base`` from ``nav_msgs/msg/Odometry``."""
-    pose = message.decoded.pose.pose
+    """``T_odom_base`` from ``nav_msgs/msg/Odometry`` or a Foxglove ``PoseInFrame``."""
+    pose = message.decoded.pose
+    pose = pose.pose if hasattr(pose, "pose") else pose
     q = pose.orientation
     return OdometrySample(
         stamp_ns(message.decoded),
@@ -322,12 +334,13 @@ class _TransformTree:
     )
 
     def add(self, transform: Any) -> None:
-        t = transform.transform.translation
-        self.edges[transform.child_frame_id] = (
-            transform.header.frame_id,
-            _rotation(transform.transform.rotation),
-            np.array([t.x, t.y, t.z]),
-        )
+        """A ROS ``TransformStamped`` or a Foxglove ``FrameTransform``."""
+        if hasattr(transform, "transform"):
+            parent, moved = transform.header.frame_id, transform.transform
+            t, q = moved.translation, moved.rotation
+        else:
+            parent, t, q = transform.parent_frame_id, transform.translation, transform.rotation
+        self.edges[transform.child_frame_id] = (parent, _rotation(q), np.array([t.x, t.y, t.z]))
 
     def chain(self, base: str, frame: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(R, t) of ``frame`` in ``base``, or raise if they are not joined."""
@@ -360,3 +373,9 @@ def mount_from_transforms(transforms: list[Any], base: str, optical_frame: str) 
         yaw_rad=math.atan2(forward[1], forward[0]),
         pitch_rad=math.atan2(forward[2], math.hypot(forward[0], forward[1])),
     )
+
+
+def transforms_of(decoded: Any) -> list[Any]:
+    """The transforms a ``tf2_msgs/TFMessage``, Foxglove ``FrameTransforms`` or a single
+    Foxglove ``FrameTransform`` carries."""
+    return list(decoded.transforms) if hasattr(decoded, "transforms") else [decoded]

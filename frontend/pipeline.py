@@ -31,11 +31,13 @@ from markergraph.frontend.log import (
     Message,
     decode_depth,
     decode_image,
+    frame_id,
     log_topics,
     messages,
     mount_from_transforms,
     odometry_sample,
     stamp_ns,
+    transforms_of,
 )
 from markergraph.frontend.observe import DepthModel, observe_detections
 from markergraph.frontend.ros2 import yaw_from_quaternion
@@ -57,6 +59,16 @@ DEPTH_TOPICS = (
     "/camera/aligned_depth_to_color/image_raw/compressedDepth",
 )
 TRUE_MARKERS, TRUE_POSE = "/ground_truth/markers", "/ground_truth/pose"
+# ROS 2 and Foxglove (protobuf) message types, by role.
+IMAGE_SCHEMAS = (
+    "sensor_msgs/msg/Image",
+    "sensor_msgs/msg/CompressedImage",
+    "foxglove.CompressedImage",
+    "foxglove.RawImage",
+)
+CALIBRATION_SCHEMAS = ("sensor_msgs/msg/CameraInfo", "foxglove.CameraCalibration")
+ODOMETRY_SCHEMAS = ("nav_msgs/msg/Odometry", "foxglove.PoseInFrame")
+TRANSFORM_SCHEMAS = ("foxglove.FrameTransforms", "foxglove.FrameTransform")
 MAX_WAITING_FRAMES = 30
 BATCH_FRAMES = 8  # frames per round trip to a worker; two batches a worker in flight
 
@@ -124,24 +136,32 @@ def choose_topics(path: Path, topics: list[LogTopic], config: FrontendConfig) ->
     ):
         if name is not None and name not in by_name:
             raise LogError(f"{path}: no topic {name}; it has {', '.join(sorted(by_name))}")
+    images = [t.topic for t in topics if t.schema.endswith(IMAGE_SCHEMAS)]
     color = config.color_topic or next((t for t in COLOR_TOPICS if t in by_name), None)
     if color is None:
-        images = [
+        plain = [t for t in images if "depth" not in t.lower()]
+        color = plain[0] if plain else None
+    depth = config.depth_topic or next((t for t in DEPTH_TOPICS if t in by_name), None)
+    if depth is None:
+        depths = [t for t in images if "depth" in t.lower()]
+        depth = depths[0] if len(depths) == 1 else None
+    info = config.camera_info_topic or (_camera_info_for(color) if color else None)
+    if info not in by_name:  # not beside the image: the colour camera's, else the only one
+        infos = [
             t.topic
             for t in topics
-            if t.schema.endswith(("msg/Image", "CompressedImage"))
-            and "depth" not in t.topic.lower()
+            if t.schema in CALIBRATION_SCHEMAS and "depth" not in t.topic.lower()
         ]
-        color = images[0] if images else None
-    depth = config.depth_topic or next((t for t in DEPTH_TOPICS if t in by_name), None)
-    info = config.camera_info_topic or (_camera_info_for(color) if color else None)
-    odom = config.odom_topic or next(
-        (t.topic for t in topics if t.schema == "nav_msgs/msg/Odometry"), None
-    )
-    if info not in by_name:  # not beside the image: any single camera info will do
-        infos = [t.topic for t in topics if t.schema == "sensor_msgs/msg/CameraInfo"]
         info = infos[0] if len(infos) == 1 else None
-    return TopicChoice(color, depth, info, odom, "/tf_static" if "/tf_static" in by_name else None)
+    odom = config.odom_topic or next(
+        (t.topic for t in topics if t.schema in ODOMETRY_SCHEMAS), None
+    )
+    static = (
+        "/tf_static"
+        if "/tf_static" in by_name
+        else next((t.topic for t in topics if t.schema in TRANSFORM_SCHEMAS), None)
+    )
+    return TopicChoice(color, depth, info, odom, static)
 
 
 @dataclass
@@ -385,7 +405,7 @@ def extract(
         topic, decoded = message.topic, message.decoded
         if topic == choice.color:
             result.frames += 1
-            image_frame = image_frame or decoded.header.frame_id
+            image_frame = image_frame or frame_id(decoded)
             pairing.colour.append((stamp_ns(decoded), _portable(message)))
             drain(stamp_ns(decoded))
         elif topic == choice.depth:
@@ -397,7 +417,7 @@ def extract(
         elif topic == choice.odom:
             result.odometry.append(odometry_sample(message))
         elif topic == choice.tf_static:
-            static += list(decoded.transforms)
+            static += transforms_of(decoded)
         elif topic == TRUE_MARKERS:
             for transform in decoded.transforms:
                 if transform.child_frame_id.startswith("aruco_"):

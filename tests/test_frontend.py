@@ -377,3 +377,108 @@ def test_worker_processes_give_the_same_observations(simulated) -> None:
     parallel = extract(path, FrontendConfig(allowed_ids=tuple(range(30))), workers=2)
     assert parallel.observations == result.observations
     assert parallel.frames_with_depth == result.frames_with_depth
+
+
+def to_foxglove(source: Path, target: Path) -> None:
+    """Rewrite a simulated ROS 2 log with Foxglove's protobuf schemas, on topics of other names."""
+    from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+    from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+    from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+    from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+    from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+    from google.protobuf.timestamp_pb2 import Timestamp
+    from mcap_protobuf.writer import Writer as ProtobufWriter
+
+    from markergraph.frontend.log import stamp_ns
+
+    def timestamp(decoded) -> Timestamp:
+        t_ns = stamp_ns(decoded)
+        return Timestamp(seconds=t_ns // 10**9, nanos=t_ns % 10**9)
+
+    topics = [
+        "/camera/camera/color/image_raw/compressed",
+        "/camera/camera/color/camera_info",
+        "/camera/camera/aligned_depth_to_color/image_raw",
+        "/odom",
+        "/tf_static",
+    ]
+    with open(target, "wb") as stream:
+        writer = ProtobufWriter(stream)
+        for message in messages(source, topics):
+            m = message.decoded
+            if message.topic.endswith("compressed"):
+                out = CompressedImage(
+                    timestamp=timestamp(m), frame_id=m.header.frame_id, data=m.data, format="jpeg"
+                )
+                topic = "/front/image"
+            elif message.topic.endswith("camera_info"):
+                out = CameraCalibration(
+                    timestamp=timestamp(m),
+                    frame_id=m.header.frame_id,
+                    width=m.width,
+                    height=m.height,
+                    distortion_model=m.distortion_model,
+                    D=list(m.d),
+                    K=list(m.k),
+                    R=list(m.r),
+                    P=list(m.p),
+                )
+                topic = "/front/calibration"
+            elif message.topic == "/odom":
+                pose = m.pose.pose
+                out = PoseInFrame(timestamp=timestamp(m), frame_id="odom")
+                out.pose.position.x, out.pose.position.y = pose.position.x, pose.position.y
+                q = pose.orientation
+                out.pose.orientation.x, out.pose.orientation.y = q.x, q.y
+                out.pose.orientation.z, out.pose.orientation.w = q.z, q.w
+                topic = "/base/pose"
+            elif message.topic == "/tf_static":
+                out = FrameTransforms()
+                for transform in m.transforms:
+                    moved = transform.transform
+                    item = FrameTransform(
+                        parent_frame_id=transform.header.frame_id,
+                        child_frame_id=transform.child_frame_id,
+                    )
+                    t, q = moved.translation, moved.rotation
+                    item.translation.x, item.translation.y, item.translation.z = t.x, t.y, t.z
+                    item.rotation.x, item.rotation.y = q.x, q.y
+                    item.rotation.z, item.rotation.w = q.z, q.w
+                    out.transforms.append(item)
+                topic = "/transforms"
+            else:
+                out = RawImage(
+                    timestamp=timestamp(m),
+                    frame_id=m.header.frame_id,
+                    width=m.width,
+                    height=m.height,
+                    encoding=m.encoding,
+                    step=m.step,
+                    data=m.data,
+                )
+                topic = "/front/depth"
+            writer.write_message(topic, out, log_time=message.log_time_ns)
+        writer.finish()
+
+
+def test_foxglove_log_gives_the_same_observations(simulated, tmp_path: Path) -> None:
+    """The same run written with Foxglove's protobuf schemas reads to the same observations."""
+    path, result = simulated[0]
+    foxglove = tmp_path / "foxglove.mcap"
+    to_foxglove(path, foxglove)
+    other = extract(foxglove, FrontendConfig(allowed_ids=tuple(range(30))))
+    assert other.topics.color == "/front/image" and other.topics.depth == "/front/depth"
+    assert other.mount == result.mount
+    assert other.observations == result.observations
+    assert other.odometry == result.odometry
+
+
+@needs_data
+def test_foxglove_pose_decodes_as_odometry() -> None:
+    """A real Foxglove PoseInFrame (protobuf) decodes to an odometry sample."""
+    from markergraph.frontend.log import odometry_sample
+
+    path = DATA / "mcap-rerun-fixtures" / "simple-protobuf.mcap"
+    (pose,) = [odometry_sample(m) for m in messages(path, ["pose"])]
+    assert math.isfinite(pose.x) and math.isfinite(pose.yaw)
