@@ -20,7 +20,6 @@ from collections import Counter
 
 import gtsam
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import NDArray
 
 from markergraph.estimator.angles import wrap_array
@@ -54,6 +53,10 @@ class MarkerEkf:
     def __init__(
         self, T_base_camera: gtsam.Pose2, home_id: int, robot: NDArray[np.float64]
     ) -> None:
+        # filterpy pulls in scipy.stats (a second to import): loaded when a filter is built,
+        # so processes that never run one (the front end's workers) start fast.
+        from filterpy.kalman import ExtendedKalmanFilter
+
         self.kf = ExtendedKalmanFilter(dim_x=3, dim_z=3)
         self.kf.x = np.asarray(robot, dtype=np.float64).reshape(3, 1)
         self.kf.P = np.eye(3) * UNKNOWN_VARIANCE

@@ -34,6 +34,7 @@ __all__ = [
     "decode_image",
     "frame_id",
     "log_files",
+    "log_time_range",
     "log_topics",
     "messages",
     "mount_from_transforms",
@@ -160,12 +161,18 @@ class DecodeFailures:
 
 
 def messages(
-    path: Path, topics: list[str], failures: DecodeFailures | None = None
+    path: Path,
+    topics: list[str],
+    failures: DecodeFailures | None = None,
+    start_ns: int | None = None,
+    end_ns: int | None = None,
 ) -> Iterator[Message]:
     """Decoded messages of the given topics, file after file, in log-time order within each.
 
     A few high-rate types use fixed-layout readers (:mod:`markergraph.frontend.cdr`); the rest
-    go through mcap-ros2-support. A message that does not decode is skipped and counted in
+    go through mcap-ros2-support (or mcap-protobuf-support for Foxglove schemas); with
+    ``start_ns``/``end_ns`` only log times in [start, end) are read, from the chunks holding
+    them. A message that does not decode is skipped and counted in
     ``failures`` when given (a damaged stretch of a long log); without it, it raises.
 
     Raises:
@@ -179,7 +186,7 @@ def messages(
             decoders: dict[int, Callable[[bytes], Any]] = {}
             try:
                 for schema, channel, message in reader.iter_messages(
-                    topics=topics, log_time_order=True
+                    topics=topics, start_time=start_ns, end_time=end_ns, log_time_order=True
                 ):
                     name = schema.name if schema else ""
                     decode = decoders.get(channel.id)
@@ -226,6 +233,28 @@ def _decoder_for(
             f"(schema {schema.name if schema else None!r})"
         )
     return decoder
+
+
+def log_time_range(path: Path) -> tuple[int, int]:
+    """The first and last message log times over all the log's files [ns]."""
+    first, last = None, None
+    for file in log_files(path):
+        with open(file, "rb") as stream:
+            statistics = make_reader(stream).get_summary().statistics  # type: ignore[union-attr]
+        if statistics is not None and statistics.message_count:
+            first = (
+                statistics.message_start_time
+                if first is None
+                else min(first, statistics.message_start_time)
+            )
+            last = (
+                statistics.message_end_time
+                if last is None
+                else max(last, statistics.message_end_time)
+            )
+    if first is None or last is None:
+        raise LogError(f"{path}: no messages")
+    return int(first), int(last)
 
 
 def stamp_ns(decoded: Any) -> int:

@@ -6,6 +6,7 @@ Nothing is dropped silently: every skipped frame is counted with its reason.
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing
 import re
 from collections import Counter, deque
@@ -13,7 +14,6 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import cv2
@@ -32,6 +32,7 @@ from markergraph.frontend.log import (
     decode_depth,
     decode_image,
     frame_id,
+    log_time_range,
     log_topics,
     messages,
     mount_from_transforms,
@@ -70,7 +71,7 @@ CALIBRATION_SCHEMAS = ("sensor_msgs/msg/CameraInfo", "foxglove.CameraCalibration
 ODOMETRY_SCHEMAS = ("nav_msgs/msg/Odometry", "foxglove.PoseInFrame")
 TRANSFORM_SCHEMAS = ("foxglove.FrameTransforms", "foxglove.FrameTransform")
 MAX_WAITING_FRAMES = 30
-BATCH_FRAMES = 8  # frames per round trip to a worker; two batches a worker in flight
+SPANS_PER_WORKER = 4  # stretches of the log per worker: balances load, moves the progress bar
 
 
 @dataclass(frozen=True)
@@ -220,44 +221,8 @@ class _Pairing:
         return out
 
 
-_Job = tuple[int, "Message", "NDArray | None"]  # (stamp, colour message, paired depth)
-
-
-@dataclass(frozen=True)
-class _FrameWork:
-    """Everything needed to turn one paired frame into observations, in any process."""
-
-    path: str
-    choice: TopicChoice
-    config: FrontendConfig
-    camera: Camera
-    mount: CameraMount
-
-    def __call__(self, job: _Job) -> tuple[list[Observation], bool]:
-        t_ns, message, depth = job
-        image = decode_image(message)
-        if depth is not None and depth.shape[:2] != image.shape[:2]:
-            raise LogError(
-                f"{self.path}: depth on {self.choice.depth} is {depth.shape[1]}x"
-                f"{depth.shape[0]} but colour on {self.choice.color} is "
-                f"{image.shape[1]}x{image.shape[0]}: not aligned"
-            )
-        detections = _detector(self.config).detect(image)
-        observations = observe_detections(
-            detections,
-            self.camera,
-            self.config.marker_length_m,
-            depth=depth,
-            method=self.config.method,
-            mount=self.mount,
-            t_ns=t_ns,
-            depth_model=self.config.depth_model,
-        )
-        return observations, depth is not None
-
-
+_Job = tuple[int, Message, "NDArray | None"]  # (stamp, colour message, paired depth)
 _DETECTORS: dict[tuple[str, tuple[int, ...] | None], Detector] = {}
-_WORKER: _FrameWork | None = None
 
 
 def _detector(config: FrontendConfig) -> Detector:
@@ -268,94 +233,62 @@ def _detector(config: FrontendConfig) -> Detector:
     return _DETECTORS[key]
 
 
-def _start_worker(work: _FrameWork) -> None:
-    global _WORKER
-    # Each worker is one of the cores: OpenCV's and BLAS's own threads would only contend.
-    cv2.setNumThreads(1)
-    _WORKER = work
+@dataclass(frozen=True)
+class _Span:
+    """A stretch of a log: the colour frames, odometry and ground truth whose log times fall in
+    [start_ns, end_ns); None for an open end."""
+
+    start_ns: int | None = None
+    end_ns: int | None = None
+
+    def holds(self, t_ns: int) -> bool:
+        return (self.start_ns is None or t_ns >= self.start_ns) and (
+            self.end_ns is None or t_ns < self.end_ns
+        )
 
 
-def _run_in_worker(jobs: list[_Job]) -> list[tuple[list[Observation], bool]]:
-    if _WORKER is None:
-        raise RuntimeError("worker process started without its frame work")
-    return [_WORKER(job) for job in jobs]
+def _once_topics(choice: TopicChoice, counts: dict[str, int]) -> list[str]:
+    """Topics published once at the start (static transforms, true marker poses)."""
+    return [t for t in (choice.tf_static, TRUE_MARKERS) if t and t in counts]
 
 
-def _portable(message: Message) -> Message:
-    """The image message with just the fields decoding needs, so it pickles to a worker."""
-    msg = message.decoded
-    fields = (
-        ("format", "data")
-        if "CompressedImage" in message.schema
-        else ("encoding", "width", "height", "step", "data")
-    )
-    return Message(
-        message.topic,
-        message.schema,
-        message.log_time_ns,
-        SimpleNamespace(**{name: getattr(msg, name) for name in fields}),
-    )
-
-
-def extract(
+def _extract_span(
     path: Path,
-    config: FrontendConfig = FrontendConfig(),
+    config: FrontendConfig,
+    choice: TopicChoice,
+    counts: dict[str, int],
+    span: _Span,
     progress: Callable[[int, int], None] | None = None,
-    workers: int = 1,
 ) -> Extraction:
-    """Observations and odometry from a ROS 2 MCAP log (a file or a rosbag2 folder).
-
-    Args:
-        workers: processes that decode and detect (``spawn``ed: forking after OpenCV has run
-            can deadlock); this process reads the log. Results keep the log's order.
-
-    Raises:
-        LogError: the log cannot be read, has no camera, or a message cannot be decoded.
-    """
-    path = Path(path)
-    topics = log_topics(path)
-    choice = choose_topics(path, topics, config)
-    if choice.color is None:
-        raise LogError(
-            f"{path}: no camera image topic (looked for {', '.join(COLOR_TOPICS)} "
-            "and any sensor_msgs Image)"
-        )
-    counts = {t.topic: t.count for t in topics}
-    wanted = [
+    """One process's work: observations, odometry and ground truth of one stretch of the log."""
+    result = Extraction([], [], config.camera, config.mount or CameraMount(), choice)
+    failures = DecodeFailures()
+    static: list[Any] = []
+    for message in messages(path, _once_topics(choice, counts), failures):
+        if message.topic == choice.tf_static:
+            static += transforms_of(message.decoded)
+        else:
+            for transform in message.decoded.transforms:
+                if transform.child_frame_id.startswith("aruco_"):
+                    q, t = transform.transform.rotation, transform.transform.translation
+                    result.true_markers[int(transform.child_frame_id[6:])] = gtsam.Pose2(
+                        t.x, t.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
+                    )
+    streamed = [
         t
-        for t in (
-            choice.color,
-            choice.depth,
-            choice.camera_info,
-            choice.odom,
-            choice.tf_static,
-            TRUE_MARKERS,
-            TRUE_POSE,
-        )
+        for t in (choice.color, choice.depth, choice.camera_info, choice.odom, TRUE_POSE)
         if t and t in counts
     ]
-    total = sum(counts[t] for t in wanted)
-    result = Extraction([], [], config.camera, config.mount or CameraMount(), choice)
-    static: list[Any] = []
+    total = sum(counts[t] for t in streamed)
     image_frame: str | None = None
     mount_known = config.mount is not None
     pairing = _Pairing(config.pair_tolerance_ns)
     true_poses: list[tuple[int, float, float, float]] = []
 
-    in_flight: deque[Any] = deque()  # futures, oldest first, when workers run
-    batch: list[_Job] = []
-    pool: ProcessPoolExecutor | None = None
-
-    def collect(outcome: tuple[list[Observation], bool]) -> None:
-        observations, had_depth = outcome
-        result.frames_with_depth += had_depth
-        if choice.depth and not had_depth:
-            result.skipped["no depth within the pairing tolerance (used without)"] += 1
-        result.observations += observations
-
     def process(ready: list[_Job]) -> None:
-        nonlocal mount_known, pool
-        if not ready or result.camera is None:  # drain() waits for the camera
+        nonlocal mount_known
+        camera = result.camera
+        if not ready or camera is None:  # drain() waits for the camera
             return
         if not mount_known:
             mount_known = True
@@ -368,26 +301,26 @@ def extract(
                 result.notes.append(
                     f"no /tf_static: assuming the default camera mount ({result.mount})"
                 )
-        work = _FrameWork(str(path), choice, config, result.camera, result.mount)
-        if workers <= 1:
-            for job in ready:
-                collect(work(job))
-            return
-        if pool is None:
-            pool = ProcessPoolExecutor(
-                workers,
-                mp_context=multiprocessing.get_context("spawn"),
-                initializer=_start_worker,
-                initargs=(work,),
+        for t_ns, message, depth in ready:
+            image = decode_image(message)
+            if depth is not None and depth.shape[:2] != image.shape[:2]:
+                raise LogError(
+                    f"{path}: depth on {choice.depth} is {depth.shape[1]}x{depth.shape[0]} but "
+                    f"colour on {choice.color} is {image.shape[1]}x{image.shape[0]}: not aligned"
+                )
+            result.frames_with_depth += depth is not None
+            if choice.depth and depth is None:
+                result.skipped["no depth within the pairing tolerance (used without)"] += 1
+            result.observations += observe_detections(
+                _detector(config).detect(image),
+                camera,
+                config.marker_length_m,
+                depth=depth,
+                method=config.method,
+                mount=result.mount,
+                t_ns=t_ns,
+                depth_model=config.depth_model,
             )
-        batch.extend(ready)
-        # Frames travel in batches: one round trip per frame costs as much as detecting it.
-        while len(batch) >= BATCH_FRAMES:
-            in_flight.append(pool.submit(_run_in_worker, batch[:BATCH_FRAMES]))
-            del batch[:BATCH_FRAMES]
-            while len(in_flight) > 2 * workers:
-                for outcome in in_flight.popleft().result():
-                    collect(outcome)
 
     def drain(latest_ns: int, flush: bool = False) -> None:
         # Frames wait for the camera info (it may come a message later), but not forever.
@@ -398,15 +331,19 @@ def extract(
             return
         process(pairing.ready(latest_ns, flush))
 
-    failures = DecodeFailures()
-    for done, message in enumerate(messages(path, wanted, failures), start=1):
+    # Read a margin either side so frames at the span's edges still find their depth.
+    margin = 3 * config.pair_tolerance_ns
+    start = None if span.start_ns is None else span.start_ns - margin
+    end = None if span.end_ns is None else span.end_ns + margin
+    for done, message in enumerate(messages(path, streamed, failures, start, end), start=1):
         if progress is not None and done % 50 == 0:
             progress(done, total)
         topic, decoded = message.topic, message.decoded
-        if topic == choice.color:
+        inside = span.holds(message.log_time_ns)
+        if topic == choice.color and inside:
             result.frames += 1
             image_frame = image_frame or frame_id(decoded)
-            pairing.colour.append((stamp_ns(decoded), _portable(message)))
+            pairing.colour.append((stamp_ns(decoded), message))
             drain(stamp_ns(decoded))
         elif topic == choice.depth:
             pairing.depth.append((stamp_ns(decoded), decode_depth(message)))
@@ -414,34 +351,91 @@ def extract(
         elif topic == choice.camera_info and result.camera is None:
             result.camera = config.camera or Camera.from_camera_info(decoded)
             drain(stamp_ns(decoded))
-        elif topic == choice.odom:
+        elif topic == choice.odom and inside:
             result.odometry.append(odometry_sample(message))
-        elif topic == choice.tf_static:
-            static += transforms_of(decoded)
-        elif topic == TRUE_MARKERS:
-            for transform in decoded.transforms:
-                if transform.child_frame_id.startswith("aruco_"):
-                    q, t = transform.transform.rotation, transform.transform.translation
-                    result.true_markers[int(transform.child_frame_id[6:])] = gtsam.Pose2(
-                        t.x, t.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
-                    )
-        elif topic == TRUE_POSE:
+        elif topic == TRUE_POSE and inside:
             q, p = decoded.pose.orientation, decoded.pose.position
             true_poses.append(
                 (stamp_ns(decoded), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
             )
-    try:
-        drain(0, flush=True)
-        if batch and pool is not None:
-            in_flight.append(pool.submit(_run_in_worker, batch))
-        while in_flight:
-            for outcome in in_flight.popleft().result():
-                collect(outcome)
-    finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
+    drain(0, flush=True)
     if progress is not None:
         progress(total, total)
+    result.true_poses = np.array(true_poses, dtype=np.float64).reshape(-1, 4)
+    result.warnings = failures.warnings()
+    return result
+
+
+def _extract_span_in_worker(
+    arguments: tuple[Path, FrontendConfig, TopicChoice, dict[str, int], _Span],
+) -> Extraction:
+    cv2.setNumThreads(1)  # each worker is one core; OpenCV's own threads would only contend
+    return _extract_span(*arguments)
+
+
+def _merge(parts: list[Extraction]) -> Extraction:
+    """Spans' results joined in log order."""
+    first = parts[0]
+    merged = Extraction(
+        [],
+        [],
+        next((p.camera for p in parts if p.camera), None),
+        first.mount,
+        first.topics,
+        true_markers=first.true_markers,
+    )
+    for part in parts:
+        merged.observations += part.observations
+        merged.odometry += part.odometry
+        merged.frames += part.frames
+        merged.frames_with_depth += part.frames_with_depth
+        merged.skipped.update(part.skipped)
+        merged.notes += [n for n in part.notes if n not in merged.notes]
+        merged.warnings += part.warnings
+    merged.true_poses = np.concatenate([p.true_poses for p in parts])
+    return merged
+
+
+def extract(
+    path: Path,
+    config: FrontendConfig = FrontendConfig(),
+    progress: Callable[[int, int], None] | None = None,
+    workers: int = 1,
+) -> Extraction:
+    """Observations and odometry from a ROS 2 or Foxglove MCAP log (file or rosbag2 folder).
+
+    Args:
+        progress: called with (units done, units in all): messages, or stretches with workers.
+        workers: processes (``spawn``ed: forking after OpenCV has run can deadlock). With more
+            than one, the log is cut into stretches of time that the workers read and process
+            whole, each from its own chunks; the results are joined in log order.
+
+    Raises:
+        LogError: the log cannot be read, has no camera, or is damaged beyond a message.
+    """
+    path = Path(path)
+    topics = log_topics(path)
+    choice = choose_topics(path, topics, config)
+    if choice.color is None:
+        raise LogError(
+            f"{path}: no camera image topic (looked for {', '.join(COLOR_TOPICS)} "
+            "and any image message)"
+        )
+    counts = {t.topic: t.count for t in topics}
+    if workers <= 1:
+        result = _extract_span(path, config, choice, counts, _Span(), progress)
+    else:
+        first, last = log_time_range(path)
+        edges = np.linspace(first, last + 1, SPANS_PER_WORKER * workers + 1).astype(np.int64)
+        spans = [_Span(int(a), int(b)) for a, b in itertools.pairwise(edges)]
+        parts = []
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            jobs = [(path, config, choice, counts, span) for span in spans]
+            for done, part in enumerate(pool.map(_extract_span_in_worker, jobs), start=1):
+                parts.append(part)
+                if progress is not None:
+                    progress(done, len(spans))
+        result = _merge(parts)
     if result.camera is None:
         raise LogError(
             f"{path}: no camera intrinsics: "
@@ -451,6 +445,4 @@ def extract(
                 else "no camera info topic found (pass --camera-info-topic)"
             )
         )
-    result.true_poses = np.array(true_poses, dtype=np.float64).reshape(-1, 4)
-    result.warnings = failures.warnings()
     return result
