@@ -38,6 +38,7 @@ __all__ = [
     "log_topics",
     "messages",
     "mount_from_transforms",
+    "odometry_from_tf",
     "odometry_sample",
     "stamp_ns",
     "transforms_of",
@@ -341,6 +342,26 @@ def odometry_sample(message: Message) -> OdometrySample:
         float(pose.position.y),
         yaw_from_quaternion(q.x, q.y, q.z, q.w),
     )
+
+
+def odometry_from_tf(
+    decoded: Any, base_frame: str, odom_frame: str = "odom"
+) -> list[OdometrySample]:
+    """``T_odom_base`` samples from a ``/tf`` message's odom -> base transforms (for logs
+    without an odometry topic)."""
+    samples = []
+    for transform in transforms_of(decoded):
+        if transform.child_frame_id == base_frame and transform.header.frame_id == odom_frame:
+            t, q = transform.transform.translation, transform.transform.rotation
+            samples.append(
+                OdometrySample(
+                    stamp_ns(transform),
+                    float(t.x),
+                    float(t.y),
+                    yaw_from_quaternion(q.x, q.y, q.z, q.w),
+                )
+            )
+    return samples
 
 
 def _rotation(q: Any) -> NDArray[np.float64]:

@@ -36,6 +36,7 @@ from markergraph.frontend.log import (
     log_topics,
     messages,
     mount_from_transforms,
+    odometry_from_tf,
     odometry_sample,
     stamp_ns,
     transforms_of,
@@ -157,6 +158,8 @@ def choose_topics(path: Path, topics: list[LogTopic], config: FrontendConfig) ->
     odom = config.odom_topic or next(
         (t.topic for t in topics if t.schema in ODOMETRY_SCHEMAS), None
     )
+    if odom is None and "/tf" in by_name:  # no odometry topic: the odom -> base transform
+        odom = "/tf"
     static = (
         "/tf_static"
         if "/tf_static" in by_name
@@ -352,7 +355,10 @@ def _extract_span(
             result.camera = config.camera or Camera.from_camera_info(decoded)
             drain(stamp_ns(decoded))
         elif topic == choice.odom and inside:
-            result.odometry.append(odometry_sample(message))
+            if message.schema.endswith("TFMessage"):
+                result.odometry += odometry_from_tf(decoded, config.base_frame)
+            else:
+                result.odometry.append(odometry_sample(message))
         elif topic == TRUE_POSE and inside:
             q, p = decoded.pose.orientation, decoded.pose.position
             true_poses.append(

@@ -482,3 +482,73 @@ def test_foxglove_pose_decodes_as_odometry() -> None:
     path = DATA / "mcap-rerun-fixtures" / "simple-protobuf.mcap"
     (pose,) = [odometry_sample(m) for m in messages(path, ["pose"])]
     assert math.isfinite(pose.x) and math.isfinite(pose.yaw)
+
+
+def test_tf_stands_in_for_missing_odometry(simulated, tmp_path: Path) -> None:
+    """Without /odom, the odom -> base_link transforms on /tf give the same odometry."""
+    path, result = simulated[0]
+    without_odom = tmp_path / "tf-only.mcap"
+    with open(path, "rb") as source, open(without_odom, "wb") as target:
+        from mcap.reader import make_reader
+        from mcap.writer import Writer as McapWriter
+
+        reader = make_reader(source)
+        summary = reader.get_summary()
+        writer = McapWriter(target)
+        writer.start(profile="ros2")
+        schema_ids = {
+            sid: writer.register_schema(s.name, s.encoding, s.data)
+            for sid, s in summary.schemas.items()
+        }
+        channel_ids = {}
+        for cid, channel in summary.channels.items():
+            if channel.topic != "/odom":
+                channel_ids[cid] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schema_ids[channel.schema_id]
+                )
+        for _, channel, message in reader.iter_messages():
+            if channel.id in channel_ids:
+                writer.add_message(
+                    channel_ids[channel.id], message.log_time, message.data, message.publish_time
+                )
+        writer.finish()
+    other = extract(without_odom, FrontendConfig(allowed_ids=tuple(range(30))))
+    assert other.topics.odom == "/tf"
+    assert other.odometry == result.odometry
+
+
+def test_compressed_depth_decodes_like_raw_depth() -> None:
+    """A compressedDepth message (12-byte header, then a 16-bit PNG) decodes to the same depth."""
+    from types import SimpleNamespace
+
+    from markergraph.frontend.log import Message, decode_depth
+
+    depth = np.random.default_rng(0).integers(0, 8000, (48, 64)).astype(np.uint16)
+    ok, png = cv2.imencode(".png", depth)
+    assert ok
+    message = Message(
+        "/depth/compressedDepth",
+        "sensor_msgs/msg/CompressedImage",
+        0,
+        SimpleNamespace(format="16UC1; compressedDepth", data=bytes(12) + png.tobytes()),
+    )
+    np.testing.assert_array_equal(decode_depth(message), depth)
+
+
+def test_range_is_the_papers_corrected_distance() -> None:
+    """A marker 0.684 m above the camera at 1.44 m slant range reads 1.267 m horizontally."""
+    height_difference, slant = 0.684, 1.44
+    horizontal = math.sqrt(slant**2 - height_difference**2)
+    assert horizontal == pytest.approx(1.267, abs=5e-4)  # the paper's figure
+    world = World("wall", (Wall((-3.0, 0.0), (3.0, 0.0)),), (Marker(0, 0, 3.0, side=1),), 0)
+    mount = CameraMount(
+        x_m=0.0,
+        height_m=1.0 - height_difference,
+        pitch_rad=math.atan2(height_difference, horizontal),
+    )
+    from markergraph.datasets.render import Renderer
+
+    renderer = Renderer(world, Camera(), mount)
+    frame = renderer.render(gtsam.Pose2(0.0, horizontal, -math.pi / 2), np.random.default_rng(1))
+    (obs,) = observe(frame.rgb, renderer.camera, 0.2, depth=frame.depth_mm, mount=mount)
+    assert obs.range_m == pytest.approx(horizontal, abs=0.01)
