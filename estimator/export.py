@@ -1,0 +1,225 @@
+"""Result files: the corrected marker map as JSON, trajectories as TUM, the pose graph as g2o.
+
+All writers write whole files or nothing (a temporary name beside the target, then a rename).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO, Any
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
+from numpy.typing import NDArray
+
+from markergraph.estimator.paper import edge_from_pose2
+from markergraph.estimator.types import Estimate, MarkerGraphError
+
+__all__ = [
+    "MAP_SCHEMA",
+    "MARKER_VERTEX_OFFSET",
+    "estimate_values",
+    "map_document",
+    "read_tum",
+    "write_g2o",
+    "write_json",
+    "write_tum",
+]
+
+MAP_SCHEMA = "markergraph.map/1"
+# g2o has one id space: marker vertices start here so they never meet robot poses.
+MARKER_VERTEX_OFFSET = 1_000_000
+
+
+@contextmanager
+def _atomic(path: Path) -> Iterator[IO[str]]:
+    """A text file that appears at ``path`` whole when the block ends, or not at all."""
+    path = Path(path)
+    partial = path.with_name(f".{path.name}.partial")
+    try:
+        with open(partial, "w") as stream:
+            yield stream
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
+
+
+def _covariance(matrix: NDArray[np.float64] | None) -> list[list[float]] | None:
+    return None if matrix is None else [[float(v) for v in row] for row in matrix]
+
+
+def map_document(
+    estimate: Estimate,
+    *,
+    log: str,
+    dictionary: str,
+    marker_length_m: float,
+    marker_heights_m: dict[int, float] | None = None,
+) -> dict[str, Any]:
+    """The corrected marker graph as a JSON-ready document (schema ``markergraph.map/1``).
+
+    Markers carry their pose in the map frame (the home marker's), a 3x3 covariance over
+    (x, y, yaw) in the marker's own tangent space or null, and their observation count. Each
+    link between markers carries the paper's edge values (phi, theta_ab, theta_ba, d) of the
+    estimated map and the covariance of the relative pose ``T_a_b`` (markers taken as
+    independent, which slightly overstates it where they are correlated).
+    """
+    heights = marker_heights_m or {}
+    markers = []
+    for marker_id in sorted(estimate.markers):
+        marker = estimate.markers[marker_id]
+        T = marker.T_map_marker
+        entry: dict[str, Any] = {
+            "id": marker_id,
+            "x": T.x(),
+            "y": T.y(),
+            "yaw": T.theta(),
+            "covariance": _covariance(marker.covariance),
+            "n_observations": marker.n_observations,
+        }
+        if marker_id in heights:
+            entry["z"] = heights[marker_id]
+        markers.append(entry)
+    links = []
+    for link in estimate.links:
+        a, b = estimate.markers.get(link.marker_a), estimate.markers.get(link.marker_b)
+        if a is None or b is None:
+            continue
+        T_a_b = a.T_map_marker.between(b.T_map_marker)
+        edge = edge_from_pose2(T_a_b)
+        covariance = None
+        if a.covariance is not None and b.covariance is not None:
+            ad = T_a_b.inverse().AdjointMap()
+            covariance = ad @ a.covariance @ ad.T + b.covariance
+        links.append(
+            {
+                "a": link.marker_a,
+                "b": link.marker_b,
+                "n_measurements": link.n_measurements,
+                "phi": edge.phi,
+                "theta_ab": edge.theta_ab,
+                "theta_ba": edge.theta_ba,
+                "d": edge.d,
+                "covariance": _covariance(covariance),
+            }
+        )
+    return {
+        "schema": MAP_SCHEMA,
+        "frame": f"map: the frame of home marker {estimate.home_id} (x along its normal)",
+        "units": {"length": "m", "angle": "rad"},
+        "home_id": estimate.home_id,
+        "dictionary": dictionary,
+        "marker_size_m": marker_length_m,
+        "method": estimate.method.value,
+        "log": log,
+        "converged": estimate.converged,
+        "markers": markers,
+        "links": links,
+        "unplaced": {str(k): v for k, v in sorted(estimate.unplaced.items())},
+    }
+
+
+def write_json(path: Path, document: dict[str, Any]) -> None:
+    """A JSON document, indented, written atomically."""
+    with _atomic(path) as stream:
+        json.dump(document, stream, indent=1)
+        stream.write("\n")
+
+
+def write_tum(path: Path, t_ns: NDArray[np.int64], poses: NDArray[np.float64]) -> None:
+    """A trajectory in TUM format (``t tx ty tz qx qy qz qw``, seconds) for evo, atomically.
+
+    Args:
+        t_ns: (N,) stamps [ns]; poses: (N, 3) rows (x, y, yaw).
+    """
+    with _atomic(path) as stream:
+        for t, (x, y, yaw) in zip(t_ns, poses, strict=True):
+            seconds = f"{int(t) // 1_000_000_000}.{int(t) % 1_000_000_000:09d}"
+            half = float(yaw) / 2.0
+            stream.write(
+                f"{seconds} {float(x)!r} {float(y)!r} 0.0 0.0 0.0 "
+                f"{math.sin(half)!r} {math.cos(half)!r}\n"
+            )
+
+
+def read_tum(path: Path) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Stamps [ns] and (x, y, yaw) rows of a TUM trajectory (roll and pitch ignored).
+
+    Raises:
+        MarkerGraphError: a line that is not ``t tx ty tz qx qy qz qw``; it is named.
+    """
+    stamps, rows = [], []
+    with open(path) as stream:
+        for number, line in enumerate(stream, start=1):
+            if not line.strip() or line.startswith("#"):
+                continue
+            fields = line.split()
+            if len(fields) != 8:
+                raise MarkerGraphError(
+                    f"{path}:{number}: a TUM line has 8 fields, not {len(fields)}"
+                )
+            whole, _, fraction = fields[0].partition(".")
+            stamps.append(int(whole) * 1_000_000_000 + int((fraction + "000000000")[:9]))
+            x, y, _, qx, qy, qz, qw = map(float, fields[1:])
+            rows.append([x, y, math.atan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))])
+    return np.array(stamps, dtype=np.int64), np.array(rows).reshape(-1, 3)
+
+
+def _information(model: Any) -> NDArray[np.float64]:
+    """The information matrix of a Gaussian noise model (or a robust one's Gaussian part)."""
+    gaussian: Any = model.noise() if isinstance(model, gtsam.noiseModel.Robust) else model
+    R = np.asarray(gaussian.R())  # square-root information
+    return np.asarray(R.T @ R)
+
+
+def estimate_values(estimate: Estimate) -> gtsam.Values:
+    """An estimate as GTSAM values: ``X(k)`` for its k-th trajectory pose, ``L(id)`` per marker."""
+    values = gtsam.Values()
+    for k, (x, y, yaw) in enumerate(estimate.trajectory):
+        values.insert(X(k), gtsam.Pose2(x, y, yaw))
+    for marker_id, marker in estimate.markers.items():
+        values.insert(L(marker_id), marker.T_map_marker)
+    return values
+
+
+def write_g2o(path: Path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+    """The optimised pose graph in g2o's text format, atomically.
+
+    Robot poses ``X(k)`` become ``VERTEX_SE2 k`` and markers ``L(id)`` become
+    ``VERTEX_SE2 1000000+id``; every between factor an ``EDGE_SE2`` with its full information
+    matrix; full float precision. There is no header comment and no ``FIX`` line, because
+    ``gtsam.readG2o`` returns no factors for such files (the home prior is left out with them:
+    fix the home vertex when re-optimising). Unlike ``gtsam.writeG2o``, ids of robot poses and
+    markers never collide and nothing is rounded.
+    """
+
+    def vertex(key: int) -> int:
+        symbol = gtsam.Symbol(key)
+        index = int(symbol.index())
+        return index + MARKER_VERTEX_OFFSET if chr(symbol.chr()) == "l" else index
+
+    lines = []
+    for key in sorted(values.keys(), key=vertex):
+        pose = values.atPose2(key)
+        lines.append(f"VERTEX_SE2 {vertex(key)} {pose.x()!r} {pose.y()!r} {pose.theta()!r}")
+    for index in range(graph.size()):
+        factor: Any = graph.at(index)
+        if not isinstance(factor, gtsam.BetweenFactorPose2):
+            continue
+        measured = factor.measured()
+        info = _information(factor.noiseModel())
+        keys = factor.keys()  # a gtsam KeyVector
+        first, second = vertex(keys[0]), vertex(keys[1])
+        upper = [info[0, 0], info[0, 1], info[0, 2], info[1, 1], info[1, 2], info[2, 2]]
+        lines.append(
+            f"EDGE_SE2 {first} {second} {measured.x()!r} {measured.y()!r} "
+            f"{measured.theta()!r} " + " ".join(repr(float(v)) for v in upper)
+        )
+    with _atomic(path) as stream:
+        stream.write("\n".join(lines) + "\n")
