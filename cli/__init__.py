@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 from typing import NoReturn
 
-from markergraph.cli import _frontend, _simulate
+from markergraph.cli import _frontend, _map, _simulate
 from markergraph.estimator.types import MarkerGraphError
 
 __all__ = ["main"]
@@ -21,7 +21,6 @@ EXIT_OK, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR = 0, 1, 2
 
 # Subcommands that later issues fill in; each still answers --help and says what it will do.
 PLANNED_COMMANDS = {
-    "map": "estimate a corrected marker map from an MCAP log (default: the bundled sample)",
     "export": "write a map.json in another tool's format",
     "heading": "the paper's target heading from a localisation on one marker to another",
 }
@@ -55,6 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"markergraph {_version()}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    _map.add_parser(commands)
     _simulate.add_parser(commands)
     _frontend.add_parsers(commands)
     for name, summary in PLANNED_COMMANDS.items():
@@ -70,6 +70,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return EXIT_OK
     try:
+        if args.command == "map":
+            return _map.run(args)
         if args.command == "simulate":
             return _simulate.run(args)
         if args.command == "detect":

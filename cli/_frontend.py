@@ -32,7 +32,7 @@ def add_frontend_options(parser: argparse.ArgumentParser) -> None:
         help="side of the markers' black square in metres (default 0.2)",
     )
     group.add_argument(
-        "--method",
+        "--yaw-method",
         choices=[m.value for m in YawMethod],
         default="pnp",
         help="how theta comes from the corners (default pnp)",
@@ -57,7 +57,7 @@ def frontend_config(args: argparse.Namespace) -> FrontendConfig:
     return FrontendConfig(
         dictionary=args.dictionary,
         marker_length_m=args.marker_size,
-        method=YawMethod(args.method),
+        method=YawMethod(args.yaw_method),
         allowed_ids=None if args.ids is None else tuple(args.ids),
         color_topic=args.color_topic,
         depth_topic=args.depth_topic,

@@ -16,7 +16,7 @@ from markergraph.datasets.scenarios import scenario
 from markergraph.datasets.write import write_log
 from markergraph.frontend.progress import ProgressBar
 
-__all__ = ["SAMPLES", "cache_dir", "sample_log"]
+__all__ = ["SAMPLES", "cache_dir", "sample_log", "sample_path"]
 
 # name -> (scenario, seed, laps, frame rate [Hz]); bump the version when the output changes.
 SAMPLES = {
@@ -34,12 +34,17 @@ def cache_dir() -> Path:
     return Path(base) / "markergraph"
 
 
-def sample_log(name: str) -> Path:
-    """The path of a sample log, generating it first if it is not in the cache yet."""
+def sample_path(name: str) -> Path:
+    """Where a sample log lives in the cache (whether or not it has been generated)."""
     if name not in SAMPLES:
         raise ValueError(f"unknown sample {name!r}; choose one of {', '.join(SAMPLES)}")
+    return cache_dir() / f"{name}-v{SAMPLE_VERSION}.mcap"
+
+
+def sample_log(name: str) -> Path:
+    """The path of a sample log, generating it first if it is not in the cache yet."""
+    path = sample_path(name)
     scenario_name, seed, laps, frame_hz = SAMPLES[name]
-    path = cache_dir() / f"{name}-v{SAMPLE_VERSION}.mcap"
     if path.exists():
         return path
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,96 @@
+"""`markergraph map` end to end on the bundled sample: every file it writes, read back."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import gtsam
+import numpy as np
+import pytest
+
+from markergraph.estimator.export import MAP_SCHEMA, MARKER_VERTEX_OFFSET, read_tum
+
+METHODS = ("slam", "closed-form", "marker-graph", "isam2", "ekf")
+
+
+def run_map(*arguments: str, cache: Path) -> subprocess.CompletedProcess[str]:
+    environment = {**os.environ, "MARKERGRAPH_CACHE": str(cache)}
+    return subprocess.run(
+        [sys.executable, "-m", "markergraph.cli", "map", *arguments],
+        capture_output=True,
+        text=True,
+        env=environment,
+    )
+
+
+@pytest.fixture(scope="module")
+def mapped(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    folder = tmp_path_factory.mktemp("map")
+    run = run_map("--method", "all", "--out", str(folder / "result"), cache=folder / "cache")
+    assert run.returncode == 0, run.stderr
+    return folder / "result", run.stdout
+
+
+def test_summary_names_the_sample_and_every_method(mapped) -> None:
+    """With no log the sample is used and said so; the summary has a row per method."""
+    _, stdout = mapped
+    assert "bundled corridor-loop sample" in stdout
+    for method in METHODS:
+        assert any(line.startswith(method) for line in stdout.splitlines())
+
+
+def test_map_json_matches_ground_truth(mapped) -> None:
+    """map.json (SLAM) places every marker within 0.35 m RMS of the logged ground truth, the
+    same figure report.json gives; the paper's closed form does worse."""
+    folder, _ = mapped
+    document = json.loads((folder / "map.json").read_text())
+    report = json.loads((folder / "report.json").read_text())
+    assert document["schema"] == MAP_SCHEMA and document["method"] == "slam"
+    assert len(document["markers"]) == 12 and document["links"]
+    assert report["ground_truth"] and report["frames"] > 1000
+    assert report["methods"]["slam"]["marker_rmse_m"] < 0.35
+    assert (
+        report["methods"]["closed-form"]["marker_rmse_m"]
+        > (report["methods"]["slam"]["marker_rmse_m"])
+    )
+    truth = read_tum(folder / "ground_truth.tum")[1]
+    assert len(truth) > 1000
+
+
+def test_g2o_tum_png_and_per_method_files_read_back(mapped) -> None:
+    """map.g2o loads in gtsam.readG2o; TUM files read; PNGs are images; each method has its
+    own folder."""
+    folder, _ = mapped
+    graph, initial = gtsam.readG2o(str(folder / "map.g2o"), False)
+    assert graph.size() > 100 and initial.exists(MARKER_VERTEX_OFFSET + 0)
+    stamps, poses = read_tum(folder / "trajectory.tum")
+    assert len(stamps) == len(poses) > 100 and np.all(np.diff(stamps) > 0)
+    for image in (folder / "map.png", folder / "comparison.png"):
+        assert cv2.imread(str(image)) is not None
+    for method in METHODS:
+        assert (folder / "methods" / method / "map.json").is_file()
+    assert (folder / "map.svg").read_text().lstrip().startswith("<?xml")
+
+
+def test_existing_result_folder_is_kept_without_force(mapped, tmp_path: Path) -> None:
+    """A second run into the same folder fails in one line and leaves it untouched."""
+    folder, _ = mapped
+    before = (folder / "map.json").read_bytes()
+    run = run_map("--out", str(folder), cache=tmp_path / "unused")
+    assert run.returncode == 1
+    assert len(run.stderr.strip().splitlines()) == 1 and "--force" in run.stderr
+    assert (folder / "map.json").read_bytes() == before
+
+
+def test_not_a_log_is_one_line(tmp_path: Path) -> None:
+    """A file that is not MCAP: exit 1, one line naming it, no result folder."""
+    bad = tmp_path / "notes.mcap"
+    bad.write_text("hello")
+    run = run_map(str(bad), "--out", str(tmp_path / "out"), cache=tmp_path / "cache")
+    assert run.returncode == 1 and str(bad) in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
