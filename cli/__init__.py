@@ -12,18 +12,12 @@ from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 from typing import NoReturn
 
-from markergraph.cli import _frontend, _map, _simulate
+from markergraph.cli import _frontend, _map, _mapfile, _simulate
 from markergraph.estimator.types import MarkerGraphError
 
 __all__ = ["main"]
 
 EXIT_OK, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR = 0, 1, 2
-
-# Subcommands that later issues fill in; each still answers --help and says what it will do.
-PLANNED_COMMANDS = {
-    "export": "write a map.json in another tool's format",
-    "heading": "the paper's target heading from a localisation on one marker to another",
-}
 
 
 class UserError(Exception):
@@ -57,8 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     _map.add_parser(commands)
     _simulate.add_parser(commands)
     _frontend.add_parsers(commands)
-    for name, summary in PLANNED_COMMANDS.items():
-        commands.add_parser(name, help=summary, description=summary)
+    _mapfile.add_parsers(commands)
     return parser
 
 
@@ -78,8 +71,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _frontend.run_detect(args)
         if args.command == "info":
             return _frontend.run_info(args)
-        print(f"markergraph {args.command}: not built yet in {_version()}", file=sys.stderr)
-        return EXIT_USER_ERROR
+        if args.command == "export":
+            return _mapfile.run_export(args)
+        return _mapfile.run_heading(args)
     except (UserError, MarkerGraphError, ValueError, OSError) as error:
         print(f"markergraph {args.command}: {error}", file=sys.stderr)
         return EXIT_USER_ERROR

@@ -10,6 +10,7 @@ import math
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
+from enum import Enum
 from pathlib import Path
 from typing import IO, Any
 
@@ -24,7 +25,9 @@ from markergraph.estimator.types import Estimate, MarkerGraphError
 __all__ = [
     "MAP_SCHEMA",
     "MARKER_VERTEX_OFFSET",
+    "ExportFormat",
     "estimate_values",
+    "export_map",
     "map_document",
     "read_tum",
     "write_g2o",
@@ -221,5 +224,114 @@ def write_g2o(path: Path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Value
             f"EDGE_SE2 {first} {second} {measured.x()!r} {measured.y()!r} "
             f"{measured.theta()!r} " + " ".join(repr(float(v)) for v in upper)
         )
+    with _atomic(path) as stream:
+        stream.write("\n".join(lines) + "\n")
+
+
+# --- peer formats, from a map.json document ---------------------------------------------------
+
+
+class ExportFormat(Enum):
+    """Formats ``markergraph export`` writes."""
+
+    ARUCO_YAML = "aruco-yaml"  # the ArUco library's MarkerMap (corners in metres)
+    FIDUCIAL_SLAM = "fiducial-slam"  # UbiquityRobotics fiducial_slam map.txt (degrees)
+    TAGSLAM = "tagslam"  # a TagSLAM static body of tags (rotation vectors)
+    CSV = "csv"
+
+
+def _R_map_tag(yaw: float) -> NDArray[np.float64]:
+    """A wall marker's rotation in OpenCV's marker convention (x to the viewer's right, y up,
+    z out of the marker) from its top-view yaw (the normal's heading)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[-s, 0.0, c], [c, 0.0, s], [0.0, 1.0, 0.0]])
+
+
+def _corners(marker: dict[str, Any], size: float) -> NDArray[np.float64]:
+    """The black square's corners in the map, OpenCV's order (top-left first)."""
+    R = _R_map_tag(marker["yaw"])
+    centre = np.array([marker["x"], marker["y"], marker.get("z", 0.0)])
+    right, up = R[:, 0] * size / 2.0, R[:, 1] * size / 2.0
+    return np.array(
+        [centre - right + up, centre + right + up, centre + right - up, centre - right - up]
+    )
+
+
+def _sigmas(marker: dict[str, Any]) -> tuple[float, float, float]:
+    covariance = marker.get("covariance")
+    if covariance is None:
+        return (0.0, 0.0, 0.0)
+    diagonal = np.sqrt(np.maximum(np.diag(np.array(covariance)), 0.0))
+    return (float(diagonal[0]), float(diagonal[1]), float(diagonal[2]))
+
+
+def export_map(document: dict[str, Any], fmt: ExportFormat, path: Path) -> None:
+    """Write a ``markergraph.map/1`` document in another tool's format, atomically.
+
+    Marker heights come from the document's ``z`` (0 where unknown); orientations are those of
+    markers on vertical walls.
+
+    Raises:
+        MarkerGraphError: the document is not a markergraph map.
+    """
+    if document.get("schema") != MAP_SCHEMA:
+        raise MarkerGraphError(f"not a {MAP_SCHEMA} document (schema {document.get('schema')!r})")
+    size = float(document["marker_size_m"])
+    markers = document["markers"]
+    lines: list[str] = []
+    if fmt is ExportFormat.CSV:
+        lines.append("id,x_m,y_m,z_m,yaw_rad,sigma_x_m,sigma_y_m,sigma_yaw_rad,n_observations")
+        for m in markers:
+            sx, sy, syaw = _sigmas(m)
+            lines.append(
+                f"{m['id']},{m['x']!r},{m['y']!r},{float(m.get('z', 0.0))!r},"
+                f"{m['yaw']!r},{sx!r},{sy!r},{syaw!r},{m['n_observations']}"
+            )
+    elif fmt is ExportFormat.ARUCO_YAML:
+        lines += [
+            "%YAML:1.0",
+            f"aruco_bc_dict: {document['dictionary']}",
+            f"aruco_bc_nmarkers: {len(markers)}",
+            "aruco_bc_mInfoType: 1",
+            "aruco_bc_markers:",
+        ]
+        for m in markers:
+            corners = ", ".join(
+                "[" + ", ".join(repr(float(v)) for v in corner) + "]"
+                for corner in _corners(m, size)
+            )
+            lines.append(f"   - {{ id: {m['id']}, corners: [ {corners} ] }}")
+    elif fmt is ExportFormat.FIDUCIAL_SLAM:
+        for m in markers:
+            roll, pitch, yaw = (float(a) for a in gtsam.Rot3(_R_map_tag(m["yaw"])).rpy())
+            sx, sy, _ = _sigmas(m)
+            angles = " ".join(f"{math.degrees(a)!r}" for a in (roll, pitch, yaw))
+            lines.append(
+                f"{m['id']} {m['x']!r} {m['y']!r} {float(m.get('z', 0.0))!r} {angles} "
+                f"{sx * sx + sy * sy!r} {m['n_observations']}"
+            )
+    else:
+        lines += [
+            "bodies:",
+            " - map:",
+            "     is_static: true",
+            "     type: simple",
+            f"     default_tag_size: {size!r}",
+            "     tags:",
+        ]
+        for m in markers:
+            rotation = [float(v) for v in gtsam.Rot3.Logmap(gtsam.Rot3(_R_map_tag(m["yaw"])))]
+            sx, sy, syaw = _sigmas(m)
+            lines += [
+                f"       - id: {m['id']}",
+                f"         size: {size!r}",
+                "         pose:",
+                f"           position: {{x: {m['x']!r}, y: {m['y']!r}, "
+                f"z: {float(m.get('z', 0.0))!r}}}",
+                f"           rotation: {{x: {rotation[0]!r}, y: {rotation[1]!r}, "
+                f"z: {rotation[2]!r}}}",
+                f"           position_noise: {{x: {sx!r}, y: {sy!r}, z: {max(sx, sy)!r}}}",
+                f"           rotation_noise: {{x: {syaw!r}, y: {syaw!r}, z: {syaw!r}}}",
+            ]
     with _atomic(path) as stream:
         stream.write("\n".join(lines) + "\n")

@@ -2,19 +2,26 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import math
+import re
+import subprocess
+import sys
 from pathlib import Path
 
+import cv2
 import gtsam
 import numpy as np
 import pytest
+import yaml
 
 from markergraph.datasets import scenario, simulate_fast
 from markergraph.estimator import Edge, Method, build_frames, estimate_frames
 from markergraph.estimator.export import (
     MAP_SCHEMA,
     MARKER_VERTEX_OFFSET,
+    ExportFormat,
     estimate_values,
     map_document,
     read_tum,
@@ -96,3 +103,105 @@ def test_g2o_loads_in_gtsam_and_reoptimises_to_the_same_map(solved, tmp_path: Pa
     optimised = gtsam.LevenbergMarquardtOptimizer(loaded, initial).optimize()
     for marker_id, marker in result.markers.items():
         assert optimised.atPose2(MARKER_VERTEX_OFFSET + marker_id).equals(marker.T_map_marker, 1e-6)
+
+
+@pytest.fixture(scope="module")
+def map_json(solved, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    _, _, result = solved
+    path = tmp_path_factory.mktemp("export") / "map.json"
+    write_json(
+        path,
+        map_document(
+            result,
+            log="sim.mcap",
+            dictionary="DICT_4X4_50",
+            marker_length_m=0.2,
+            marker_heights_m={0: 1.0},
+        ),
+    )
+    return path
+
+
+def run_cli(*arguments: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "markergraph.cli", *arguments], capture_output=True, text=True
+    )
+
+
+def test_every_export_format_parses_back_to_the_map(map_json: Path, tmp_path: Path) -> None:
+    """CSV, ArUco's MarkerMap YAML (OpenCV FileStorage), fiducial_slam map.txt and TagSLAM YAML
+    carry each marker's position and the direction of its normal."""
+    document = json.loads(map_json.read_text())
+    markers = {m["id"]: m for m in document["markers"]}
+    paths = {}
+    for fmt in ExportFormat:
+        paths[fmt] = tmp_path / f"map.{fmt.value}"
+        run = run_cli("export", str(map_json), "--format", fmt.value, "--out", str(paths[fmt]))
+        assert run.returncode == 0, run.stderr
+
+    def normal_of(marker_id: int) -> np.ndarray:
+        yaw = markers[marker_id]["yaw"]
+        return np.array([math.cos(yaw), math.sin(yaw), 0.0])
+
+    rows = list(csv.DictReader(paths[ExportFormat.CSV].read_text().splitlines()))
+    assert {int(r["id"]) for r in rows} == set(markers)
+    for row in rows:
+        assert float(row["x_m"]) == markers[int(row["id"])]["x"]
+
+    storage = cv2.FileStorage(str(paths[ExportFormat.ARUCO_YAML]), cv2.FILE_STORAGE_READ)
+    node = storage.getNode("aruco_bc_markers")
+    assert int(storage.getNode("aruco_bc_nmarkers").real()) == node.size() == len(markers)
+    for i in range(node.size()):
+        marker_id = int(node.at(i).getNode("id").real())
+        listed = node.at(i).getNode("corners")  # a list of [x, y, z] lists, as ArUco writes
+        corners = np.array(
+            [[listed.at(j).at(k).real() for k in range(3)] for j in range(listed.size())]
+        )
+        centre = corners.mean(axis=0)
+        assert centre[:2] == pytest.approx([markers[marker_id]["x"], markers[marker_id]["y"]])
+        # TL -> TR runs to the viewer's right, TL -> BL down; their cross product is the normal.
+        across, down = corners[1] - corners[0], corners[3] - corners[0]
+        assert np.linalg.norm(across) == pytest.approx(0.2)
+        normal = np.cross(down, across)
+        np.testing.assert_allclose(normal / np.linalg.norm(normal), normal_of(marker_id), atol=1e-9)
+    storage.release()
+
+    for line in paths[ExportFormat.FIDUCIAL_SLAM].read_text().splitlines():
+        fields = line.split()
+        assert len(fields) == 9
+        marker_id = int(fields[0])
+        roll, pitch, yaw = (math.radians(float(v)) for v in fields[4:7])
+        R = gtsam.Rot3.RzRyRx(roll, pitch, yaw).matrix()  # fiducial z = out of the marker
+        np.testing.assert_allclose(R[:, 2], normal_of(marker_id), atol=1e-9)
+        assert int(fields[8]) == markers[marker_id]["n_observations"]
+
+    body = yaml.safe_load(paths[ExportFormat.TAGSLAM].read_text())["bodies"][0]["map"]
+    assert len(body["tags"]) == len(markers)
+    for tag in body["tags"]:
+        rotation = tag["pose"]["rotation"]
+        R = gtsam.Rot3.Expmap(np.array([rotation["x"], rotation["y"], rotation["z"]])).matrix()
+        np.testing.assert_allclose(R[:, 2], normal_of(tag["id"]), atol=1e-9)
+
+
+def test_heading_command_matches_geometry(map_json: Path) -> None:
+    """`markergraph heading` gives the turn and distance plain geometry gives from the map."""
+    document = json.loads(map_json.read_text())
+    markers = {m["id"]: m for m in document["markers"]}
+    d, theta_deg, target = 1.5, 25.0, 6
+    run = run_cli(
+        "heading", str(map_json), "--from", "0", "--at", f"{d},{theta_deg}", "--to", str(target)
+    )
+    assert run.returncode == 0, run.stderr
+    turn_deg, distance = map(
+        float, re.findall(r"turn ([\d.]+) deg .* drive ([\d.]+) m", run.stdout.splitlines()[0])[0]
+    )
+    robot = d * np.array([math.cos(math.radians(theta_deg)), math.sin(math.radians(theta_deg))])
+    goal = np.array([markers[target]["x"], markers[target]["y"]])
+    to_home, to_goal = -robot, goal - robot
+    expected_turn = math.degrees(
+        abs(math.atan2(to_home[0] * to_goal[1] - to_home[1] * to_goal[0], to_home @ to_goal))
+    )
+    assert distance == pytest.approx(np.linalg.norm(to_goal), abs=1e-3)
+    assert turn_deg == pytest.approx(expected_turn, abs=0.1)
+    unknown = run_cli("heading", str(map_json), "--from", "0", "--at", "1,0", "--to", "99")
+    assert unknown.returncode == 1 and "no marker 99" in unknown.stderr
