@@ -33,6 +33,7 @@ from markergraph.estimator.export import (
 )
 from markergraph.estimator.slam import build_slam_graph
 from markergraph.estimator.types import MarkerGraphError
+from markergraph.frontend.overlay import write_overlay
 from markergraph.frontend.pipeline import Extraction, FrontendConfig, extract
 
 __all__ = ["MapRun", "MethodResult", "map_log", "write_results"]
@@ -188,7 +189,8 @@ def write_results(
     ``force``.
 
     Files: ``map.json``, ``map.g2o`` (graph methods), ``map.png`` and ``map.svg`` for the first
-    method; ``methods/<method>/`` with the same for every method when there are several, and
+    method, and ``overlay.mcap`` (its map and trajectory as ROS 2 messages, to show over the
+    log); ``methods/<method>/`` with the same for every method when there are several, and
     ``comparison.png``; TUM trajectories (estimated per method, odometry, ground truth);
     ``report.json``.
 
@@ -262,6 +264,7 @@ def _write_all(run: MapRun, folder: Path, config: FrontendConfig, plots: bool) -
                 folder / "comparison.png",
             )
     odometry = run.extraction.odometry
+    write_overlay(folder / "overlay.mcap", first.estimate, odometry)
     write_tum(
         folder / "odometry.tum",
         np.array([s.t_ns for s in odometry], dtype=np.int64),

@@ -26,6 +26,8 @@ _SEPARATOR = "=" * 80
 
 _BASE = {
     "builtin_interfaces/Time": "int32 sec\nuint32 nanosec",
+    "builtin_interfaces/Duration": "int32 sec\nuint32 nanosec",
+    "std_msgs/ColorRGBA": "float32 r\nfloat32 g\nfloat32 b\nfloat32 a",
     "std_msgs/Header": "builtin_interfaces/Time stamp\nstring frame_id",
     "std_msgs/String": "string data",
     "geometry_msgs/Point": "float64 x\nfloat64 y\nfloat64 z",
@@ -41,6 +43,14 @@ _BASE = {
     "geometry_msgs/TransformStamped": "std_msgs/Header header\nstring child_frame_id\n"
     "geometry_msgs/Transform transform",
     "tf2_msgs/TFMessage": "geometry_msgs/TransformStamped[] transforms",
+    # visualization_msgs/Marker as in Humble (Iron and later append texture and mesh fields).
+    "visualization_msgs/Marker": "std_msgs/Header header\nstring ns\nint32 id\nint32 type\n"
+    "int32 action\ngeometry_msgs/Pose pose\ngeometry_msgs/Vector3 scale\n"
+    "std_msgs/ColorRGBA color\nbuiltin_interfaces/Duration lifetime\nbool frame_locked\n"
+    "geometry_msgs/Point[] points\nstd_msgs/ColorRGBA[] colors\nstring text\n"
+    "string mesh_resource\nbool mesh_use_embedded_materials",
+    "visualization_msgs/MarkerArray": "visualization_msgs/Marker[] markers",
+    "nav_msgs/Path": "std_msgs/Header header\ngeometry_msgs/PoseStamped[] poses",
     "nav_msgs/Odometry": "std_msgs/Header header\nstring child_frame_id\n"
     "geometry_msgs/PoseWithCovariance pose\ngeometry_msgs/TwistWithCovariance twist",
     "sensor_msgs/Image": "std_msgs/Header header\nuint32 height\nuint32 width\n"
@@ -79,7 +89,7 @@ def _schema_name(name: str) -> str:
 MESSAGE_DEFINITIONS: dict[str, str] = {
     _schema_name(name): _full_definition(name)
     for name in _BASE
-    if name != "builtin_interfaces/Time"
+    if not name.startswith("builtin_interfaces/")
 }
 """Schema name (``sensor_msgs/msg/Image``) -> full ``ros2msg`` definition text."""
 

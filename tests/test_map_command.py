@@ -94,3 +94,35 @@ def test_not_a_log_is_one_line(tmp_path: Path) -> None:
     run = run_map(str(bad), "--out", str(tmp_path / "out"), cache=tmp_path / "cache")
     assert run.returncode == 1 and str(bad) in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
+
+
+def test_overlay_reads_with_the_standard_reader(mapped) -> None:
+    """overlay.mcap holds the map as a MarkerArray (arrows at the map.json poses), the path
+    and map -> odom transforms, readable by mcap + mcap-ros2-support alone."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    folder, _ = mapped
+    document = json.loads((folder / "map.json").read_text())
+    positions = {m["id"]: (m["x"], m["y"]) for m in document["markers"]}
+    with open(folder / "overlay.mcap", "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        types = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+        assert types == {
+            "/markergraph/markers": "visualization_msgs/msg/MarkerArray",
+            "/markergraph/path": "nav_msgs/msg/Path",
+            "/tf": "tf2_msgs/msg/TFMessage",
+        }
+        for _, channel, _, decoded in reader.iter_decoded_messages(
+            topics=["/markergraph/markers", "/markergraph/path"]
+        ):
+            if channel.topic == "/markergraph/path":
+                assert len(decoded.poses) > 100
+                continue
+            arrows = [m for m in decoded.markers if m.ns == "normals"]
+            assert len(arrows) == len(positions)
+            for arrow in arrows:
+                assert (arrow.pose.position.x, arrow.pose.position.y) == pytest.approx(
+                    positions[arrow.id]
+                )
