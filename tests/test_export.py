@@ -40,11 +40,10 @@ def solved():
     return run, frames, estimate_frames(frames, Method.SLAM, run.mount.T_base_camera)
 
 
-def test_map_json_holds_the_map_and_the_papers_edges(solved, tmp_path: Path) -> None:
-    """map.json has the schema, every marker with a covariance, and links whose edge values
-    rebuild the relative pose of the two markers."""
+@pytest.fixture(scope="module")
+def map_json(solved, tmp_path_factory: pytest.TempPathFactory) -> Path:
     _, _, result = solved
-    path = tmp_path / "map.json"
+    path = tmp_path_factory.mktemp("export") / "map.json"
     write_json(
         path,
         map_document(
@@ -55,7 +54,14 @@ def test_map_json_holds_the_map_and_the_papers_edges(solved, tmp_path: Path) -> 
             marker_heights_m={0: 1.0},
         ),
     )
-    document = json.loads(path.read_text())
+    return path
+
+
+def test_map_json_holds_the_map_and_the_papers_edges(solved, map_json: Path) -> None:
+    """map.json has the schema, every marker with a covariance, and links whose edge values
+    rebuild the relative pose of the two markers."""
+    _, _, result = solved
+    document = json.loads(map_json.read_text())
     assert document["schema"] == MAP_SCHEMA and document["units"]["angle"] == "rad"
     assert {m["id"] for m in document["markers"]} == set(result.markers)
     home = next(m for m in document["markers"] if m["id"] == 0)
@@ -103,23 +109,6 @@ def test_g2o_loads_in_gtsam_and_reoptimises_to_the_same_map(solved, tmp_path: Pa
     optimised = gtsam.LevenbergMarquardtOptimizer(loaded, initial).optimize()
     for marker_id, marker in result.markers.items():
         assert optimised.atPose2(MARKER_VERTEX_OFFSET + marker_id).equals(marker.T_map_marker, 1e-6)
-
-
-@pytest.fixture(scope="module")
-def map_json(solved, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    _, _, result = solved
-    path = tmp_path_factory.mktemp("export") / "map.json"
-    write_json(
-        path,
-        map_document(
-            result,
-            log="sim.mcap",
-            dictionary="DICT_4X4_50",
-            marker_length_m=0.2,
-            marker_heights_m={0: 1.0},
-        ),
-    )
-    return path
 
 
 def run_cli(*arguments: str) -> subprocess.CompletedProcess[str]:
