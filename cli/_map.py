@@ -13,6 +13,7 @@ from markergraph.frontend.progress import ProgressBar
 
 SUMMARY = "estimate a corrected marker map from an MCAP log (default: the bundled sample)"
 DEFAULT_SAMPLE = "corridor-loop"
+ALL_METHODS = [Method.SLAM, Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.ISAM2, Method.EKF]
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -59,9 +60,8 @@ def run(args: argparse.Namespace) -> int:
     if args.log is None:
         log = sample_log(DEFAULT_SAMPLE)
         print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({log})")
-    methods = list(Method) if args.method == "all" else [Method(args.method)]
-    if args.method == "all":  # the paper's baseline first, the optimised maps after it
-        methods = [Method.SLAM, Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.ISAM2, Method.EKF]
+    # With all, SLAM comes first: the top-level map.json, map.g2o and overlay are its.
+    methods = ALL_METHODS if args.method == "all" else [Method(args.method)]
     config = frontend_config(args)
     with ProgressBar(f"reading {Path(log).name}") as bar:
         result = map_log(

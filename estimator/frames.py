@@ -10,7 +10,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.models import interpolate_pose
+from markergraph.estimator.models import compose_covariance, interpolate_pose
 from markergraph.estimator.types import (
     MarkerGraphError,
     Observation,
@@ -143,18 +143,10 @@ def build_frames(
 
 
 def _motion_covariance(poses: list[gtsam.Pose2], noise: OdometryNoise) -> NDArray[np.float64]:
-    """Covariance of the odometry motion along ``poses``, increment by increment.
-
-    Each increment adds its own covariance after the total so far is carried into its end frame
-    (``S <- Ad(step^-1) S Ad(step^-1)^T + S_step``), so heading errors early in a long gap show
-    up as lateral errors at its end.
-    """
-    total = np.zeros((3, 3))
-    for start, end in itertools.pairwise(poses):
-        step = start.between(end)
-        ad = step.inverse().AdjointMap()
-        total = ad @ total @ ad.T + noise.covariance(step)
-    return total
+    """Covariance of the odometry motion along ``poses``, composed increment by increment, so
+    heading errors early in a long gap show up as lateral errors at its end."""
+    steps = [start.between(end) for start, end in itertools.pairwise(poses)]
+    return compose_covariance(steps, [noise.covariance(step) for step in steps])[1]
 
 
 def _odometry_at(

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.estimator.angles import wrap
-from markergraph.estimator.types import Observation, OdometryNoise
+from markergraph.estimator.types import Observation
 
 __all__ = [
     "compose_covariance",
@@ -33,7 +33,6 @@ __all__ = [
     "invert_covariance",
     "observation_covariance",
     "observation_pose",
-    "odometry_covariance",
     "polar_to_pose_jacobian",
 ]
 
@@ -62,11 +61,6 @@ def observation_covariance(obs: Observation) -> Matrix:
     c, s = math.cos(yaw), math.sin(yaw)
     to_local = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
     return to_local @ J @ sigma @ J.T @ to_local.T
-
-
-def odometry_covariance(noise: OdometryNoise, delta: gtsam.Pose2) -> Matrix:
-    """3x3 covariance of a relative motion ``delta``, in its own tangent space."""
-    return noise.covariance(delta)
 
 
 def invert_covariance(T: gtsam.Pose2, covariance: Matrix) -> Matrix:

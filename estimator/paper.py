@@ -146,7 +146,8 @@ def _law_of_cosines(side_1: float, side_2: float, included_angle: float) -> floa
 def _sign_of_sine(angle: float) -> float:
     """+1 or -1: the side an ``arccos`` angle lies on. Zero sine maps to +1, where the angle is 0
     or pi and both signs give the same direction."""
-    return math.copysign(1.0, math.sin(angle)) if math.sin(angle) != 0.0 else 1.0
+    sine = math.sin(angle)
+    return math.copysign(1.0, sine) if sine != 0.0 else 1.0
 
 
 def _require_positive(**values: float) -> None:

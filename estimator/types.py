@@ -234,10 +234,3 @@ class Estimate:
     innovations: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)))
     nis: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
     notes: list[str] = field(default_factory=list)
-
-    def marker_xy_yaw(self) -> dict[int, NDArray[np.float64]]:
-        """marker id -> (x, y, yaw) in the map frame."""
-        return {
-            i: np.array([m.T_map_marker.x(), m.T_map_marker.y(), m.T_map_marker.theta()])
-            for i, m in self.markers.items()
-        }

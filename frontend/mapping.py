@@ -48,6 +48,7 @@ class MethodResult:
     map_error: MapError | None = None
     map_error_aligned: MapError | None = None
     trajectory_error: TrajectoryError | None = None
+    true_path: np.ndarray | None = None  # (N, 3) true poses at the estimate's stamps
 
     @property
     def label(self) -> str:
@@ -139,9 +140,11 @@ def map_log(
             result.map_error = map_error(estimate, truth)
             if len(estimate.markers) >= 2:
                 result.map_error_aligned = map_error(estimate, truth, align=True)
-            true_path = _true_trajectory(extraction, frames.home_id, estimate.trajectory_t_ns)
-            if true_path is not None and len(true_path) >= 2:
-                result.trajectory_error = trajectory_error(estimate.trajectory, true_path)
+            result.true_path = _true_trajectory(
+                extraction, frames.home_id, estimate.trajectory_t_ns
+            )
+            if result.true_path is not None and len(result.true_path) >= 2:
+                result.trajectory_error = trajectory_error(estimate.trajectory, result.true_path)
         results.append(result)
     return MapRun(Path(log), extraction, frames, results, truth, seconds)
 
@@ -241,9 +244,7 @@ def _write_method(
             run.true_markers,
             folder / "map.png",
             odometry=run.extraction.odometry,
-            truth_path=_true_trajectory(
-                run.extraction, run.frames.home_id, result.estimate.trajectory_t_ns
-            ),
+            truth_path=result.true_path,
         )
 
 

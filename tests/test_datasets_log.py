@@ -142,12 +142,12 @@ def test_one_seed_gives_the_same_bytes(short_log: Path, tmp_path: Path) -> None:
 def test_standard_reader_reads_the_expected_topics(short_log: Path) -> None:
     """mcap + mcap-ros2-support alone read the ros2 profile, topics, types and counts."""
     topics = Topics()
-    frames, odometry = 20, 201  # 4 s at 5 Hz (frame rate of this test) and 50 Hz
+    frames, odometry = 60, 201  # 4 s at the default 15 Hz and at 50 Hz
     expected = {
-        topics.color_compressed: ("sensor_msgs/msg/CompressedImage", 60),
-        topics.depth: ("sensor_msgs/msg/Image", 60),
-        topics.color_info: ("sensor_msgs/msg/CameraInfo", 60),
-        topics.depth_info: ("sensor_msgs/msg/CameraInfo", 60),
+        topics.color_compressed: ("sensor_msgs/msg/CompressedImage", frames),
+        topics.depth: ("sensor_msgs/msg/Image", frames),
+        topics.color_info: ("sensor_msgs/msg/CameraInfo", frames),
+        topics.depth_info: ("sensor_msgs/msg/CameraInfo", frames),
         topics.odom: ("nav_msgs/msg/Odometry", odometry),
         topics.tf: ("tf2_msgs/msg/TFMessage", odometry),
         topics.tf_static: ("tf2_msgs/msg/TFMessage", 1),
@@ -155,7 +155,6 @@ def test_standard_reader_reads_the_expected_topics(short_log: Path) -> None:
         topics.true_markers: ("tf2_msgs/msg/TFMessage", 1),
         topics.world: ("std_msgs/msg/String", 1),
     }
-    del frames  # the fixture writes at the default 15 Hz: 60 frames in 4 s
     with open(short_log, "rb") as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         assert reader.get_header().profile == "ros2"
