@@ -6,14 +6,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from markergraph.cli._frontend import add_frontend_options, frontend_config
-from markergraph.estimator import Method
-from markergraph.frontend.mapping import map_log, write_results
+from markergraph.cli._settings import add_settings, settings_from
+from markergraph.frontend.config import config_toml, map_config
+from markergraph.frontend.mapping import MapRun, map_log, write_results
 from markergraph.frontend.progress import ProgressBar
 
 SUMMARY = "estimate a corrected marker map from an MCAP log (default: the bundled sample)"
 DEFAULT_SAMPLE = "corridor-loop"
-ALL_METHODS = [Method.SLAM, Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.ISAM2, Method.EKF]
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -27,32 +26,25 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         f"{DEFAULT_SAMPLE} sample, rendered once into the cache)",
     )
     parser.add_argument(
-        "--method",
-        default="slam",
-        choices=[m.value for m in Method] + ["all"],
-        help="which estimator; all runs every one side by side (default slam)",
-    )
-    parser.add_argument(
         "--out", type=Path, default=None, help="result folder (default: map-<log name> here)"
     )
     parser.add_argument("--force", action="store_true", help="replace an existing result folder")
-    parser.add_argument(
-        "--home",
-        type=int,
-        default=None,
-        metavar="ID",
-        help="the marker whose frame is the map (default: the first seen)",
-    )
-    parser.add_argument(
-        "--workers", type=int, default=1, metavar="N", help="processes for detection (default 1)"
-    )
     parser.add_argument("--no-plots", action="store_true", help="skip map.png and comparison.png")
-    add_frontend_options(parser)
+    parser.add_argument(
+        "--print-config",
+        action="store_true",
+        help="print the settings in effect as a TOML file for --config, and stop",
+    )
+    add_settings(parser, "map")
 
 
 def run(args: argparse.Namespace) -> int:
     from markergraph.datasets.samples import sample_log, sample_path
 
+    config = map_config(settings_from(args, "map"))
+    if args.print_config:
+        print(config_toml(config.values), end="")
+        return 0
     log = args.log if args.log is not None else sample_path(DEFAULT_SAMPLE)
     out = args.out or Path(f"map-{Path(log).stem}")
     if out.exists() and not args.force:  # before any work, a sample's rendering included
@@ -60,14 +52,15 @@ def run(args: argparse.Namespace) -> int:
     if args.log is None:
         log = sample_log(DEFAULT_SAMPLE)
         print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({log})")
-    # With all, SLAM comes first: the top-level map.json, map.g2o and overlay are its.
-    methods = ALL_METHODS if args.method == "all" else [Method(args.method)]
-    config = frontend_config(args)
     with ProgressBar(f"reading {Path(log).name}") as bar:
-        result = map_log(
-            log, config, methods, home_id=args.home, workers=args.workers, progress=bar
-        )
-    written = write_results(result, out, config, force=args.force, plots=not args.no_plots)
+        result = map_log(log, config, progress=bar)
+    written = write_results(result, out, force=args.force, plots=not args.no_plots)
+    _print_summary(result)
+    print(f"wrote {len(written)} files to {out}/")
+    return 0
+
+
+def _print_summary(result: MapRun) -> None:
     extraction = result.extraction
     markers = {o.marker_id for o in extraction.observations}
     print(
@@ -94,5 +87,3 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {method_result.label}: {note}")
     for note in extraction.notes + extraction.warnings:
         print(f"note: {note}", file=sys.stderr)
-    print(f"wrote {len(written)} files to {out}/")
-    return 0

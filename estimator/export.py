@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from enum import Enum
 from pathlib import Path
@@ -63,17 +63,19 @@ def map_document(
     log: str,
     dictionary: str,
     marker_length_m: float,
-    marker_heights_m: dict[int, float] | None = None,
+    marker_lengths_m: Mapping[int, float] | None = None,
+    marker_heights_m: Mapping[int, float] | None = None,
 ) -> dict[str, Any]:
     """The corrected marker graph as a JSON-ready document (schema ``markergraph.map/1``).
 
-    Markers carry their pose in the map frame (the home marker's), a 3x3 covariance over
+    Markers carry their pose in the map frame (the home marker's), their side (``size_m``:
+    ``marker_lengths_m``'s where given, else ``marker_length_m``), a 3x3 covariance over
     (x, y, yaw) in the marker's own tangent space or null, and their observation count. Each
     link between markers carries the paper's edge values (phi, theta_ab, theta_ba, d) of the
     estimated map and the covariance of the relative pose ``T_a_b`` (markers taken as
     independent, which slightly overstates it where they are correlated).
     """
-    heights = marker_heights_m or {}
+    heights, sides = marker_heights_m or {}, marker_lengths_m or {}
     markers = []
     for marker_id in sorted(estimate.markers):
         marker = estimate.markers[marker_id]
@@ -83,6 +85,7 @@ def map_document(
             "x": T.x(),
             "y": T.y(),
             "yaw": T.theta(),
+            "size_m": sides.get(marker_id, marker_length_m),
             "covariance": _covariance(marker.covariance),
             "n_observations": marker.n_observations,
         }
@@ -276,8 +279,12 @@ def export_map(document: dict[str, Any], fmt: ExportFormat, path: Path) -> None:
     """
     if document.get("schema") != MAP_SCHEMA:
         raise MarkerGraphError(f"not a {MAP_SCHEMA} document (schema {document.get('schema')!r})")
-    size = float(document["marker_size_m"])
+    default_size = float(document["marker_size_m"])
     markers = document["markers"]
+
+    def size(marker: dict[str, Any]) -> float:
+        return float(marker.get("size_m", default_size))
+
     lines: list[str] = []
     if fmt is ExportFormat.CSV:
         lines.append("id,x_m,y_m,z_m,yaw_rad,sigma_x_m,sigma_y_m,sigma_yaw_rad,n_observations")
@@ -298,7 +305,7 @@ def export_map(document: dict[str, Any], fmt: ExportFormat, path: Path) -> None:
         for m in markers:
             corners = ", ".join(
                 "[" + ", ".join(repr(float(v)) for v in corner) + "]"
-                for corner in _corners(m, size)
+                for corner in _corners(m, size(m))
             )
             lines.append(f"   - {{ id: {m['id']}, corners: [ {corners} ] }}")
     elif fmt is ExportFormat.FIDUCIAL_SLAM:
@@ -316,7 +323,7 @@ def export_map(document: dict[str, Any], fmt: ExportFormat, path: Path) -> None:
             " - map:",
             "     is_static: true",
             "     type: simple",
-            f"     default_tag_size: {size!r}",
+            f"     default_tag_size: {default_size!r}",
             "     tags:",
         ]
         for m in markers:
@@ -324,7 +331,7 @@ def export_map(document: dict[str, Any], fmt: ExportFormat, path: Path) -> None:
             sx, sy, syaw = _sigmas(m)
             lines += [
                 f"       - id: {m['id']}",
-                f"         size: {size!r}",
+                f"         size: {size(m)!r}",
                 "         pose:",
                 f"           position: {{x: {m['x']!r}, y: {m['y']!r}, "
                 f"z: {float(m.get('z', 0.0))!r}}}",

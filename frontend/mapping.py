@@ -33,8 +33,9 @@ from markergraph.estimator.export import (
 )
 from markergraph.estimator.slam import build_slam_graph
 from markergraph.estimator.types import MarkerGraphError
+from markergraph.frontend.config import MapConfig, map_config
 from markergraph.frontend.overlay import write_overlay
-from markergraph.frontend.pipeline import Extraction, FrontendConfig, extract
+from markergraph.frontend.pipeline import Extraction, extract
 
 __all__ = ["MapRun", "MethodResult", "map_log", "write_results"]
 
@@ -61,6 +62,7 @@ class MapRun:
 
     Attributes:
         log: the log read.
+        config: the settings it was read and estimated with.
         extraction: the front end's output.
         frames: the estimator's input.
         results: one per method, in the order asked.
@@ -70,6 +72,7 @@ class MapRun:
     """
 
     log: Path
+    config: MapConfig
     extraction: Extraction
     frames: Frames
     results: list[MethodResult]
@@ -104,11 +107,8 @@ def _true_trajectory(extraction: Extraction, home_id: int, t_ns: np.ndarray) -> 
 
 def map_log(
     log: Path,
-    config: FrontendConfig,
-    methods: list[Method],
+    config: MapConfig | None = None,
     *,
-    home_id: int | None = None,
-    workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> MapRun:
     """Read a log, estimate the map with each method, and score it when ground truth is logged.
@@ -116,24 +116,37 @@ def map_log(
     Raises:
         MarkerGraphError: the log cannot be read, has no marker observations, or no odometry.
     """
+    config = config or map_config()
     seconds: dict[str, float] = {}
     start = time.perf_counter()
-    extraction = extract(log, config, progress=progress, workers=workers)
+    extraction = extract(log, config.frontend, progress=progress, workers=config.workers)
     seconds["front end"] = time.perf_counter() - start
     if not extraction.observations:
         raise MarkerGraphError(
-            f"{log}: no markers of {config.dictionary} were found in {extraction.frames} frames"
+            f"{log}: no markers of {config.frontend.dictionary} were found in "
+            f"{extraction.frames} frames"
         )
     if not extraction.odometry:
         raise MarkerGraphError(
             f"{log}: no odometry (no nav_msgs/Odometry topic and no odom -> base transforms on /tf)"
         )
-    frames = build_frames(extraction.observations, extraction.odometry, home_id)
+    frames = build_frames(
+        extraction.observations,
+        extraction.odometry,
+        config.home_id,
+        odometry_noise=config.odometry_noise,
+    )
     truth = _truth_in_home_frame(extraction, frames.home_id)
     results = []
-    for method in methods:
+    for method in config.methods:
         start = time.perf_counter()
-        estimate = estimate_frames(frames, method, extraction.mount.T_base_camera, form=Form.SIGNED)
+        estimate = estimate_frames(
+            frames,
+            method,
+            extraction.mount.T_base_camera,
+            form=Form.SIGNED,
+            robust=config.robust,
+        )
         seconds[method.value] = time.perf_counter() - start
         result = MethodResult(method, estimate)
         if truth and set(estimate.markers) & set(truth):
@@ -146,7 +159,7 @@ def map_log(
             if result.true_path is not None and len(result.true_path) >= 2:
                 result.trajectory_error = trajectory_error(estimate.trajectory, result.true_path)
         results.append(result)
-    return MapRun(Path(log), extraction, frames, results, truth, seconds)
+    return MapRun(Path(log), config, extraction, frames, results, truth, seconds)
 
 
 def _report(run: MapRun) -> dict[str, Any]:
@@ -162,6 +175,7 @@ def _report(run: MapRun) -> dict[str, Any]:
         "notes": extraction.notes + extraction.warnings,
         "ground_truth": bool(run.true_markers),
         "seconds": run.seconds,
+        "settings": dict(run.config.values),
         "methods": {},
     }
     for result in run.results:
@@ -184,9 +198,7 @@ def _report(run: MapRun) -> dict[str, Any]:
     return report
 
 
-def write_results(
-    run: MapRun, out: Path, config: FrontendConfig, *, force: bool = False, plots: bool = True
-) -> list[Path]:
+def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = True) -> list[Path]:
     """The result folder: written beside ``out`` under a temporary name, then renamed, so an
     interrupted run leaves nothing half-written; an existing folder is replaced only with
     ``force``.
@@ -207,7 +219,7 @@ def write_results(
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
     try:
-        _write_all(run, partial, config, plots)
+        _write_all(run, partial, plots)
         written = sorted(str(p.relative_to(partial)) for p in partial.rglob("*") if p.is_file())
         if out.exists():
             shutil.rmtree(out)
@@ -217,9 +229,8 @@ def write_results(
     return [Path(p) for p in written]
 
 
-def _write_method(
-    run: MapRun, result: MethodResult, folder: Path, config: FrontendConfig, plots: bool
-) -> None:
+def _write_method(run: MapRun, result: MethodResult, folder: Path, plots: bool) -> None:
+    config = run.config.frontend
     write_json(
         folder / "map.json",
         map_document(
@@ -227,6 +238,7 @@ def _write_method(
             log=str(run.log),
             dictionary=config.dictionary,
             marker_length_m=config.marker_length_m,
+            marker_lengths_m=config.marker_lengths_m,
         ),
     )
     if result.method in (Method.SLAM, Method.ISAM2):
@@ -248,14 +260,14 @@ def _write_method(
         )
 
 
-def _write_all(run: MapRun, folder: Path, config: FrontendConfig, plots: bool) -> None:
+def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
     first = run.results[0]
-    _write_method(run, first, folder, config, plots)
+    _write_method(run, first, folder, plots)
     if len(run.results) > 1:
         for result in run.results:
             method_folder = folder / "methods" / result.label
             method_folder.mkdir(parents=True)
-            _write_method(run, result, method_folder, config, plots)
+            _write_method(run, result, method_folder, plots)
         if plots:
             from markergraph.frontend.plots import plot_comparison
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import cv2
@@ -81,13 +82,15 @@ def observe_detections(
     t_ns: int = 0,
     corner_sigma_px: float = 0.3,
     depth_model: DepthModel = DepthModel(),
+    marker_lengths_m: Mapping[int, float] | None = None,
 ) -> list[Observation]:
     """Observations of already detected markers; see :func:`observe`."""
     observations = []
     R_base_optical = mount.R_base_optical
     for detection in detections:
+        length_m = (marker_lengths_m or {}).get(detection.marker_id, marker_length_m)
         corners = camera.undistort(detection.corners)
-        theta = yaw_from_corners(corners, method, camera, marker_length_m)
+        theta = yaw_from_corners(corners, method, camera, length_m)
         if not math.isfinite(theta):
             continue  # PAPER has no solution here; nothing honest to report
         centre = marker_centre(corners)
@@ -100,7 +103,7 @@ def observe_detections(
         z = None if depth is None else _marker_depth(depth, corners, depth_model)
         if z is None:
             # Without depth: the mean vertical edge images f * L / Z for a level camera.
-            z = camera.fy * marker_length_m / ((left + right) / 2.0)
+            z = camera.fy * length_m / ((left + right) / 2.0)
             flags.add(Flags.NO_DEPTH)
             sigma_z = z * corner_sigma_px * math.sqrt(2.0) / ((left + right) / 2.0)
         else:
@@ -110,7 +113,7 @@ def observe_detections(
         range_m = math.hypot(p_base[0], p_base[1])
         bearing = math.atan2(p_base[1], p_base[0]) - mount.yaw_rad
         sigma_range = sigma_z * range_m / z  # the horizontal range scales with Z
-        sigma_theta = yaw_sigma(corners, method, corner_sigma_px, camera, marker_length_m)
+        sigma_theta = yaw_sigma(corners, method, corner_sigma_px, camera, length_m)
         if abs(theta) > GRAZING_RAD:
             # A foreshortened square's two planar poses reproject alike; beyond 60 degrees
             # the detector's corners cannot tell them apart and theta may be mirrored. Keep
@@ -156,6 +159,7 @@ def observe(
     detector: Detector | None = None,
     corner_sigma_px: float = 0.3,
     depth_model: DepthModel = DepthModel(),
+    marker_lengths_m: Mapping[int, float] | None = None,
 ) -> list[Observation]:
     """Every marker in one frame as an :class:`Observation` (bearing, theta, range, sigmas).
 
@@ -163,6 +167,7 @@ def observe(
         image: grey or RGB image.
         camera: its intrinsics (corners are undistorted with its distortion first).
         marker_length_m: the black square's side.
+        marker_lengths_m: the sides of markers whose size differs, by id.
         dictionary: the markers' dictionary (ignored when ``detector`` is given).
         depth: aligned depth, uint16 millimetres or float32 metres, 0 or NaN for no return;
             without it, range comes from the marker's size and is flagged ``no-depth``.
@@ -189,4 +194,5 @@ def observe(
         t_ns=t_ns,
         corner_sigma_px=corner_sigma_px,
         depth_model=depth_model,
+        marker_lengths_m=marker_lengths_m,
     )

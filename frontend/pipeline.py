@@ -10,7 +10,7 @@ import itertools
 import multiprocessing
 import re
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -82,18 +82,22 @@ class FrontendConfig:
     Attributes:
         dictionary: the markers' dictionary.
         marker_length_m: side of the markers' black square [m].
+        marker_lengths_m: the sides of markers whose size differs, by id [m].
         method: how theta is computed.
         allowed_ids: if given, only these marker ids are kept.
         color_topic, depth_topic, camera_info_topic, odom_topic: topics to read.
         base_frame: the robot's base frame in /tf_static.
         mount: the camera's mount; None reads it from /tf_static.
+        default_mount: the mount assumed when /tf_static does not give it.
         camera: intrinsics; None reads them from the camera info topic.
         pair_tolerance_ns: largest stamp difference between a colour frame and its depth.
         depth_model: the depth camera's error model.
+        corner_sigma_px: the corners' noise after sub-pixel refinement [px].
     """
 
     dictionary: str = "DICT_4X4_50"
     marker_length_m: float = 0.2
+    marker_lengths_m: Mapping[int, float] = field(default_factory=dict)
     method: YawMethod = YawMethod.PNP
     allowed_ids: tuple[int, ...] | None = None
     color_topic: str | None = None
@@ -102,9 +106,11 @@ class FrontendConfig:
     odom_topic: str | None = None
     base_frame: str = "base_link"
     mount: CameraMount | None = None
+    default_mount: CameraMount = CameraMount()
     camera: Camera | None = None
     pair_tolerance_ns: int = 20_000_000
     depth_model: DepthModel = DepthModel()
+    corner_sigma_px: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -264,7 +270,7 @@ def _extract_span(
     progress: Callable[[int, int], None] | None = None,
 ) -> Extraction:
     """One process's work: observations, odometry and ground truth of one stretch of the log."""
-    result = Extraction([], [], config.camera, config.mount or CameraMount(), choice)
+    result = Extraction([], [], config.camera, config.mount or config.default_mount, choice)
     failures = DecodeFailures()
     static: list[Any] = []
     for message in messages(path, _once_topics(choice, counts), failures):
@@ -299,10 +305,10 @@ def _extract_span(
                 try:
                     result.mount = mount_from_transforms(static, config.base_frame, image_frame)
                 except LogError as error:
-                    result.notes.append(f"{error}; assuming the default camera mount")
+                    result.notes.append(f"{error}; assuming the configured camera mount")
             else:
                 result.notes.append(
-                    f"no /tf_static: assuming the default camera mount ({result.mount})"
+                    f"no /tf_static: assuming the configured camera mount ({result.mount})"
                 )
         for t_ns, message, depth in ready:
             image = decode_image(message)
@@ -322,7 +328,9 @@ def _extract_span(
                 method=config.method,
                 mount=result.mount,
                 t_ns=t_ns,
+                corner_sigma_px=config.corner_sigma_px,
                 depth_model=config.depth_model,
+                marker_lengths_m=config.marker_lengths_m,
             )
 
     def drain(latest_ns: int, flush: bool = False) -> None:

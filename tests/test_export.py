@@ -51,6 +51,7 @@ def map_json(solved, tmp_path_factory: pytest.TempPathFactory) -> Path:
             log="sim.mcap",
             dictionary="DICT_4X4_50",
             marker_length_m=0.2,
+            marker_lengths_m={3: 0.1},  # one smaller marker
             marker_heights_m={0: 1.0},
         ),
     )
@@ -150,7 +151,7 @@ def test_every_export_format_parses_back_to_the_map(map_json: Path, tmp_path: Pa
         assert centre[:2] == pytest.approx([markers[marker_id]["x"], markers[marker_id]["y"]])
         # TL -> TR runs to the viewer's right, TL -> BL down; their cross product is the normal.
         across, down = corners[1] - corners[0], corners[3] - corners[0]
-        assert np.linalg.norm(across) == pytest.approx(0.2)
+        assert np.linalg.norm(across) == pytest.approx(0.1 if marker_id == 3 else 0.2)
         normal = np.cross(down, across)
         np.testing.assert_allclose(normal / np.linalg.norm(normal), normal_of(marker_id), atol=1e-9)
     storage.release()
@@ -170,6 +171,7 @@ def test_every_export_format_parses_back_to_the_map(map_json: Path, tmp_path: Pa
         rotation = tag["pose"]["rotation"]
         R = gtsam.Rot3.Expmap(np.array([rotation["x"], rotation["y"], rotation["z"]])).matrix()
         np.testing.assert_allclose(R[:, 2], normal_of(tag["id"]), atol=1e-9)
+        assert tag["size"] == markers[tag["id"]]["size_m"] == (0.1 if tag["id"] == 3 else 0.2)
 
 
 def test_heading_command_matches_geometry(map_json: Path) -> None:

@@ -19,6 +19,7 @@ from markergraph.datasets import Marker, Wall, World, scenario
 from markergraph.datasets.write import write_log
 from markergraph.estimator import MarkerGraphError
 from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.config import frontend_config
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.jsonl import read_observations
 from markergraph.frontend.log import LogError, decode_image, log_topics, messages
@@ -484,37 +485,89 @@ def test_foxglove_pose_decodes_as_odometry() -> None:
     assert math.isfinite(pose.x) and math.isfinite(pose.yaw)
 
 
-def test_tf_stands_in_for_missing_odometry(simulated, tmp_path: Path) -> None:
-    """Without /odom, the odom -> base_link transforms on /tf give the same odometry."""
-    path, result = simulated[0]
-    without_odom = tmp_path / "tf-only.mcap"
-    with open(path, "rb") as source, open(without_odom, "wb") as target:
-        from mcap.reader import make_reader
-        from mcap.writer import Writer as McapWriter
+def copy_without(path: Path, target: Path, topic: str) -> None:
+    """A copy of an MCAP log without one topic's channel and messages."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer as McapWriter
 
+    with open(path, "rb") as source, open(target, "wb") as stream:
         reader = make_reader(source)
         summary = reader.get_summary()
-        writer = McapWriter(target)
+        writer = McapWriter(stream)
         writer.start(profile="ros2")
         schema_ids = {
             sid: writer.register_schema(s.name, s.encoding, s.data)
             for sid, s in summary.schemas.items()
         }
-        channel_ids = {}
-        for cid, channel in summary.channels.items():
-            if channel.topic != "/odom":
-                channel_ids[cid] = writer.register_channel(
-                    channel.topic, channel.message_encoding, schema_ids[channel.schema_id]
-                )
+        channel_ids = {
+            cid: writer.register_channel(
+                channel.topic, channel.message_encoding, schema_ids[channel.schema_id]
+            )
+            for cid, channel in summary.channels.items()
+            if channel.topic != topic
+        }
         for _, channel, message in reader.iter_messages():
             if channel.id in channel_ids:
                 writer.add_message(
                     channel_ids[channel.id], message.log_time, message.data, message.publish_time
                 )
         writer.finish()
+
+
+def test_tf_stands_in_for_missing_odometry(simulated, tmp_path: Path) -> None:
+    """Without /odom, the odom -> base_link transforms on /tf give the same odometry."""
+    path, result = simulated[0]
+    without_odom = tmp_path / "tf-only.mcap"
+    copy_without(path, without_odom, "/odom")
     other = extract(without_odom, FrontendConfig(allowed_ids=tuple(range(30))))
     assert other.topics.odom == "/tf"
     assert other.odometry == result.odometry
+
+
+def test_configured_mount_stands_in_for_missing_tf_static(simulated, tmp_path: Path) -> None:
+    """Without /tf_static the configured mount is used and said so: the true one (0.6 m,
+    pitched 10 deg) gives the same observations as /tf_static; a level camera does not."""
+    path, result = simulated[0]
+    stripped = tmp_path / "no-tf-static.mcap"
+    copy_without(path, stripped, "/tf_static")
+    ids = {"ids": list(range(30))}
+    true = extract(stripped, frontend_config({**ids, "camera.height": 0.6, "camera.pitch_deg": 10}))
+    level = extract(stripped, frontend_config({**ids, "camera.pitch_deg": 0.0}))
+    assert true.topics.tf_static is None and any("/tf_static" in n for n in true.notes)
+    assert [o.range_m for o in true.observations] == pytest.approx(
+        [o.range_m for o in result.observations], abs=1e-9
+    )
+    errors = [
+        abs(a.range_m - b.range_m)
+        for a, b in zip(level.observations, result.observations, strict=True)
+    ]
+    assert np.median(errors) > 0.01
+
+
+def test_marker_sizes_per_id_set_the_range_without_depth() -> None:
+    """A 0.1 m marker beside a 0.2 m one: with its size given per id, its size-based range is
+    right (within the 6% a pitched camera's edge-length range allows); with the default size
+    alone it reads exactly twice as far."""
+    markers = (Marker(0, 0, 2.6, size_m=0.2), Marker(1, 0, 3.4, size_m=0.1))
+    world = World("wall", (Wall((0.0, 0.0), (6.0, 0.0)),), markers, 0)
+    from markergraph.datasets.render import Renderer
+
+    renderer = Renderer(world)
+    T_world_base = gtsam.Pose2(3.0, 1.5, -math.pi / 2)
+    frame = renderer.render(T_world_base, np.random.default_rng(2))
+    camera = T_world_base.compose(renderer.mount.T_base_camera).translation()
+    ranges = {}
+    for sizes in ({1: 0.1}, {}):
+        observations = observe(
+            frame.rgb, renderer.camera, 0.2, mount=renderer.mount, marker_lengths_m=sizes
+        )
+        assert sorted(o.marker_id for o in observations) == [0, 1]
+        ranges[len(sizes)] = {o.marker_id: o.range_m for o in observations}
+    for marker_id, range_m in ranges[1].items():
+        truth = float(np.linalg.norm(world.T_world_marker(marker_id).translation() - camera))
+        assert range_m == pytest.approx(truth, rel=0.06)
+    assert ranges[0][0] == ranges[1][0]
+    assert ranges[0][1] == pytest.approx(2.0 * ranges[1][1], rel=1e-12)
 
 
 def test_compressed_depth_decodes_like_raw_depth() -> None:

@@ -31,7 +31,11 @@ def run_map(*arguments: str, cache: Path) -> subprocess.CompletedProcess[str]:
 @pytest.fixture(scope="module")
 def mapped(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     folder = tmp_path_factory.mktemp("map")
-    run = run_map("--method", "all", "--out", str(folder / "result"), cache=folder / "cache")
+    settings = folder / "robot.yaml"
+    settings.write_text("method: all\nmarker_size: 0.2\n")
+    run = run_map(
+        "--config", str(settings), "--out", str(folder / "result"), cache=folder / "cache"
+    )
     assert run.returncode == 0, run.stderr
     return folder / "result", run.stdout
 
@@ -53,6 +57,7 @@ def test_map_json_matches_ground_truth(mapped) -> None:
     assert document["schema"] == MAP_SCHEMA and document["method"] == "slam"
     assert len(document["markers"]) == 12 and document["links"]
     assert report["ground_truth"] and report["frames"] > 1000
+    assert report["settings"]["method"] == "all"  # from the --config file
     assert report["methods"]["slam"]["marker_rmse_m"] < 0.35
     assert (
         report["methods"]["closed-form"]["marker_rmse_m"]

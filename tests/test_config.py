@@ -1,0 +1,177 @@
+"""Settings of the main job from TOML, YAML and flags: same values every way, bad ones named."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from markergraph.estimator import Method, OdometryNoise, Robust
+from markergraph.frontend.camera import CameraMount
+from markergraph.frontend.config import (
+    ALL_METHODS,
+    SETTINGS,
+    config_toml,
+    map_config,
+    read_config_file,
+)
+from markergraph.frontend.observe import DepthModel
+from markergraph.frontend.pipeline import FrontendConfig
+from markergraph.frontend.yaw import YawMethod
+
+TOML = """
+dictionary = "DICT_6X6_250"
+marker_size = 0.15
+ids = [3, 1, 2]
+method = "all"
+home = 2
+
+[marker_sizes]
+7 = 0.1
+
+[topics]
+color = "/cam/image/compressed"
+
+[camera]
+height = 0.45
+pitch_deg = 12.5
+
+[noise]
+odometry_per_m = 0.02
+robust = "huber"
+"""
+
+YAML = """
+dictionary: DICT_6X6_250
+marker_size: 0.15
+ids: [3, 1, 2]
+method: all
+home: 2
+marker_sizes: {7: 0.1}
+topics: {color: /cam/image/compressed}
+camera:
+  height: 0.45
+  pitch_deg: 12.5
+noise:
+  odometry_per_m: 0.02
+  robust: huber
+"""
+
+
+def cli(*arguments: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "markergraph.cli", *arguments], capture_output=True, text=True
+    )
+
+
+def test_defaults_are_the_librarys_defaults() -> None:
+    """With nothing set, the settings build exactly the library's default objects."""
+    config = map_config()
+    assert config.frontend == FrontendConfig()
+    assert config.frontend.default_mount == CameraMount()
+    assert config.odometry_noise == OdometryNoise()
+    assert config.methods == (Method.SLAM,) and config.robust is Robust.NONE
+    assert config.home_id is None and config.workers == 1
+
+
+@pytest.mark.parametrize(("name", "text"), [("robot.toml", TOML), ("robot.yaml", YAML)])
+def test_a_file_sets_every_section(tmp_path: Path, name: str, text: str) -> None:
+    """TOML and YAML give the same configuration; degrees become radians, ids become ints."""
+    path = tmp_path / name
+    path.write_text(text)
+    config = map_config(read_config_file(path))
+    frontend = config.frontend
+    assert frontend.dictionary == "DICT_6X6_250" and frontend.marker_length_m == 0.15
+    assert frontend.marker_lengths_m == {7: 0.1} and frontend.allowed_ids == (1, 2, 3)
+    assert frontend.color_topic == "/cam/image/compressed" and frontend.depth_topic is None
+    assert frontend.default_mount.height_m == 0.45
+    assert frontend.default_mount.pitch_rad == pytest.approx(math.radians(12.5), abs=1e-15)
+    assert frontend.default_mount.x_m == CameraMount().x_m  # untouched keys keep defaults
+    assert frontend.method is YawMethod.PNP and frontend.depth_model == DepthModel()
+    assert config.methods == ALL_METHODS and config.home_id == 2
+    assert config.odometry_noise == OdometryNoise(per_m=0.02)
+    assert config.robust is Robust.HUBER
+
+
+def test_printed_configuration_reads_back_to_the_same_settings(tmp_path: Path) -> None:
+    """config_toml writes every setting; reading it back gives the same values, unset ones
+    included."""
+    source = tmp_path / "robot.toml"
+    source.write_text(TOML)
+    values = map_config(read_config_file(source)).values
+    assert set(values) == {s.key for s in SETTINGS}
+    printed = tmp_path / "printed.toml"
+    printed.write_text(config_toml(values))
+    assert map_config(read_config_file(printed)).values == values
+    defaults = tmp_path / "defaults.toml"
+    defaults.write_text(config_toml({}))
+    assert map_config(read_config_file(defaults)) == map_config()
+
+
+@pytest.mark.parametrize(
+    ("text", "named"),
+    [
+        ("marker_size = -0.2\n", "marker_size must be positive, got -0.2"),
+        ("marker_size = true\n", "marker_size must be a number"),
+        ("[camera]\nheight = 'high'\n", "camera.height must be a number"),
+        ("[topics]\ncolour = '/a'\n", "unknown setting 'topics.colour'"),
+        ("method = 'gps'\n", "method must be one of"),
+        ("[marker_sizes]\nseven = 0.1\n", "marker_sizes must be a marker id"),
+        ("workers = 0\n", "workers must be a whole number"),
+        ("marker_size = \n", "robot.toml: "),  # not TOML at all
+    ],
+)
+def test_bad_file_values_name_the_file_and_key(tmp_path: Path, text: str, named: str) -> None:
+    path = tmp_path / "robot.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=r"robot\.toml") as error:
+        read_config_file(path)
+    assert named in str(error.value) and "\n" not in str(error.value)
+
+
+def test_flags_override_the_file_and_bad_flags_exit_1(tmp_path: Path) -> None:
+    """--config then a flag: the flag wins; printed settings show it. A bad value or file is
+    one line on stderr and exit 1."""
+    path = tmp_path / "robot.yaml"
+    path.write_text(YAML)
+    run = cli("map", "--config", str(path), "--marker-size", "0.3", "--marker-sizes", "9=0.05",
+              "--print-config")  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    printed = tmp_path / "printed.toml"
+    printed.write_text(run.stdout)
+    values = read_config_file(printed)
+    assert values["marker_size"] == 0.3 and values["marker_sizes"] == {9: 0.05}
+    assert values["dictionary"] == "DICT_6X6_250" and values["camera.height"] == 0.45
+    for arguments, named in (
+        (("--marker-size", "-1"), "--marker-size must be positive"),
+        (("--marker-sizes", "7:0.1"), "--marker-sizes must be ID=M pairs"),
+        (("--config", str(tmp_path / "missing.toml")), "missing.toml"),
+        (("--config", str(tmp_path / "robot.ini")), "robot.ini"),
+    ):
+        run = cli("map", *arguments, "--print-config")
+        assert run.returncode == 1 and named in run.stderr
+        assert len(run.stderr.strip().splitlines()) == 1
+
+
+def test_help_explains_every_setting_with_its_default() -> None:
+    """`markergraph map --help` lists each setting's flag, its file key and its default."""
+    run = cli("map", "--help")
+    text = " ".join(run.stdout.split())  # argparse wraps lines
+    for setting in SETTINGS:
+        assert setting.flag in text and f"file: {setting.key}" in text
+        if setting.default not in (None, {}):
+            assert f"{setting.key}, default {setting.default}" in text
+
+
+def test_readme_example_is_a_valid_settings_file(tmp_path: Path) -> None:
+    """The TOML example in README.md reads as it says."""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = readme.split("```toml\n", 1)[1].split("```", 1)[0]
+    path = tmp_path / "robot.toml"
+    path.write_text(block)
+    config = map_config(read_config_file(path))
+    assert config.frontend.marker_lengths_m == {7: 0.3} and config.methods == ALL_METHODS
+    assert config.frontend.default_mount.pitch_rad == pytest.approx(math.radians(5.0))
