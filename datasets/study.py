@@ -13,6 +13,7 @@ from markergraph.datasets.simulate import ObservationNoise, SimulatedRun, simula
 from markergraph.estimator import (
     Form,
     Method,
+    OdometryNoise,
     build_frames,
     estimate_frames,
     map_error,
@@ -58,10 +59,10 @@ DEFAULT_METHODS: tuple[tuple[Method, Form], ...] = (
 )
 
 
-def _row(run: SimulatedRun, name: str, seed: int, method: Method, form: Form) -> StudyRow:
-    frames = build_frames(
-        run.observations, run.odometry, run.world.home_id, odometry_noise=run.odometry_noise
-    )
+def _row(
+    run: SimulatedRun, name: str, seed: int, method: Method, form: Form, assumed: OdometryNoise
+) -> StudyRow:
+    frames = build_frames(run.observations, run.odometry, run.world.home_id, odometry_noise=assumed)
     result = estimate_frames(frames, method, run.mount.T_base_camera, form=form)
     truth = run.true_markers()
     error, aligned = map_error(result, truth), map_error(result, truth, align=True)
@@ -98,11 +99,13 @@ def drift_study(
     noise: ObservationNoise = ObservationNoise(),
     wheel: WheelErrors = WheelErrors(),
     duration_s: float | None = None,
+    odometry_noise: OdometryNoise | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[StudyRow]:
     """Run every method on one fast-mode run per (scenario, seed).
 
     Args:
+        odometry_noise: the odometry noise the estimators assume (default: the run's model).
         progress: called with (runs done, runs in all) after each run.
     """
     names, seed_list, method_list = list(scenarios), list(seeds), list(methods)
@@ -111,7 +114,8 @@ def drift_study(
         world, route = scenario(name)
         for seed in seed_list:
             run = simulate_fast(world, route, seed, noise=noise, wheel=wheel, duration_s=duration_s)
-            rows += [_row(run, name, seed, method, form) for method, form in method_list]
+            assumed = odometry_noise or run.odometry_noise
+            rows += [_row(run, name, seed, m, form, assumed) for m, form in method_list]
             if progress is not None:
                 progress(len(rows) // len(method_list), total)
     return rows
