@@ -254,11 +254,13 @@ class IncrementalSlam:
                 self.frames.frames[k].T_odom_base.inverse()
             )
 
-    def finish(self, max_sweeps: int = 8, tolerance: float = 1e-6) -> bool:
+    def finish(self, max_sweeps: int = 30, tolerance: float = 1e-6) -> bool:
         """Relinearise everything until the estimate stops moving; True if it did.
 
         A full solve as well: during the incremental updates iSAM2 skips back-substituting
-        changes below its wildfire threshold, which leaves ~1e-3 m between it and batch.
+        changes below its wildfire threshold, which leaves ~1e-3 m between it and batch. Each
+        sweep is one Gauss-Newton step; with a robust kernel the weights move with it and the
+        steps shrink only linearly (16 sweeps on the corridor sample with Huber).
         """
         params = gtsam.ISAM2UpdateParams()
         params.force_relinearize = True

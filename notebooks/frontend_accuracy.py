@@ -288,8 +288,9 @@ for k, method in enumerate(METHODS):
 assert papers_views["pnp"][0] < 2.0 and papers_views["pnp"][1] <= 15.0, papers_views
 assert min(papers_views[m][0] for m in ("paper", "mean-edge", "calibrated")) > 2.0, papers_views
 assert every_view["pnp"][1] > papers_views["pnp"][1]  # off-centre, grazing views cost accuracy
-# PnP, with the intrinsics, beats every calibration-free ratio at every distance.
-for d in DISTANCES:
+# PnP, with the intrinsics, beats every calibration-free ratio up to 4 m. At 5 m the marker
+# is about 25 px wide and every method's median is 2.5-3.5 degrees: PnP loses its edge there.
+for d in DISTANCES[DISTANCES <= 4.0]:
     by_method = {
         m.value: np.nanmedian(theta_err[(method_ix == k) & np.isclose(dist, d)])
         for k, m in enumerate(METHODS)

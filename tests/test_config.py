@@ -41,7 +41,7 @@ pitch_deg = 12.5
 
 [noise]
 odometry_per_m = 0.02
-robust = "huber"
+robust = "cauchy"
 """
 
 YAML = """
@@ -57,7 +57,7 @@ camera:
   pitch_deg: 12.5
 noise:
   odometry_per_m: 0.02
-  robust: huber
+  robust: cauchy
 """
 
 
@@ -73,7 +73,7 @@ def test_defaults_are_the_librarys_defaults() -> None:
     assert config.frontend == FrontendConfig()
     assert config.frontend.default_mount == CameraMount()
     assert config.odometry_noise == OdometryNoise()
-    assert config.methods == (Method.SLAM,) and config.robust is Robust.NONE
+    assert config.methods == (Method.SLAM,) and config.robust is Robust.HUBER
     assert config.home_id is None and config.workers == 1
 
 
@@ -93,7 +93,7 @@ def test_a_file_sets_every_section(tmp_path: Path, name: str, text: str) -> None
     assert frontend.method is YawMethod.PNP and frontend.depth_model == DepthModel()
     assert config.methods == ALL_METHODS and config.home_id == 2
     assert config.odometry_noise == OdometryNoise(per_m=0.02)
-    assert config.robust is Robust.HUBER
+    assert config.robust is Robust.CAUCHY
 
 
 def test_printed_configuration_reads_back_to_the_same_settings(tmp_path: Path) -> None:
