@@ -130,6 +130,12 @@ def map_log(
         raise MarkerGraphError(
             f"{log}: no odometry (no nav_msgs/Odometry topic and no odom -> base transforms on /tf)"
         )
+    seen = {o.marker_id for o in extraction.observations}
+    if len(seen) == 1:
+        extraction.notes.append(
+            f"only marker {seen.pop()} was seen: the map is that marker alone, with the robot's "
+            "path in its frame; there is nothing to link"
+        )
     frames = build_frames(
         extraction.observations,
         extraction.odometry,

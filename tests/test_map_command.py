@@ -131,3 +131,19 @@ def test_overlay_reads_with_the_standard_reader(mapped) -> None:
                 assert (arrow.pose.position.x, arrow.pose.position.y) == pytest.approx(
                     positions[arrow.id]
                 )
+
+
+def test_one_marker_maps_honestly_and_none_fails_in_one_line(mapped, tmp_path: Path) -> None:
+    """Only marker 0 kept: the map is that marker alone, no links, said so; no marker at all:
+    exit 1, one line, no folder."""
+    folder, _ = mapped
+    cache = folder.parent / "cache"  # the fixture's rendered sample
+    run = run_map("--ids", "0", "--no-plots", "--out", str(tmp_path / "one"), cache=cache)
+    assert run.returncode == 0, run.stderr
+    assert "only marker 0 was seen" in run.stderr
+    document = json.loads((tmp_path / "one" / "map.json").read_text())
+    assert [m["id"] for m in document["markers"]] == [0] and document["links"] == []
+    assert len(read_tum(tmp_path / "one" / "trajectory.tum")[0]) > 10
+    run = run_map("--ids", "49", "--out", str(tmp_path / "none"), cache=cache)
+    assert run.returncode == 1 and "no markers of DICT_4X4_50" in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "none").exists()
