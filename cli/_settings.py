@@ -60,7 +60,7 @@ def settings_from(args: argparse.Namespace, command: str) -> dict[str, Any]:
     for setting in SETTINGS:
         if command in setting.commands and hasattr(args, _dest(setting.key)):
             try:
-                values[setting.key] = setting.parse(getattr(args, _dest(setting.key)))
+                values[setting.key] = setting.check(getattr(args, _dest(setting.key)))
             except ValueError as error:
                 raise ValueError(f"{setting.flag} {error}") from None
     return values

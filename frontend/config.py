@@ -11,9 +11,10 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from markergraph.estimator import Method, OdometryNoise, Robust
 from markergraph.frontend.camera import CameraMount
@@ -76,15 +77,6 @@ def _optional_text(value: Any) -> str | None:
     return None if value is None else _text(value)
 
 
-def _choice(choices: list[str]) -> Callable[[Any], str]:
-    def parse(value: Any) -> str:
-        if value not in choices:
-            raise ValueError(f"must be one of {', '.join(choices)}, got {value!r}")
-        return str(value)
-
-    return parse
-
-
 def _ids(value: Any) -> tuple[int, ...] | None:
     if value is None:
         return None
@@ -118,10 +110,11 @@ class Setting:
         key: its name in a configuration file, dotted under a section.
         flag: its command-line flag.
         default: the value when nothing sets it (degrees for ``*_deg`` keys).
-        parse: checks a value from a file or a flag and returns it, or raises ValueError.
+        parse: converts a value from a file or a flag, or raises ValueError.
         help: one line for ``--help``.
         commands: the commands it applies to.
         metavar, nargs, flag_type: how argparse reads the flag.
+        choices: the only values allowed, if limited.
     """
 
     key: str
@@ -134,6 +127,13 @@ class Setting:
     nargs: str | None = None
     flag_type: Callable[[str], Any] = str
     choices: list[str] | None = None
+
+    def check(self, value: Any) -> Any:
+        """The value converted and checked, or ValueError saying what is wrong with it."""
+        value = self.parse(value)
+        if self.choices is not None and value not in self.choices:
+            raise ValueError(f"must be one of {', '.join(self.choices)}, got {value!r}")
+        return value
 
 
 _MAP = ("map",)
@@ -148,9 +148,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("marker_sizes", "--marker-sizes", {}, _sizes,
             "sides of markers whose size differs, by id [m]",
             metavar="ID=M", nargs="+"),
-    Setting("yaw_method", "--yaw-method", YawMethod.PNP.value,
-            _choice([m.value for m in YawMethod]), "how theta comes from the corners",
-            choices=[m.value for m in YawMethod]),
+    Setting("yaw_method", "--yaw-method", YawMethod.PNP.value, _text,
+            "how theta comes from the corners", choices=[m.value for m in YawMethod]),
     Setting("ids", "--ids", None, _ids, "only these marker ids (default: all the dictionary's)",
             metavar="ID", nargs="+", flag_type=int),
     *(
@@ -194,11 +193,10 @@ SETTINGS: tuple[Setting, ...] = (
             flag_type=float),
     # Huber by default: real detections have outliers (near-frontal pose flips); on the
     # rendered paper-room log it cut SLAM's marker error 4x, and cost nothing elsewhere.
-    Setting("noise.robust", "--robust", Robust.HUBER.value, _choice([r.value for r in Robust]),
+    Setting("noise.robust", "--robust", Robust.HUBER.value, _text,
             "robust kernel on observation factors (SLAM, iSAM2, marker graph)", _MAP,
             choices=[r.value for r in Robust]),
-    Setting("method", "--method", Method.SLAM.value,
-            _choice([m.value for m in Method] + ["all"]),
+    Setting("method", "--method", Method.SLAM.value, _text,
             "which estimator; all runs every one side by side", _MAP,
             choices=[m.value for m in Method] + ["all"]),
     Setting("home", "--home", None, _optional_id,
@@ -212,24 +210,48 @@ _BY_KEY = {s.key: s for s in SETTINGS}
 
 @dataclass(frozen=True)
 class MapConfig:
-    """Everything ``markergraph map`` needs besides the log and the output folder.
-
-    Attributes:
-        frontend: how the log is read.
-        methods: the estimators to run, the first one's map on top of the result folder.
-        home_id: the map's home marker (None: the first seen).
-        workers: processes that decode and detect.
-        odometry_noise, robust: the estimators' noise model and kernel.
-        values: the settings it was built from, every key present (for the report).
+    """Everything ``markergraph map`` needs besides the log and the output folder: its
+    settings, every key present and checked (build one with :func:`map_config`), and the
+    objects they make.
     """
 
-    frontend: FrontendConfig = field(default_factory=FrontendConfig)
-    methods: tuple[Method, ...] = (Method.SLAM,)
-    home_id: int | None = None
-    workers: int = 1
-    odometry_noise: OdometryNoise = OdometryNoise()
-    robust: Robust = Robust.HUBER
-    values: Mapping[str, Any] = field(default_factory=dict)
+    values: Mapping[str, Any]
+
+    @cached_property
+    def frontend(self) -> FrontendConfig:
+        """How the log is read."""
+        return frontend_config(self.values)
+
+    @property
+    def methods(self) -> tuple[Method, ...]:
+        """The estimators to run; the first one's map is on top of the result folder."""
+        method = self.values["method"]
+        return ALL_METHODS if method == "all" else (Method(method),)
+
+    @property
+    def home_id(self) -> int | None:
+        """The map's home marker (None: the first seen)."""
+        return cast("int | None", self.values["home"])
+
+    @property
+    def workers(self) -> int:
+        """Processes that decode and detect."""
+        return cast(int, self.values["workers"])
+
+    @property
+    def odometry_noise(self) -> OdometryNoise:
+        """The odometry noise model the estimators assume."""
+        v = self.values
+        return OdometryNoise(
+            v["noise.odometry_per_m"],
+            v["noise.odometry_yaw_per_m"],
+            v["noise.odometry_yaw_per_rad"],
+        )
+
+    @property
+    def robust(self) -> Robust:
+        """The kernel on observation factors."""
+        return Robust(self.values["noise.robust"])
 
 
 def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -280,7 +302,7 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
         if setting is None:
             raise ValueError(f"{path}: unknown setting {key!r} (see markergraph map --help)")
         try:
-            values[key] = setting.parse(value)
+            values[key] = setting.check(value)
         except ValueError as error:
             raise ValueError(f"{path}: {key} {error}") from None
     return values
@@ -294,7 +316,7 @@ def _complete(values: Mapping[str, Any]) -> dict[str, Any]:
             complete[setting.key] = setting.default
             continue
         try:
-            complete[setting.key] = setting.parse(values[setting.key])
+            complete[setting.key] = setting.check(values[setting.key])
         except ValueError as error:
             raise ValueError(f"setting {setting.key} {error}") from None
     unknown = set(values) - set(complete)
@@ -333,22 +355,12 @@ def frontend_config(values: Mapping[str, Any]) -> FrontendConfig:
 
 
 def map_config(values: Mapping[str, Any] | None = None) -> MapConfig:
-    """The main job's configuration from settings (missing keys take their defaults)."""
-    v = _complete(values or {})
-    method = v["method"]
-    return MapConfig(
-        frontend=frontend_config(v),
-        methods=ALL_METHODS if method == "all" else (Method(method),),
-        home_id=v["home"],
-        workers=v["workers"],
-        odometry_noise=OdometryNoise(
-            v["noise.odometry_per_m"],
-            v["noise.odometry_yaw_per_m"],
-            v["noise.odometry_yaw_per_rad"],
-        ),
-        robust=Robust(v["noise.robust"]),
-        values=v,
-    )
+    """The main job's configuration from settings (missing keys take their defaults).
+
+    Raises:
+        ValueError: an unknown setting or a bad value, naming it.
+    """
+    return MapConfig(_complete(values or {}))
 
 
 def _toml_value(value: Any) -> str:

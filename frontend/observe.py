@@ -87,8 +87,9 @@ def observe_detections(
     """Observations of already detected markers; see :func:`observe`."""
     observations = []
     R_base_optical = mount.R_base_optical
+    lengths_m = marker_lengths_m or {}
     for detection in detections:
-        length_m = (marker_lengths_m or {}).get(detection.marker_id, marker_length_m)
+        length_m = lengths_m.get(detection.marker_id, marker_length_m)
         corners = camera.undistort(detection.corners)
         theta = yaw_from_corners(corners, method, camera, length_m)
         if not math.isfinite(theta):

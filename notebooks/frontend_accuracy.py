@@ -221,6 +221,13 @@ for ax in axes:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
 plt.show()
+range_cm = {
+    d: 100 * np.nanmedian(range_err[(method_ix == 0) & np.isclose(dist, d)]) for d in DISTANCES
+}
+print(
+    "median |range error| [cm]:",
+    {f"{d:g} m": round(float(value), 2) for d, value in range_cm.items()},
+)
 
 # %% [markdown]
 # ## Do the paper's figures hold?
@@ -277,10 +284,11 @@ for k, method in enumerate(METHODS):
 #   one-edge formula has no answer at all there.
 # * The paper's remark that off-centre markers measure worse holds for the ratio methods (about
 #   2.5x); `calibrated` undoes the bearing and `pnp` never had the problem.
-# * Range comes from aligned depth averaged over the marker and is good to about 1 cm here.
-#   The simulated depth noise (1 + 2 Z^2 mm per 8x8 block) has no bias, so these range figures
-#   are optimistic next to a real D435i (Intel specifies under 2% RMS at 2 m); x, y errors are
-#   dominated by theta all the same: a theta error e moves the position by about d * e.
+# * Range comes from aligned depth averaged over the marker (its median error per distance is
+#   printed above). The simulated depth noise (1 + 2 Z^2 mm per 8x8 block) has no bias, so
+#   these range figures are optimistic next to a real D435i, whose error has a bias that grows
+#   with distance; x, y errors are dominated by theta all the same: a theta error e moves the
+#   position by about d * e.
 #
 # The checks below are this notebook's claims.
 
@@ -289,10 +297,18 @@ assert papers_views["pnp"][0] < 2.0 and papers_views["pnp"][1] <= 15.0, papers_v
 assert min(papers_views[m][0] for m in ("paper", "mean-edge", "calibrated")) > 2.0, papers_views
 assert every_view["pnp"][1] > papers_views["pnp"][1]  # off-centre, grazing views cost accuracy
 # PnP, with the intrinsics, beats every calibration-free ratio up to 4 m. At 5 m the marker
-# is about 25 px wide and every method's median is 2.5-3.5 degrees: PnP loses its edge there.
+# is about 25 px wide (615 px x 0.2 m / 5 m) and PnP loses its edge: the medians printed last.
 for d in DISTANCES[DISTANCES <= 4.0]:
     by_method = {
         m.value: np.nanmedian(theta_err[(method_ix == k) & np.isclose(dist, d)])
         for k, m in enumerate(METHODS)
     }
     assert by_method["pnp"] < min(by_method["mean-edge"], by_method["paper"]), (d, by_method)
+at_5_m = {
+    m.value: np.degrees(np.nanmedian(theta_err[(method_ix == k) & np.isclose(dist, 5.0)]))
+    for k, m in enumerate(METHODS)
+}
+print(
+    "median |theta error| at 5 m [deg]:",
+    {name: round(float(value), 2) for name, value in at_5_m.items()},
+)

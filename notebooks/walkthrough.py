@@ -23,11 +23,15 @@
 # We have no robot in CI, so the log is simulated: the paper's own room (three markers, one of
 # them a charging station), recorded as realsense-ros 4.x would publish it, with JPEG colour,
 # aligned 16-bit depth, `/odom`, `/tf_static` and, because it is simulated, the ground truth.
+# Everything is written to a temporary folder (the log alone is 150 MB) that the last cell
+# deletes; run the same commands in a folder of your own to keep the results.
 
 # %%
 import json
+import os
 import shlex
 import subprocess
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -43,6 +47,8 @@ def sh(command: str) -> None:
     assert done.returncode == 0, f"exit code {done.returncode}"
 
 
+workdir = tempfile.TemporaryDirectory(prefix="markergraph-walkthrough-")
+os.chdir(workdir.name)
 sh(
     "markergraph simulate --scenario paper-room --compressed --frame-rate 5 --out robot.mcap --force"
 )
@@ -217,3 +223,5 @@ assert report["ground_truth"] and len(document["markers"]) == 3
 assert methods["slam"]["marker_rmse_aligned_m"] < 0.02
 assert methods["slam"]["ate_m"] < methods["closed-form"]["ate_m"]
 print({name: round(figures["marker_rmse_m"], 3) for name, figures in methods.items()})
+os.chdir(Path.home())  # leave the folder before deleting it
+workdir.cleanup()
