@@ -1,6 +1,8 @@
 """The ``markergraph`` command: a thin shell that parses arguments and calls library functions.
 
-Exit codes: 0 done, 1 user error (one line on stderr, no traceback), 2 internal error.
+Exit codes: 0 done, 1 a problem with the input, the settings or the output (one line on stderr
+naming the file, topic or value: every :class:`MarkerGraphError`, and ``OSError``), 2 a bug of
+ours, 130 interrupted (Ctrl-C).
 """
 
 from __future__ import annotations
@@ -17,11 +19,7 @@ from markergraph.estimator.types import MarkerGraphError
 
 __all__ = ["main"]
 
-EXIT_OK, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR = 0, 1, 2
-
-
-class UserError(Exception):
-    """A mistake in what the user asked for: reported in one line, exit code 1."""
+EXIT_OK, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 class _Parser(argparse.ArgumentParser):
@@ -74,12 +72,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "export":
             return _mapfile.run_export(args)
         return _mapfile.run_heading(args)
-    except (UserError, MarkerGraphError, ValueError, OSError) as error:
+    except (MarkerGraphError, OSError) as error:
         print(f"markergraph {args.command}: {error}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print(f"markergraph {args.command}: interrupted", file=sys.stderr)
-        return EXIT_USER_ERROR
+        return EXIT_INTERRUPTED
     except Exception as error:  # a bug of ours: say so plainly
         if os.environ.get("MARKERGRAPH_DEBUG"):
             raise

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from markergraph.cli._settings import add_settings, settings_from
 from markergraph.frontend.config import frontend_config, map_config
+from markergraph.frontend.files import check_output_file
 from markergraph.frontend.jsonl import write_observations
 from markergraph.frontend.log import log_topics
 from markergraph.frontend.pipeline import choose_topics, extract
@@ -31,10 +32,7 @@ def add_parsers(commands: argparse._SubParsersAction) -> None:
 def run_detect(args: argparse.Namespace) -> int:
     out: Path = args.out
     config = map_config(settings_from(args, "detect"))  # the front end's part, and workers
-    if out.exists() and not args.force:
-        raise FileExistsError(f"{out} exists; pass --force to overwrite it")
-    if not out.parent.is_dir():
-        raise FileNotFoundError(f"cannot write {out}: {out.parent} is not a folder")
+    check_output_file(out, [args.log], force=args.force)
     with ProgressBar(f"reading {args.log.name}") as bar:
         result = extract(args.log, config.frontend, progress=bar, workers=config.workers)
     written = write_observations(out, result.observations, result.odometry)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from markergraph.cli._settings import add_settings, settings_from
 from markergraph.frontend.config import config_toml, map_config
+from markergraph.frontend.files import check_output_folder
 from markergraph.frontend.mapping import MapRun, map_log, write_results
 from markergraph.frontend.progress import ProgressBar
 
@@ -47,8 +48,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     log = args.log if args.log is not None else sample_path(DEFAULT_SAMPLE)
     out = args.out or Path(f"map-{Path(log).stem}")
-    if out.exists() and not args.force:  # before any work, a sample's rendering included
-        raise FileExistsError(f"{out} exists; pass --force to replace it")
+    # Before any work (a sample's rendering included): never over the input or a user's folder.
+    check_output_folder(out, [log], force=args.force)
     if args.log is None:
         log = sample_log(DEFAULT_SAMPLE)
         print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({log})")
@@ -85,5 +86,7 @@ def _print_summary(result: MapRun) -> None:
         print(line)
         for note in estimate.notes:
             print(f"  {method_result.label}: {note}")
+    for reason, count in sorted(extraction.skipped.items()):
+        print(f"  {count} frame(s): {reason}")
     for note in extraction.notes + extraction.warnings:
         print(f"note: {note}", file=sys.stderr)

@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
-from typing import Any
 
 import gtsam
 
-from markergraph.estimator.export import MAP_SCHEMA, ExportFormat, export_map
 from markergraph.estimator.paper import Form, edge_from_pose2, heading
+from markergraph.estimator.types import SettingsError
+from markergraph.frontend.files import check_output_file
+from markergraph.frontend.formats import ExportFormat, export_map, read_map
 
 EXPORT = "write a map.json in another tool's format"
 HEADING = "the paper's target heading from a localisation on one marker to another"
@@ -48,39 +48,32 @@ def add_parsers(commands: argparse._SubParsersAction) -> None:
     head.add_argument("--to", type=int, required=True, metavar="C", help="the target marker")
 
 
-def _load(path: Path) -> dict[str, Any]:
-    try:
-        document = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: not a readable map.json ({error})") from error
-    if not isinstance(document, dict) or document.get("schema") != MAP_SCHEMA:
-        raise ValueError(f"{path}: not a {MAP_SCHEMA} document")
-    return document
-
-
 def run_export(args: argparse.Namespace) -> int:
-    if args.out.exists() and not args.force:
-        raise FileExistsError(f"{args.out} exists; pass --force to overwrite it")
-    document = _load(args.map)
+    check_output_file(args.out, [args.map], force=args.force)
+    document = read_map(args.map)
     export_map(document, ExportFormat(args.format), args.out)
     print(f"wrote {len(document['markers'])} markers as {args.format} to {args.out}")
     return 0
 
 
 def run_heading(args: argparse.Namespace) -> int:
-    document = _load(args.map)
+    document = read_map(args.map)
     poses = {m["id"]: gtsam.Pose2(m["x"], m["y"], m["yaw"]) for m in document["markers"]}
     for marker_id in (args.source, args.to):
         if marker_id not in poses:
-            raise ValueError(
+            raise SettingsError(
                 f"{args.map}: no marker {marker_id} in the map "
                 f"(it has {', '.join(map(str, sorted(poses)))})"
             )
     try:
         d_text, theta_text = args.at.split(",")
         d, theta = float(d_text), math.radians(float(theta_text))
-    except ValueError as error:
-        raise ValueError(f"--at takes D,THETA (metres, degrees), got {args.at!r}") from error
+    except ValueError:
+        raise SettingsError(f"--at takes D,THETA (metres, degrees), got {args.at!r}") from None
+    if not (math.isfinite(d) and d > 0 and math.isfinite(theta)):
+        raise SettingsError(f"--at takes a positive distance and a finite angle, got {args.at!r}")
+    if args.source == args.to:
+        raise SettingsError(f"--from and --to are both marker {args.to}: nothing to head for")
     e_ac = edge_from_pose2(poses[args.source].between(poses[args.to]))
     distance, turn = heading(e_ac, d, theta, Form.EXACT)
     printed = heading(e_ac, d, theta, Form.PAPER)

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from markergraph.estimator.types import SettingsError
 from markergraph.frontend.config import SETTINGS, read_config_file
 
 _GROUPS = {
@@ -54,7 +55,7 @@ def settings_from(args: argparse.Namespace, command: str) -> dict[str, Any]:
     """The settings the file and the flags give (defaults are filled in later).
 
     Raises:
-        ValueError: a bad file or value, naming the file and key or the flag.
+        SettingsError: a bad file or value, naming the file and key or the flag.
     """
     values = read_config_file(args.config) if args.config is not None else {}
     for setting in SETTINGS:
@@ -62,5 +63,5 @@ def settings_from(args: argparse.Namespace, command: str) -> dict[str, Any]:
             try:
                 values[setting.key] = setting.check(getattr(args, _dest(setting.key)))
             except ValueError as error:
-                raise ValueError(f"{setting.flag} {error}") from None
+                raise SettingsError(f"{setting.flag} {error}") from None
     return values

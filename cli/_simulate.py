@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from markergraph.datasets.scenarios import SCENARIOS, scenario
 from markergraph.datasets.write import write_log
+from markergraph.estimator.types import SettingsError
+from markergraph.frontend.files import check_output_file
 from markergraph.frontend.progress import ProgressBar
 
+MAX_FRAME_RATE_HZ = 240.0  # faster than any camera the simulator models
 SUMMARY = "simulate a scenario and write a ROS 2 MCAP log with ground truth"
 
 
@@ -51,14 +55,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
-    if out.exists() and not args.force:
-        raise FileExistsError(f"{out} exists; pass --force to overwrite it")
-    if not out.parent.is_dir():
-        raise FileNotFoundError(f"cannot write {out}: {out.parent} is not a folder")
-    if args.duration is not None and args.duration <= 0:
-        raise ValueError(f"--duration must be positive, got {args.duration}")
-    if args.frame_rate <= 0:
-        raise ValueError(f"--frame-rate must be positive, got {args.frame_rate}")
+    check_output_file(out, [], force=args.force)
+    if args.duration is not None and not (0 < args.duration < math.inf):
+        raise SettingsError(f"--duration must be a positive number of seconds, got {args.duration}")
+    if not 0 < args.frame_rate <= MAX_FRAME_RATE_HZ:
+        raise SettingsError(
+            f"--frame-rate must be above 0 and at most {MAX_FRAME_RATE_HZ:g} Hz, "
+            f"got {args.frame_rate:g}"
+        )
     world, route = scenario(args.scenario)
     with ProgressBar(f"simulating {args.scenario}") as bar:
         summary = write_log(

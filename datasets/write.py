@@ -19,7 +19,6 @@ The map frame is the home marker's frame, as everywhere in markergraph.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +35,7 @@ from markergraph.datasets.render import Renderer
 from markergraph.datasets.route import Drive, Route, WheelErrors, drive
 from markergraph.datasets.world import World
 from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.files import written_whole
 from markergraph.frontend.ros2 import (
     MESSAGE_DEFINITIONS,
     header,
@@ -149,8 +149,8 @@ def write_log(
 ) -> LogSummary:
     """Drive a route, render every frame, and write the run as a ROS 2 MCAP bag.
 
-    The file appears whole or not at all: it is written under a temporary name beside ``out``
-    and renamed at the end. The same arguments give the same bytes.
+    The file appears whole or not at all (``files.written_whole``). The same arguments give the
+    same bytes.
 
     Args:
         compressed: JPEG colour on ``.../compressed`` instead of raw rgb8 (depth stays raw).
@@ -168,21 +168,16 @@ def write_log(
     )
     renderer = Renderer(world, camera, mount, texture_seed=seed)
     out = Path(out)
-    partial = out.with_name(f".{out.name}.partial")
     T_map_world = world.T_world_marker(world.home_id).inverse()
-    try:
-        with open(partial, "wb") as stream:
-            # zstd shrinks raw depth 4x (JPEG not at all) for a fifth of the writing speed.
-            bag = _Bag(stream, CompressionType.ZSTD)
-            start = int(min(motion.odometry_t_ns[0], motion.frame_t_ns[0]))
-            _write_static(bag, world, mount, topics, start, T_map_world)
-            _write_stream(
-                bag, motion, renderer, world, camera, topics, T_map_world, compressed, rng, progress
-            )
-            bag.writer.finish()
-        os.replace(partial, out)
-    finally:
-        partial.unlink(missing_ok=True)
+    with written_whole(out) as partial, open(partial, "wb") as stream:
+        # zstd shrinks raw depth 4x (JPEG not at all) for a fifth of the writing speed.
+        bag = _Bag(stream, CompressionType.ZSTD)
+        start = int(min(motion.odometry_t_ns[0], motion.frame_t_ns[0]))
+        _write_static(bag, world, mount, topics, start, T_map_world)
+        _write_stream(
+            bag, motion, renderer, world, camera, topics, T_map_world, compressed, rng, progress
+        )
+        bag.writer.finish()
     return LogSummary(out, len(motion.frame_t_ns), dict(bag.counts), out.stat().st_size)
 
 

@@ -34,7 +34,9 @@ from markergraph.estimator.types import (
     Observation,
     OdometryNoise,
     OdometrySample,
+    OutputError,
     RejectedObservationError,
+    SettingsError,
 )
 
 __all__ = [
@@ -53,9 +55,11 @@ __all__ = [
     "Observation",
     "OdometryNoise",
     "OdometrySample",
+    "OutputError",
     "PolarPose",
     "RejectedObservationError",
     "Robust",
+    "SettingsError",
     "TrajectoryError",
     "angle_diff",
     "build_frames",

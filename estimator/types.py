@@ -20,7 +20,9 @@ __all__ = [
     "Observation",
     "OdometryNoise",
     "OdometrySample",
+    "OutputError",
     "RejectedObservationError",
+    "SettingsError",
 ]
 
 
@@ -30,6 +32,15 @@ class MarkerGraphError(Exception):
 
 class RejectedObservationError(MarkerGraphError, ValueError):
     """An observation the estimator cannot use (NaN, negative range, unknown marker id)."""
+
+
+class SettingsError(MarkerGraphError, ValueError):
+    """A setting, flag or settings file with a bad value; the message names it."""
+
+
+class OutputError(MarkerGraphError):
+    """An output that may not be written (it would replace the input or a user's files), or
+    that another run took meanwhile; the message names it."""
 
 
 class Method(Enum):

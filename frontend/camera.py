@@ -44,7 +44,7 @@ class Camera:
         whose fields are ``K``, ``D``)."""
         k = list(getattr(info, "k", None) or getattr(info, "K", None) or [])
         d = list(getattr(info, "d", None) or getattr(info, "D", None) or [])
-        if len(k) != 9 or k[0] <= 0 or k[4] <= 0:
+        if len(k) != 9 or not all(math.isfinite(v) for v in k) or not (k[0] > 0 and k[4] > 0):
             raise ValueError(f"camera info has no usable intrinsic matrix K: {k}")
         distortion = tuple(float(v) for v in d) if any(v != 0.0 for v in d) else ()
         return cls(

@@ -16,7 +16,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any, cast
 
-from markergraph.estimator import Method, OdometryNoise, Robust
+from markergraph.estimator import Method, OdometryNoise, Robust, SettingsError
 from markergraph.frontend.camera import CameraMount
 from markergraph.frontend.observe import DepthModel
 from markergraph.frontend.pipeline import FrontendConfig
@@ -40,10 +40,10 @@ ALL_METHODS = (Method.SLAM, Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.ISAM
 def _number(minimum: float = -math.inf, *, above: bool = False) -> Callable[[Any], float]:
     def parse(value: Any) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"must be a number, got {value!r}")
+            raise SettingsError(f"must be a number, got {value!r}")
         if not math.isfinite(value) or value < minimum or (above and value == minimum):
             bound = "positive" if above and minimum == 0 else f"at least {minimum:g}"
-            raise ValueError(f"must be {bound}, got {value!r}")
+            raise SettingsError(f"must be {bound}, got {value!r}")
         return float(value)
 
     return parse
@@ -51,7 +51,7 @@ def _number(minimum: float = -math.inf, *, above: bool = False) -> Callable[[Any
 
 def _count(value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"must be a whole number of at least 1, got {value!r}")
+        raise SettingsError(f"must be a whole number of at least 1, got {value!r}")
     return value
 
 
@@ -59,7 +59,7 @@ def _marker_id(value: Any) -> int:
     if isinstance(value, str) and value.strip().isdigit():
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ValueError(f"must be a marker id (a whole number >= 0), got {value!r}")
+        raise SettingsError(f"must be a marker id (a whole number >= 0), got {value!r}")
     return value
 
 
@@ -69,7 +69,7 @@ def _optional_id(value: Any) -> int | None:
 
 def _text(value: Any) -> str:
     if not isinstance(value, str) or not value:
-        raise ValueError(f"must be a non-empty string, got {value!r}")
+        raise SettingsError(f"must be a non-empty string, got {value!r}")
     return value
 
 
@@ -81,7 +81,7 @@ def _ids(value: Any) -> tuple[int, ...] | None:
     if value is None:
         return None
     if not isinstance(value, (list, tuple)) or not value:
-        raise ValueError(f"must be a list of marker ids, got {value!r}")
+        raise SettingsError(f"must be a list of marker ids, got {value!r}")
     return tuple(sorted({_marker_id(v) for v in value}))
 
 
@@ -94,10 +94,10 @@ def _sizes(value: Any) -> dict[int, float]:
             try:
                 pairs[marker_id] = float(side)
             except ValueError:
-                raise ValueError(f"must be ID=M pairs such as 7=0.15, got {word!r}") from None
+                raise SettingsError(f"must be ID=M pairs such as 7=0.15, got {word!r}") from None
         value = pairs
     if not isinstance(value, Mapping):
-        raise ValueError(f"must be a table of marker id = side in metres, got {value!r}")
+        raise SettingsError(f"must be a table of marker id = side in metres, got {value!r}")
     positive = _number(0.0, above=True)
     return {_marker_id(k): positive(v) for k, v in value.items()}
 
@@ -110,7 +110,7 @@ class Setting:
         key: its name in a configuration file, dotted under a section.
         flag: its command-line flag.
         default: the value when nothing sets it (degrees for ``*_deg`` keys).
-        parse: converts a value from a file or a flag, or raises ValueError.
+        parse: converts a value from a file or a flag, or raises ValueError (a SettingsError).
         help: one line for ``--help``.
         commands: the commands it applies to.
         metavar, nargs, flag_type: how argparse reads the flag.
@@ -132,7 +132,7 @@ class Setting:
         """The value converted and checked, or ValueError saying what is wrong with it."""
         value = self.parse(value)
         if self.choices is not None and value not in self.choices:
-            raise ValueError(f"must be one of {', '.join(self.choices)}, got {value!r}")
+            raise SettingsError(f"must be one of {', '.join(self.choices)}, got {value!r}")
         return value
 
 
@@ -269,13 +269,15 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
     """The settings a TOML (``.toml``) or YAML (``.yaml``, ``.yml``) file gives, checked.
 
     Raises:
-        ValueError: unreadable file, unknown key or bad value, in one line naming file and key.
+        SettingsError: unreadable file, unknown key or bad value, in one line naming file and key.
     """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as error:
-        raise ValueError(f"{path}: cannot read the configuration ({error.strerror})") from None
+        raise SettingsError(f"{path}: cannot read the configuration ({error.strerror})") from None
+    except UnicodeDecodeError:
+        raise SettingsError(f"{path}: not UTF-8 text, so not a settings file") from None
     suffix = path.suffix.lower()
     try:
         if suffix == ".toml":
@@ -289,22 +291,22 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
 
             table = yaml.safe_load(text) or {}
         else:
-            raise ValueError("a configuration file ends in .toml, .yaml or .yml")
+            raise SettingsError("a configuration file ends in .toml, .yaml or .yml")
     except ValueError as error:  # tomllib's and yaml's errors are ValueErrors too
-        raise ValueError(f"{path}: {str(error).splitlines()[0]}") from None
+        raise SettingsError(f"{path}: {str(error).splitlines()[0]}") from None
     except Exception as error:  # yaml.YAMLError
-        raise ValueError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
+        raise SettingsError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
     if not isinstance(table, Mapping):
-        raise ValueError(f"{path}: expected a table of settings at the top")
+        raise SettingsError(f"{path}: expected a table of settings at the top")
     values = {}
     for key, value in _flatten(table).items():
         setting = _BY_KEY.get(key)
         if setting is None:
-            raise ValueError(f"{path}: unknown setting {key!r} (see markergraph map --help)")
+            raise SettingsError(f"{path}: unknown setting {key!r} (see markergraph map --help)")
         try:
             values[key] = setting.check(value)
         except ValueError as error:
-            raise ValueError(f"{path}: {key} {error}") from None
+            raise SettingsError(f"{path}: {key} {error}") from None
     return values
 
 
@@ -318,10 +320,10 @@ def _complete(values: Mapping[str, Any]) -> dict[str, Any]:
         try:
             complete[setting.key] = setting.check(values[setting.key])
         except ValueError as error:
-            raise ValueError(f"setting {setting.key} {error}") from None
+            raise SettingsError(f"setting {setting.key} {error}") from None
     unknown = set(values) - set(complete)
     if unknown:
-        raise ValueError(f"unknown setting(s) {', '.join(sorted(unknown))}")
+        raise SettingsError(f"unknown setting(s) {', '.join(sorted(unknown))}")
     return complete
 
 
@@ -358,7 +360,7 @@ def map_config(values: Mapping[str, Any] | None = None) -> MapConfig:
     """The main job's configuration from settings (missing keys take their defaults).
 
     Raises:
-        ValueError: an unknown setting or a bad value, naming it.
+        SettingsError: an unknown setting or a bad value, naming it.
     """
     return MapConfig(_complete(values or {}))
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
@@ -9,6 +10,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from markergraph.estimator.types import SettingsError
 
 __all__ = ["Detection", "Detector", "load_dictionary"]
 
@@ -34,14 +37,18 @@ def load_dictionary(name_or_path: str) -> cv2.aruco.Dictionary:
         return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name_or_path))
     path = Path(name_or_path)
     if not path.is_file():
-        raise ValueError(
+        raise SettingsError(
             f"unknown dictionary {name_or_path!r}: neither an OpenCV DICT_* name "
             "nor a dictionary file"
         )
-    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     dictionary = cv2.aruco.Dictionary()
-    if not storage.isOpened() or not dictionary.readDictionary(storage.root()):
-        raise ValueError(f"{path}: not an OpenCV dictionary file")
+    try:
+        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        readable = storage.isOpened() and dictionary.readDictionary(storage.root())
+    except (cv2.error, SystemError):  # OpenCV's parser raises on what is not YAML/XML/JSON
+        readable = False
+    if not readable or dictionary.bytesList is None or len(dictionary.bytesList) == 0:
+        raise SettingsError(f"--dictionary {path}: not an OpenCV dictionary file")
     return dictionary
 
 
@@ -58,7 +65,11 @@ class Detector:
             ``min_marker_ratio`` of the image width.
         min_marker_ratio: ArUco3's smallest marker side as a fraction of the image (0.02-0.04
             keeps recall; higher loses markers).
-        allowed_ids: if given, detections of other ids are dropped (false positives on clutter).
+        allowed_ids: if given, detections of other ids are dropped (false positives on clutter)
+            and counted in ``left_out``.
+
+    Raises:
+        SettingsError: an unknown dictionary, or allowed ids outside it.
     """
 
     def __init__(
@@ -78,7 +89,16 @@ class Detector:
             parameters.minMarkerLengthRatioOriginalImg = min_marker_ratio
         self.dictionary_name = dictionary
         self.allowed_ids = None if allowed_ids is None else frozenset(allowed_ids)
-        self._detector = cv2.aruco.ArucoDetector(load_dictionary(dictionary), parameters)
+        loaded = load_dictionary(dictionary)
+        size = len(loaded.bytesList)
+        outside = sorted(i for i in self.allowed_ids or () if i >= size)
+        if outside:
+            raise SettingsError(
+                f"--ids {', '.join(map(str, outside))}: not in {dictionary}, whose ids are "
+                f"0-{size - 1}"
+            )
+        self.left_out: Counter[int] = Counter()  # detections of ids outside ``allowed_ids``
+        self._detector = cv2.aruco.ArucoDetector(loaded, parameters)
 
     def detect(self, image: NDArray[np.uint8]) -> list[Detection]:
         """Markers in a grey (or colour, converted) image, sorted by id."""
@@ -91,5 +111,6 @@ class Detector:
             for c, i in zip(corners, ids.ravel(), strict=True)
         ]
         if self.allowed_ids is not None:
+            self.left_out.update(d.marker_id for d in found if d.marker_id not in self.allowed_ids)
             found = [d for d in found if d.marker_id in self.allowed_ids]
         return sorted(found, key=lambda d: d.marker_id)

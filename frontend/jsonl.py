@@ -9,12 +9,12 @@ Each line: ``t_ns`` (int), ``marker_id``, ``bearing``, ``theta`` [rad], ``range_
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterable
 from pathlib import Path
 
 from markergraph.estimator.frames import odometry_at_stamps
 from markergraph.estimator.types import MarkerGraphError, Observation, OdometrySample
+from markergraph.frontend.files import written_whole
 
 __all__ = ["read_observations", "write_observations"]
 
@@ -22,40 +22,36 @@ __all__ = ["read_observations", "write_observations"]
 def write_observations(
     path: Path, observations: list[Observation], odometry: Iterable[OdometrySample]
 ) -> int:
-    """Write observations as JSON lines, whole or not at all (temporary file, then rename).
+    """Write observations as JSON lines, whole or not at all.
 
     Returns:
         The number of lines written.
     """
     path = Path(path)
     poses = odometry_at_stamps(odometry, [o.t_ns for o in observations])
-    partial = path.with_name(f".{path.name}.partial")
-    try:
-        with open(partial, "w") as stream:
-            for obs, pose in zip(observations, poses, strict=True):
-                stream.write(
-                    json.dumps(
-                        {
-                            "t_ns": obs.t_ns,
-                            "marker_id": obs.marker_id,
-                            "bearing": obs.bearing,
-                            "theta": obs.theta,
-                            "range_m": obs.range_m,
-                            "sigma_bearing": obs.sigma_bearing,
-                            "sigma_theta": obs.sigma_theta,
-                            "sigma_range": obs.sigma_range,
-                            "corners": [list(c) for c in obs.corners],
-                            "flags": sorted(obs.flags),
-                            "odom": None
-                            if pose is None
-                            else {"x": pose.x(), "y": pose.y(), "yaw": pose.theta()},
-                        }
-                    )
-                    + "\n"
+    with written_whole(path) as partial, open(partial, "w", encoding="utf-8") as stream:
+        for obs, pose in zip(observations, poses, strict=True):
+            stream.write(
+                json.dumps(
+                    {
+                        "t_ns": obs.t_ns,
+                        "marker_id": obs.marker_id,
+                        "bearing": obs.bearing,
+                        "theta": obs.theta,
+                        "range_m": obs.range_m,
+                        "sigma_bearing": obs.sigma_bearing,
+                        "sigma_theta": obs.sigma_theta,
+                        "sigma_range": obs.sigma_range,
+                        "corners": [list(c) for c in obs.corners],
+                        "flags": sorted(obs.flags),
+                        "odom": None
+                        if pose is None
+                        else {"x": pose.x(), "y": pose.y(), "yaw": pose.theta()},
+                    },
+                    allow_nan=False,
                 )
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
+                + "\n"
+            )
     return len(observations)
 
 

@@ -3,19 +3,25 @@ and the decoding of images, depth, camera info, odometry and transforms."""
 
 from __future__ import annotations
 
+import heapq
 import math
 import struct
 from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
+import yaml
 import zstandard
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.records import Chunk, MessageIndex
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import breakup_chunk
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 from mcap_ros2.decoder import DecoderFactory
 from numpy.typing import NDArray
@@ -74,15 +80,20 @@ def log_files(path: Path) -> list[Path]:
     """The MCAP files of a log: the file itself, or a rosbag2 folder's files in order.
 
     A rosbag2 folder lists its files in ``metadata.yaml`` (``relative_file_paths``); without
-    one, its ``.mcap`` files are read in name order.
+    one, its ``.mcap`` files are read in name order. A ``metadata.yaml`` that cannot be read is
+    an error, never a silent fallback to whatever ``.mcap`` files the folder holds.
+
+    Raises:
+        LogError: no such log, a broken ``metadata.yaml``, a listed file missing, or a file
+            that is not MCAP; the message names the file.
     """
     path = Path(path)
     if path.is_dir():
         metadata = path / "metadata.yaml"
-        files: list[Path] = []
         if metadata.is_file():
-            files = [path / name for name in _relative_file_paths(metadata.read_text())]
-        files = files or sorted(path.glob("*.mcap"))
+            files = [path / name for name in _relative_file_paths(metadata)]
+        else:
+            files = sorted(path.glob("*.mcap"))
         if not files:
             raise LogError(f"{path}: a folder with no .mcap files and no metadata.yaml listing any")
         missing = [f for f in files if not f.is_file()]
@@ -93,25 +104,32 @@ def log_files(path: Path) -> list[Path]:
     else:
         raise LogError(f"{path}: no such file or folder")
     for file in files:
-        with open(file, "rb") as stream:
-            if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-                raise LogError(f"{file}: not an MCAP file")
+        try:
+            with open(file, "rb") as stream:
+                magic = stream.read(len(MCAP_MAGIC))
+        except OSError as error:
+            raise LogError(f"{file}: cannot read it ({error.strerror})") from None
+        if magic != MCAP_MAGIC:
+            raise LogError(f"{file}: not an MCAP file")
     return files
 
 
-def _relative_file_paths(text: str) -> list[str]:
-    """``relative_file_paths`` of a rosbag2 ``metadata.yaml`` (without a YAML dependency: the
-    key is followed by a block list of ``- name`` lines)."""
-    names: list[str] = []
-    lines = iter(text.splitlines())
-    for line in lines:
-        if line.strip().startswith("relative_file_paths:"):
-            for item in lines:
-                stripped = item.strip()
-                if not stripped.startswith("- "):
-                    break
-                names.append(stripped[2:].strip().strip("'\""))
-            break
+def _relative_file_paths(metadata: Path) -> list[str]:
+    """``rosbag2_bagfile_information.relative_file_paths`` of a rosbag2 ``metadata.yaml``.
+
+    Raises:
+        LogError: the file is not such a metadata file, naming it.
+    """
+    try:
+        document = yaml.safe_load(metadata.read_text(encoding="utf-8"))
+        names = document["rosbag2_bagfile_information"]["relative_file_paths"]
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError) as error:
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise LogError(
+            f"{metadata}: not a rosbag2 metadata file ({reason}); fix or remove it"
+        ) from None
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise LogError(f"{metadata}: relative_file_paths is not a list of file names")
     return names
 
 
@@ -122,7 +140,7 @@ def log_topics(path: Path) -> list[LogTopic]:
         with open(file, "rb") as stream:
             try:
                 summary = make_reader(stream).get_summary()
-            except (McapError, ValueError, EOFError) as error:
+            except (McapError, ValueError, EOFError, OSError) as error:
                 raise LogError(
                     f"{file}: not a complete MCAP file (truncated, or still being written): {error}"
                 ) from error
@@ -142,23 +160,27 @@ def log_topics(path: Path) -> list[LogTopic]:
 
 @dataclass
 class DecodeFailures:
-    """Messages that could not be decoded and were skipped: (file, topic) -> count, and the
-    first error of each, for one warning line apiece."""
+    """Messages that could not be read and were skipped: (file, topic) -> count, and the first
+    reason of each, for one warning line apiece."""
 
     counts: Counter[tuple[str, str]] = field(default_factory=Counter)
     first_error: dict[tuple[str, str], str] = field(default_factory=dict)
 
-    def add(self, file: Path, topic: str, error: Exception) -> None:
+    def add(self, file: Path, topic: str, reason: str, n: int = 1) -> None:
         key = (str(file), topic)
-        self.counts[key] += 1
-        self.first_error.setdefault(key, f"{type(error).__name__}: {error}")
+        self.counts[key] += n
+        self.first_error.setdefault(key, reason)
 
     def warnings(self) -> list[str]:
         return [
-            f"{file}: skipped {n} undecodable message(s) on {topic} "
+            f"{file}: skipped {n} unreadable message(s) on {topic} "
             f"({self.first_error[(file, topic)]})"
             for (file, topic), n in sorted(self.counts.items())
         ]
+
+
+def _why(error: BaseException) -> str:
+    return f"{type(error).__name__}: {error}"
 
 
 def messages(
@@ -173,40 +195,124 @@ def messages(
     A few high-rate types use fixed-layout readers (:mod:`markergraph.frontend.cdr`); the rest
     go through mcap-ros2-support (or mcap-protobuf-support for Foxglove schemas); with
     ``start_ns``/``end_ns`` only log times in [start, end) are read, from the chunks holding
-    them. A message that does not decode is skipped and counted in
-    ``failures`` when given (a damaged stretch of a long log); without it, it raises.
+    them. With ``failures``, a message that does not decode is skipped and counted there, and
+    so are a damaged chunk's messages (a damaged stretch of a long log costs that stretch);
+    without it, either raises.
 
     Raises:
         LogError: an unreadable file, a channel whose encoding or schema cannot be decoded, or
-            (without ``failures``) an undecodable message.
+            (without ``failures``) an undecodable message or a damaged chunk.
     """
     factory = DecoderFactory()
     for file in log_files(path):
         with open(file, "rb") as stream:
-            reader = make_reader(stream)
             decoders: dict[int, Callable[[bytes], Any]] = {}
+            for schema, channel, message in _raw_messages(
+                file, stream, topics, start_ns, end_ns, failures
+            ):
+                decode = decoders.get(channel.id)
+                if decode is None:
+                    decode = _decoder_for(file, channel, schema, factory)
+                    decoders[channel.id] = decode
+                try:
+                    decoded = decode(message.data)
+                except Exception as error:  # decoders raise types of their own
+                    if failures is None:
+                        raise LogError(
+                            f"{file}: cannot decode a message on {channel.topic} ({_why(error)})"
+                        ) from error
+                    failures.add(file, channel.topic, _why(error))
+                    continue
+                yield Message(
+                    channel.topic, schema.name if schema else "", message.log_time, decoded
+                )
+
+
+# What a damaged chunk raises: the record parser's errors, and the decompressors' own types.
+_DAMAGE = (McapError, EOFError, struct.error, ValueError, zstandard.ZstdError, RuntimeError)
+
+
+def _raw_messages(
+    file: Path,
+    stream: BinaryIO,
+    topics: list[str],
+    start_ns: int | None,
+    end_ns: int | None,
+    failures: DecodeFailures | None,
+) -> Iterator[tuple[Any, Any, Any]]:
+    """(schema, channel, message) records in log-time order, read chunk by chunk through the
+    summary's chunk index, so that a chunk that does not decompress or parse costs only its own
+    messages. The chunks are merged as mcap's own reader merges them (by log time)."""
+    reader = make_reader(stream)
+    try:
+        summary = reader.get_summary()
+    except (*_DAMAGE, OSError) as error:
+        raise LogError(f"{file}: not a complete MCAP file ({_why(error)})") from error
+    if summary is None or not summary.chunk_indexes:  # unindexed: mcap reads it linearly
+        try:
+            yield from reader.iter_messages(
+                topics=topics, start_time=start_ns, end_time=end_ns, log_time_order=True
+            )
+        except _DAMAGE as error:
+            raise LogError(f"{file}: damaged ({_why(error)})") from error
+        return
+    wanted = {cid for cid, channel in summary.channels.items() if channel.topic in topics}
+    chunks = sorted(
+        (
+            c
+            for c in summary.chunk_indexes
+            if (start_ns is None or c.message_end_time >= start_ns)
+            and (end_ns is None or c.message_start_time < end_ns)
+            and (not c.message_index_offsets or wanted & set(c.message_index_offsets))
+        ),
+        key=lambda c: (c.message_start_time, c.chunk_start_offset),
+    )
+    pending: list[tuple[int, int, int, Any]] = []  # (log time, chunk, index, message)
+    next_chunk = 0
+    while next_chunk < len(chunks) or pending:
+        # A chunk is opened once no pending message can come after its first one.
+        while next_chunk < len(chunks) and (
+            not pending or chunks[next_chunk].message_start_time <= pending[0][0]
+        ):
+            index = chunks[next_chunk]
             try:
-                for schema, channel, message in reader.iter_messages(
-                    topics=topics, start_time=start_ns, end_time=end_ns, log_time_order=True
+                stream.seek(index.chunk_start_offset + 1 + 8)
+                records = breakup_chunk(Chunk.read(ReadDataStream(stream)))
+            except _DAMAGE as error:
+                if failures is None:
+                    raise LogError(f"{file}: damaged chunk ({_why(error)})") from error
+                for topic, n in _indexed_counts(stream, summary, index, wanted).items():
+                    failures.add(file, topic, f"a damaged chunk: {_why(error)}", n)
+                records = []
+            for position, record in enumerate(records):
+                if (
+                    isinstance(record, McapMessage)
+                    and record.channel_id in wanted
+                    and (start_ns is None or record.log_time >= start_ns)
+                    and (end_ns is None or record.log_time < end_ns)
                 ):
-                    name = schema.name if schema else ""
-                    decode = decoders.get(channel.id)
-                    if decode is None:
-                        decode = _decoder_for(file, channel, schema, factory)
-                        decoders[channel.id] = decode
-                    try:
-                        decoded = decode(message.data)
-                    except Exception as error:  # decoders raise types of their own
-                        if failures is None:
-                            raise LogError(
-                                f"{file}: cannot decode a message on {channel.topic} "
-                                f"({type(error).__name__}: {error})"
-                            ) from error
-                        failures.add(file, channel.topic, error)
-                        continue
-                    yield Message(channel.topic, name, message.log_time, decoded)
-            except (McapError, EOFError, struct.error, zstandard.ZstdError) as error:
-                raise LogError(f"{file}: damaged ({type(error).__name__}: {error})") from error
+                    heapq.heappush(pending, (record.log_time, next_chunk, position, record))
+            next_chunk += 1
+        if pending:
+            record = heapq.heappop(pending)[3]
+            channel = summary.channels[record.channel_id]
+            yield summary.schemas.get(channel.schema_id), channel, record
+
+
+def _indexed_counts(stream: BinaryIO, summary: Any, index: Any, wanted: set[int]) -> Counter[str]:
+    """How many messages of each wanted topic a chunk held, from its message indexes (which
+    lie outside the chunk's compressed data); empty where they cannot be read."""
+    counts: Counter[str] = Counter()
+    for channel_id, offset in index.message_index_offsets.items():
+        if channel_id not in wanted:
+            continue
+        try:
+            stream.seek(offset + 1 + 8)
+            entries = MessageIndex.read(ReadDataStream(stream)).records
+        except _DAMAGE:
+            continue
+        counts[summary.channels[channel_id].topic] += len(entries)
+    return counts
 
 
 def _decoder_for(
@@ -275,7 +381,12 @@ def decode_image(message: Message) -> NDArray[np.uint8]:
     """A grey image from ``sensor_msgs/msg/Image`` (rgb8, bgr8, mono8) or ``CompressedImage``."""
     msg = message.decoded
     if "CompressedImage" in message.schema:
-        image = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_GRAYSCALE)
+        if len(msg.data) == 0:
+            raise LogError(f"{message.topic}: an empty compressed image")
+        try:
+            image = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_GRAYSCALE)
+        except cv2.error:  # OpenCV raises on some damaged streams, returns None on others
+            image = None
         if image is None:
             raise LogError(
                 f"{message.topic}: a compressed image OpenCV cannot decode (format {msg.format!r})"
@@ -288,7 +399,9 @@ def decode_image(message: Message) -> NDArray[np.uint8]:
             f"{message.topic}: unsupported image encoding {msg.encoding!r} (rgb8, bgr8, mono8 are)"
         )
     data = np.frombuffer(msg.data, np.uint8)
-    if data.size < msg.step * msg.height:
+    if msg.height == 0 or msg.width == 0:
+        raise LogError(f"{message.topic}: an empty image")
+    if data.size < msg.step * msg.height or msg.step < msg.width * channels:
         raise LogError(f"{message.topic}: image data shorter than height x step")
     rows = data[: msg.step * msg.height].reshape(msg.height, msg.step)
     pixels = rows[:, : msg.width * channels].reshape(msg.height, msg.width, channels)
@@ -308,7 +421,14 @@ def decode_depth(message: Message) -> NDArray:
     ``compressedDepth`` ``CompressedImage`` (12-byte header, then a 16-bit PNG)."""
     msg = message.decoded
     if "CompressedImage" in message.schema:
-        depth = cv2.imdecode(np.frombuffer(bytes(msg.data[12:]), np.uint8), cv2.IMREAD_UNCHANGED)
+        if len(msg.data) <= 12:
+            raise LogError(f"{message.topic}: an empty compressedDepth image")
+        try:
+            depth = cv2.imdecode(
+                np.frombuffer(bytes(msg.data[12:]), np.uint8), cv2.IMREAD_UNCHANGED
+            )
+        except cv2.error:
+            depth = None
         if depth is None or depth.dtype != np.uint16:
             raise LogError(f"{message.topic}: compressedDepth that is not a 16-bit PNG")
         return depth
@@ -320,11 +440,14 @@ def decode_depth(message: Message) -> NDArray:
         dtype = np.dtype(np.float32)
     else:
         raise LogError(
-            f"{message.topic}: unsupported depth encoding {msg.encoding!r} (16UC1 and 32FC1 are)"
+            f"{message.topic}: unsupported depth encoding {msg.encoding!r} (16UC1 and 32FC1 "
+            "are; is it a colour topic?)"
         )
     dtype = dtype.newbyteorder(">" if getattr(msg, "is_bigendian", 0) else "<")
     data = np.frombuffer(msg.data, np.uint8)
-    if data.size < msg.step * msg.height:
+    if msg.height == 0 or msg.width == 0:
+        raise LogError(f"{message.topic}: an empty depth image")
+    if data.size < msg.step * msg.height or msg.step < msg.width * dtype.itemsize:
         raise LogError(f"{message.topic}: depth data shorter than height x step")
     rows = data[: msg.step * msg.height].reshape(msg.height, msg.step)
     width_bytes = int(msg.width) * dtype.itemsize

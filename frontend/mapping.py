@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,16 +23,17 @@ from markergraph.estimator import (
     map_error,
     trajectory_error,
 )
-from markergraph.estimator.export import (
+from markergraph.estimator.slam import build_slam_graph
+from markergraph.estimator.types import MarkerGraphError
+from markergraph.frontend.config import MapConfig, map_config
+from markergraph.frontend.files import REPORT_SCHEMA, result_folder
+from markergraph.frontend.formats import (
     estimate_values,
     map_document,
     write_g2o,
     write_json,
     write_tum,
 )
-from markergraph.estimator.slam import build_slam_graph
-from markergraph.estimator.types import MarkerGraphError
-from markergraph.frontend.config import MapConfig, map_config
 from markergraph.frontend.overlay import write_overlay
 from markergraph.frontend.pipeline import Extraction, extract
 
@@ -122,9 +122,15 @@ def map_log(
     extraction = extract(log, config.frontend, progress=progress, workers=config.workers)
     seconds["front end"] = time.perf_counter() - start
     if not extraction.observations:
+        left_out = sorted(extraction.ids_left_out)
         raise MarkerGraphError(
             f"{log}: no markers of {config.frontend.dictionary} were found in "
             f"{extraction.frames} frames"
+            + (
+                f" (markers {', '.join(map(str, left_out))} were seen but are not in --ids)"
+                if left_out
+                else ""
+            )
         )
     if not extraction.odometry:
         raise MarkerGraphError(
@@ -171,6 +177,7 @@ def map_log(
 def _report(run: MapRun) -> dict[str, Any]:
     extraction = run.extraction
     report: dict[str, Any] = {
+        "schema": REPORT_SCHEMA,
         "log": str(run.log),
         "frames": extraction.frames,
         "frames_with_depth": extraction.frames_with_depth,
@@ -178,6 +185,8 @@ def _report(run: MapRun) -> dict[str, Any]:
         "markers_seen": len({o.marker_id for o in extraction.observations}),
         "odometry_samples": len(extraction.odometry),
         "skipped_frames": dict(extraction.skipped),
+        "undecodable_frames": extraction.undecodable_frames,
+        "unusable_depth_images": extraction.unusable_depth,
         "notes": extraction.notes + extraction.warnings,
         "ground_truth": bool(run.true_markers),
         "seconds": run.seconds,
@@ -205,9 +214,9 @@ def _report(run: MapRun) -> dict[str, Any]:
 
 
 def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = True) -> list[Path]:
-    """The result folder: written beside ``out`` under a temporary name, then renamed, so an
-    interrupted run leaves nothing half-written; an existing folder is replaced only with
-    ``force``.
+    """The result folder, written whole or not at all
+    (:func:`~markergraph.frontend.files.result_folder`); an existing one is replaced only with
+    ``force``, and only if markergraph wrote it or it is empty.
 
     Files: ``map.json``, ``map.g2o`` (graph methods), ``map.png`` and ``map.svg`` for the first
     method, and ``overlay.mcap`` (its map and trajectory as ROS 2 messages, to show over the
@@ -217,22 +226,14 @@ def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = 
 
     Returns:
         The files written, relative to ``out``.
+
+    Raises:
+        OutputError: ``out`` may not be replaced, or another run wrote it meanwhile.
     """
-    out = Path(out)
-    if out.exists() and not force:
-        raise FileExistsError(f"{out} exists; pass --force to replace it")
-    partial = out.with_name(f".{out.name}.partial")
-    shutil.rmtree(partial, ignore_errors=True)
-    partial.mkdir(parents=True)
-    try:
-        _write_all(run, partial, plots)
-        written = sorted(str(p.relative_to(partial)) for p in partial.rglob("*") if p.is_file())
-        if out.exists():
-            shutil.rmtree(out)
-        partial.rename(out)
-    finally:
-        shutil.rmtree(partial, ignore_errors=True)
-    return [Path(p) for p in written]
+    with result_folder(Path(out), force=force) as folder:
+        _write_all(run, folder, plots)
+        written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
+    return written
 
 
 def _write_method(run: MapRun, result: MethodResult, folder: Path, plots: bool) -> None:

@@ -7,8 +7,12 @@ Nothing is dropped silently: every skipped frame is counted with its reason.
 from __future__ import annotations
 
 import itertools
+import math
 import multiprocessing
+import os
 import re
+import threading
+import time
 from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from concurrent.futures import ProcessPoolExecutor
@@ -136,14 +140,21 @@ def choose_topics(path: Path, topics: list[LogTopic], config: FrontendConfig) ->
         LogError: a configured topic is not in the log.
     """
     by_name = {t.topic: t for t in topics}
-    for name in (
-        config.color_topic,
-        config.depth_topic,
-        config.camera_info_topic,
-        config.odom_topic,
+    for role, name, schemas in (
+        ("--color-topic", config.color_topic, IMAGE_SCHEMAS),
+        ("--depth-topic", config.depth_topic, IMAGE_SCHEMAS),
+        ("--camera-info-topic", config.camera_info_topic, CALIBRATION_SCHEMAS),
+        ("--odom-topic", config.odom_topic, (*ODOMETRY_SCHEMAS, "tf2_msgs/msg/TFMessage")),
     ):
-        if name is not None and name not in by_name:
+        if name is None:
+            continue
+        if name not in by_name:
             raise LogError(f"{path}: no topic {name}; it has {', '.join(sorted(by_name))}")
+        if not by_name[name].schema.endswith(schemas):
+            raise LogError(
+                f"{path}: {role} {name} carries {by_name[name].schema or 'untyped messages'}, "
+                f"not {' or '.join(schemas)}"
+            )
     images = [t.topic for t in topics if t.schema.endswith(IMAGE_SCHEMAS)]
     color = config.color_topic or next((t for t in COLOR_TOPICS if t in by_name), None)
     if color is None:
@@ -171,6 +182,8 @@ def choose_topics(path: Path, topics: list[LogTopic], config: FrontendConfig) ->
         if "/tf_static" in by_name
         else next((t.topic for t in topics if t.schema in TRANSFORM_SCHEMAS), None)
     )
+    if depth is not None and depth == color:
+        raise LogError(f"{path}: the depth topic {depth} is the colour topic; pass --depth-topic")
     return TopicChoice(color, depth, info, odom, static)
 
 
@@ -189,6 +202,9 @@ class Extraction:
         warnings: damaged stretches skipped (undecodable messages, per file and topic).
         true_markers: ground truth ``T_map_marker`` when the log carries it (simulated logs).
         true_poses: (N, 4) rows (t_ns, x, y, yaw) of the true base pose in ``map``, if carried.
+        undecodable_frames: colour frames skipped because their image does not decode.
+        unusable_depth: depth images skipped (undecodable, empty, or not the colour's size).
+        ids_left_out: detections dropped by the allowed ids, by marker id.
     """
 
     observations: list[Observation]
@@ -203,6 +219,9 @@ class Extraction:
     warnings: list[str] = field(default_factory=list)
     true_markers: dict[int, gtsam.Pose2] = field(default_factory=dict)
     true_poses: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 4)))
+    undecodable_frames: int = 0
+    unusable_depth: int = 0
+    ids_left_out: Counter[int] = field(default_factory=Counter)
 
 
 class _Pairing:
@@ -293,6 +312,8 @@ def _extract_span(
     mount_known = config.mount is not None
     pairing = _Pairing(config.pair_tolerance_ns)
     true_poses: list[tuple[int, float, float, float]] = []
+    detector = _detector(config)
+    left_out_before = Counter(detector.left_out)
 
     def process(ready: list[_Job]) -> None:
         nonlocal mount_known
@@ -311,17 +332,25 @@ def _extract_span(
                     f"no /tf_static: assuming the configured camera mount ({result.mount})"
                 )
         for t_ns, message, depth in ready:
-            image = decode_image(message)
+            try:
+                image = decode_image(message)
+            except LogError as error:  # one bad frame costs that frame
+                result.undecodable_frames += 1
+                result.skipped[f"colour image does not decode ({error})"] += 1
+                continue
             if depth is not None and depth.shape[:2] != image.shape[:2]:
-                raise LogError(
-                    f"{path}: depth on {choice.depth} is {depth.shape[1]}x{depth.shape[0]} but "
-                    f"colour on {choice.color} is {image.shape[1]}x{image.shape[0]}: not aligned"
-                )
-            result.frames_with_depth += depth is not None
-            if choice.depth and depth is None:
+                result.unusable_depth += 1
+                result.skipped[
+                    f"depth on {choice.depth} is {depth.shape[1]}x{depth.shape[0]}, colour "
+                    f"{image.shape[1]}x{image.shape[0]}: not aligned (used without depth)"
+                ] += 1
+                depth = None
+            elif depth is not None:
+                result.frames_with_depth += 1
+            elif choice.depth:
                 result.skipped["no depth within the pairing tolerance (used without)"] += 1
             result.observations += observe_detections(
-                _detector(config).detect(image),
+                detector.detect(image),
                 camera,
                 config.marker_length_m,
                 depth=depth,
@@ -357,10 +386,18 @@ def _extract_span(
             pairing.colour.append((stamp_ns(decoded), message))
             drain(stamp_ns(decoded))
         elif topic == choice.depth:
-            pairing.depth.append((stamp_ns(decoded), decode_depth(message)))
+            try:
+                pairing.depth.append((stamp_ns(decoded), decode_depth(message)))
+            except LogError as error:  # the frame waiting for it goes on without depth
+                result.unusable_depth += 1
+                failures.add(path, topic, str(error))
             drain(stamp_ns(decoded))
         elif topic == choice.camera_info and result.camera is None:
-            result.camera = config.camera or Camera.from_camera_info(decoded)
+            try:
+                result.camera = config.camera or Camera.from_camera_info(decoded)
+            except ValueError as error:  # a later message may be whole
+                failures.add(path, topic, str(error))
+                continue
             drain(stamp_ns(decoded))
         elif topic == choice.odom and inside:
             if message.schema.endswith("TFMessage"):
@@ -377,14 +414,35 @@ def _extract_span(
         progress(total, total)
     result.true_poses = np.array(true_poses, dtype=np.float64).reshape(-1, 4)
     result.warnings = failures.warnings()
+    result.ids_left_out = detector.left_out - left_out_before
     return result
+
+
+def _start_worker(parent_pid: int) -> None:
+    """In each worker: one OpenCV thread (a worker is one core; more would only contend), and a
+    watchdog that ends the worker when its parent dies (a killed run must not leave workers
+    waiting forever for work)."""
+    cv2.setNumThreads(1)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def _extract_span_in_worker(
     arguments: tuple[Path, FrontendConfig, TopicChoice, dict[str, int], _Span],
 ) -> Extraction:
-    cv2.setNumThreads(1)  # each worker is one core; OpenCV's own threads would only contend
     return _extract_span(*arguments)
+
+
+def available_cores() -> int:
+    """The cores this process may run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return os.cpu_count() or 1
 
 
 def _merge(parts: list[Extraction]) -> Extraction:
@@ -406,8 +464,54 @@ def _merge(parts: list[Extraction]) -> Extraction:
         merged.skipped.update(part.skipped)
         merged.notes += [n for n in part.notes if n not in merged.notes]
         merged.warnings += part.warnings
+        merged.undecodable_frames += part.undecodable_frames
+        merged.unusable_depth += part.unusable_depth
+        merged.ids_left_out.update(part.ids_left_out)
     merged.true_poses = np.concatenate([p.true_poses for p in parts])
     return merged
+
+
+def _check_usable(path: Path, choice: TopicChoice, result: Extraction) -> None:
+    """Bad messages cost their frames; but a topic of which nothing could be used is an error.
+
+    Raises:
+        LogError: no colour frame decodes, or depth was chosen and none of it is usable.
+    """
+    if result.frames and result.undecodable_frames == result.frames:
+        first = next(reason for reason in result.skipped if reason.startswith("colour image"))
+        raise LogError(f"{path}: none of the {result.frames} frames on {choice.color}: {first}")
+    if choice.depth and result.unusable_depth and not result.frames_with_depth:
+        reasons = [r for r in result.skipped if "not aligned" in r] + [
+            w for w in result.warnings if choice.depth in w
+        ]
+        raise LogError(
+            f"{path}: no usable depth on {choice.depth} ({reasons[0] if reasons else 'unusable'});"
+            " pass --depth-topic with the aligned depth topic"
+        )
+
+
+def _clean_odometry(
+    samples: list[OdometrySample], topic: str | None, notes: list[str]
+) -> list[OdometrySample]:
+    """Odometry without non-finite samples and without stamps that repeat or go backwards (a
+    clock reset, a replayed stretch), each dropped with a note: one bad sample must not
+    poison the map."""
+    kept: list[OdometrySample] = []
+    non_finite = backwards = 0
+    for sample in samples:
+        if not all(math.isfinite(v) for v in (sample.x, sample.y, sample.yaw)):
+            non_finite += 1
+        elif kept and sample.t_ns <= kept[-1].t_ns:
+            backwards += 1
+        else:
+            kept.append(sample)
+    if non_finite:
+        notes.append(f"dropped {non_finite} odometry sample(s) on {topic} with NaN or inf values")
+    if backwards:
+        notes.append(
+            f"dropped {backwards} odometry sample(s) on {topic} whose stamps repeat or go backwards"
+        )
+    return kept
 
 
 def extract(
@@ -436,6 +540,11 @@ def extract(
             "and any image message)"
         )
     counts = {t.topic: t.count for t in topics}
+    _detector(config)  # a bad dictionary or --ids fails here, before any worker starts
+    notes = []
+    if workers > available_cores():
+        notes.append(f"--workers {workers} capped at the {available_cores()} cores available")
+        workers = available_cores()
     if workers <= 1:
         result = _extract_span(path, config, choice, counts, _Span(), progress)
     else:
@@ -443,20 +552,37 @@ def extract(
         edges = np.linspace(first, last + 1, SPANS_PER_WORKER * workers + 1).astype(np.int64)
         spans = [_Span(int(a), int(b)) for a, b in itertools.pairwise(edges)]
         parts = []
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(
+            workers,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_start_worker,
+            initargs=(os.getpid(),),
+        ) as pool:
             jobs = [(path, config, choice, counts, span) for span in spans]
             for done, part in enumerate(pool.map(_extract_span_in_worker, jobs), start=1):
                 parts.append(part)
                 if progress is not None:
                     progress(done, len(spans))
         result = _merge(parts)
+    result.notes = notes + result.notes
     if result.camera is None:
+        bad_info = [w for w in result.warnings if choice.camera_info and choice.camera_info in w]
         raise LogError(
             f"{path}: no camera intrinsics: "
             + (
-                f"no messages on {choice.camera_info}"
+                bad_info[0].partition(": ")[2]
+                if bad_info
+                else f"no messages on {choice.camera_info}"
                 if choice.camera_info
                 else "no camera info topic found (pass --camera-info-topic)"
             )
+        )
+    _check_usable(path, choice, result)
+    result.odometry = _clean_odometry(result.odometry, choice.odom, result.notes)
+    if result.ids_left_out:
+        ids = ", ".join(str(i) for i in sorted(result.ids_left_out))
+        result.notes.append(
+            f"{sum(result.ids_left_out.values())} detection(s) of marker(s) {ids} were left out "
+            "by the allowed ids (--ids)"
         )
     return result

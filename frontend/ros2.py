@@ -108,7 +108,10 @@ def quaternion_from_yaw(yaw: float) -> dict[str, float]:
 
 
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
-    """Heading of a rotation about the vertical (roll and pitch ignored)."""
+    """Heading of a rotation about the vertical (roll and pitch ignored); NaN when a component
+    is not finite (atan2 would turn an infinity into a plausible angle)."""
+    if not all(math.isfinite(v) for v in (x, y, z, w)):
+        return math.nan
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 

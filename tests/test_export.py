@@ -18,7 +18,8 @@ import yaml
 
 from markergraph.datasets import scenario, simulate_fast
 from markergraph.estimator import Edge, Method, build_frames, estimate_frames
-from markergraph.estimator.export import (
+from markergraph.estimator.slam import build_slam_graph
+from markergraph.frontend.formats import (
     MAP_SCHEMA,
     MARKER_VERTEX_OFFSET,
     ExportFormat,
@@ -29,7 +30,6 @@ from markergraph.estimator.export import (
     write_json,
     write_tum,
 )
-from markergraph.estimator.slam import build_slam_graph
 
 
 @pytest.fixture(scope="module")

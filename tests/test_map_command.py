@@ -13,7 +13,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from markergraph.estimator.export import MAP_SCHEMA, MARKER_VERTEX_OFFSET, read_tum
+from markergraph.frontend.formats import MAP_SCHEMA, MARKER_VERTEX_OFFSET, read_tum
 
 METHODS = ("slam", "closed-form", "marker-graph", "isam2", "ekf")
 

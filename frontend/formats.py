@@ -1,18 +1,18 @@
-"""Result files: the corrected marker map as JSON, trajectories as TUM, the pose graph as g2o.
+"""Result files: the corrected marker map as JSON, trajectories as TUM, the pose graph as g2o,
+and the map in peer tools' formats.
 
-All writers write whole files or nothing (a temporary name beside the target, then a rename).
+All writers write whole files or nothing (:func:`markergraph.frontend.files.written_whole`), and
+none writes a NaN or an infinity: JSON is strict, and a non-finite value is an error.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from enum import Enum
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -21,14 +21,18 @@ from numpy.typing import NDArray
 
 from markergraph.estimator.paper import edge_from_pose2
 from markergraph.estimator.types import Estimate, MarkerGraphError
+from markergraph.frontend.files import written_whole
 
 __all__ = [
     "MAP_SCHEMA",
     "MARKER_VERTEX_OFFSET",
     "ExportFormat",
+    "MapFileError",
+    "check_map_document",
     "estimate_values",
     "export_map",
     "map_document",
+    "read_map",
     "read_tum",
     "write_g2o",
     "write_json",
@@ -40,17 +44,13 @@ MAP_SCHEMA = "markergraph.map/1"
 MARKER_VERTEX_OFFSET = 1_000_000
 
 
-@contextmanager
-def _atomic(path: Path) -> Iterator[IO[str]]:
-    """A text file that appears at ``path`` whole when the block ends, or not at all."""
-    path = Path(path)
-    partial = path.with_name(f".{path.name}.partial")
-    try:
-        with open(partial, "w") as stream:
-            yield stream
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
+class MapFileError(MarkerGraphError):
+    """A map.json that cannot be used; the message names the file and the field."""
+
+
+def _write_text(path: Path, text: str) -> None:
+    with written_whole(path) as partial:
+        partial.write_text(text, encoding="utf-8")
 
 
 def _covariance(matrix: NDArray[np.float64] | None) -> list[list[float]] | None:
@@ -133,9 +133,11 @@ def map_document(
 
 def write_json(path: Path, document: dict[str, Any]) -> None:
     """A JSON document, indented, written atomically."""
-    with _atomic(path) as stream:
-        json.dump(document, stream, indent=1)
-        stream.write("\n")
+    try:
+        text = json.dumps(document, indent=1, allow_nan=False)
+    except ValueError as error:  # a NaN got this far: a bug, never a file with NaN in it
+        raise MarkerGraphError(f"{path}: refusing to write a non-finite value ({error})") from None
+    _write_text(path, text + "\n")
 
 
 def write_tum(path: Path, t_ns: NDArray[np.int64], poses: NDArray[np.float64]) -> None:
@@ -144,14 +146,17 @@ def write_tum(path: Path, t_ns: NDArray[np.int64], poses: NDArray[np.float64]) -
     Args:
         t_ns: (N,) stamps [ns]; poses: (N, 3) rows (x, y, yaw).
     """
-    with _atomic(path) as stream:
-        for t, (x, y, yaw) in zip(t_ns, poses, strict=True):
-            seconds = f"{int(t) // 1_000_000_000}.{int(t) % 1_000_000_000:09d}"
-            half = float(yaw) / 2.0
-            stream.write(
-                f"{seconds} {float(x)!r} {float(y)!r} 0.0 0.0 0.0 "
-                f"{math.sin(half)!r} {math.cos(half)!r}\n"
-            )
+    if not np.all(np.isfinite(poses)):
+        raise MarkerGraphError(f"{path}: refusing to write a trajectory with non-finite poses")
+    lines = []
+    for t, (x, y, yaw) in zip(t_ns, poses, strict=True):
+        seconds = f"{int(t) // 1_000_000_000}.{int(t) % 1_000_000_000:09d}"
+        half = float(yaw) / 2.0
+        lines.append(
+            f"{seconds} {float(x)!r} {float(y)!r} 0.0 0.0 0.0 "
+            f"{math.sin(half)!r} {math.cos(half)!r}\n"
+        )
+    _write_text(path, "".join(lines))
 
 
 def read_tum(path: Path) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
@@ -213,6 +218,8 @@ def write_g2o(path: Path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Value
     lines = []
     for key in sorted(values.keys(), key=vertex):
         pose = values.atPose2(key)
+        if not all(math.isfinite(v) for v in (pose.x(), pose.y(), pose.theta())):
+            raise MarkerGraphError(f"{path}: refusing to write a non-finite pose ({pose})")
         lines.append(f"VERTEX_SE2 {vertex(key)} {pose.x()!r} {pose.y()!r} {pose.theta()!r}")
     for index in range(graph.size()):
         factor: Any = graph.at(index)
@@ -227,8 +234,7 @@ def write_g2o(path: Path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Value
             f"EDGE_SE2 {first} {second} {measured.x()!r} {measured.y()!r} "
             f"{measured.theta()!r} " + " ".join(repr(float(v)) for v in upper)
         )
-    with _atomic(path) as stream:
-        stream.write("\n".join(lines) + "\n")
+    _write_text(path, "\n".join(lines) + "\n")
 
 
 # --- peer formats, from a map.json document ---------------------------------------------------
@@ -268,6 +274,82 @@ def _sigmas(marker: dict[str, Any]) -> tuple[float, float, float]:
     return (float(diagonal[0]), float(diagonal[1]), float(diagonal[2]))
 
 
+def _reject_constant(name: str) -> None:
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def _finite(where: str, value: Any, *, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise MapFileError(f"{where} must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise MapFileError(f"{where} must be positive, got {value!r}")
+    return float(value)
+
+
+def _whole(where: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise MapFileError(f"{where} must be a whole number >= 0, got {value!r}")
+    return value
+
+
+def check_map_document(document: Any, source: str) -> None:
+    """Check that a document is a usable ``markergraph.map/1`` map.
+
+    Raises:
+        MapFileError: one line naming ``source`` and the first bad field.
+    """
+    if not isinstance(document, dict) or document.get("schema") != MAP_SCHEMA:
+        found = document.get("schema") if isinstance(document, dict) else type(document).__name__
+        raise MapFileError(f"{source}: not a {MAP_SCHEMA} document (schema {found!r})")
+    _finite(f"{source}: marker_size_m", document.get("marker_size_m"), positive=True)
+    if not isinstance(document.get("dictionary"), str):
+        raise MapFileError(
+            f"{source}: dictionary must be a name, got {document.get('dictionary')!r}"
+        )
+    markers = document.get("markers")
+    if not isinstance(markers, list):
+        raise MapFileError(f"{source}: markers must be a list, got {markers!r}")
+    for i, marker in enumerate(markers):
+        where = f"{source}: markers[{i}]"
+        if not isinstance(marker, dict):
+            raise MapFileError(f"{where} must be an object, got {marker!r}")
+        _whole(f"{where}.id", marker.get("id"))
+        for name in ("x", "y", "yaw"):
+            _finite(f"{where}.{name}", marker.get(name))
+        if "z" in marker:
+            _finite(f"{where}.z", marker["z"])
+        if "size_m" in marker:
+            _finite(f"{where}.size_m", marker["size_m"], positive=True)
+        _whole(f"{where}.n_observations", marker.get("n_observations"))
+        covariance = marker.get("covariance")
+        if covariance is not None:
+            matrix = np.asarray(covariance, dtype=object)
+            if matrix.shape != (3, 3):
+                raise MapFileError(f"{where}.covariance must be 3x3 or null")
+            for v in matrix.ravel():
+                _finite(f"{where}.covariance", v)
+
+
+def read_map(path: Path) -> dict[str, Any]:
+    """A ``map.json`` written by ``markergraph map``, checked (see :func:`check_map_document`).
+
+    Raises:
+        MapFileError: the file cannot be read, is not strict JSON, or is not a usable map;
+            the message names the file and the field.
+    """
+    path = Path(path)
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"), parse_constant=_reject_constant)
+    except OSError as error:
+        raise MapFileError(f"{path}: cannot read it ({error.strerror})") from None
+    except UnicodeDecodeError:
+        raise MapFileError(f"{path}: not UTF-8 text, so not a map.json") from None
+    except ValueError as error:
+        raise MapFileError(f"{path}: not a JSON document ({error})") from None
+    check_map_document(document, str(path))
+    return document
+
+
 def export_map(document: dict[str, Any], fmt: ExportFormat, path: Path) -> None:
     """Write a ``markergraph.map/1`` document in another tool's format, atomically.
 
@@ -275,10 +357,9 @@ def export_map(document: dict[str, Any], fmt: ExportFormat, path: Path) -> None:
     markers on vertical walls.
 
     Raises:
-        MarkerGraphError: the document is not a markergraph map.
+        MapFileError: the document is not a usable markergraph map.
     """
-    if document.get("schema") != MAP_SCHEMA:
-        raise MarkerGraphError(f"not a {MAP_SCHEMA} document (schema {document.get('schema')!r})")
+    check_map_document(document, "the map")
     default_size = float(document["marker_size_m"])
     markers = document["markers"]
 
@@ -340,5 +421,4 @@ def export_map(document: dict[str, Any], fmt: ExportFormat, path: Path) -> None:
                 f"           position_noise: {{x: {sx!r}, y: {sy!r}, z: {max(sx, sy)!r}}}",
                 f"           rotation_noise: {{x: {syaw!r}, y: {syaw!r}, z: {syaw!r}}}",
             ]
-    with _atomic(path) as stream:
-        stream.write("\n".join(lines) + "\n")
+    _write_text(path, "\n".join(lines) + "\n")

@@ -1,0 +1,227 @@
+"""Writing results whole or not at all, and never over what the user has.
+
+Every writer in markergraph goes through :func:`written_whole` (one file) or
+:func:`result_folder` (a folder of files). Both write under a temporary name of this run's own
+(``.NAME.partial-<pid>-<token>``) beside the target and rename it into place at the end, so at
+every instant the target's name holds nothing, the old whole result, or the new whole result.
+A run that was killed leaves its temporary folder behind; the next run aimed at the same target
+recognises it by its dead process id and removes it.
+
+A folder is replaced only when markergraph wrote it (its ``report.json`` carries
+:data:`REPORT_SCHEMA`) or when it is empty, and never when it is or holds an input.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import json
+import os
+import re
+import secrets
+import shutil
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager, suppress
+from pathlib import Path
+
+from markergraph.estimator.types import OutputError
+
+__all__ = [
+    "REPORT_SCHEMA",
+    "check_output_file",
+    "check_output_folder",
+    "result_folder",
+    "written_whole",
+]
+
+REPORT_SCHEMA = "markergraph.report/1"
+_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<kind>partial|old)-(?P<pid>\d+)-[0-9a-f]+$")
+
+
+def _temporary_name(target: Path, kind: str) -> Path:
+    return target.with_name(f".{target.name}.{kind}-{os.getpid()}-{secrets.token_hex(4)}")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def clean_stale(target: Path) -> None:
+    """Remove what killed runs left beside ``target``: their half-written temporary files and
+    folders; an old result moved aside just before a run died is put back if the name is free."""
+    target = Path(target)
+    if not target.parent.is_dir():
+        return
+    for entry in target.parent.iterdir():
+        match = _TEMPORARY.match(entry.name)
+        if match is None or match["name"] != target.name or _alive(int(match["pid"])):
+            continue
+        if match["kind"] == "old" and not os.path.lexists(target):
+            with suppress(OSError):
+                _rename_no_replace(entry, target)
+                continue
+        _remove(entry)
+
+
+def _rename_no_replace(source: Path, target: Path) -> None:
+    """Rename, failing with FileExistsError if ``target`` exists (even as an empty folder,
+    which a plain rename would silently replace): Linux's renameat2(RENAME_NOREPLACE)."""
+    renameat2 = getattr(_LIBC, "renameat2", None) if _LIBC is not None else None
+    if renameat2 is not None:
+        at_fdcwd, rename_noreplace = -100, 1
+        if renameat2(at_fdcwd, os.fsencode(source), at_fdcwd, os.fsencode(target),
+                     rename_noreplace) == 0:  # fmt: skip
+            return
+        code = ctypes.get_errno()
+        if code not in (errno.EINVAL, errno.ENOSYS):  # else: the file system lacks the flag
+            raise OSError(code, os.strerror(code), str(target))
+    if os.path.lexists(target):
+        raise FileExistsError(errno.EEXIST, "exists", str(target))
+    try:
+        os.rename(source, target)
+    except OSError as error:
+        if error.errno in (errno.ENOTEMPTY, errno.EEXIST):
+            raise FileExistsError(errno.EEXIST, "exists", str(target)) from error
+        raise
+
+
+try:
+    _LIBC: ctypes.CDLL | None = ctypes.CDLL(None, use_errno=True)
+except OSError:  # pragma: no cover - no C library to load (not Linux or macOS)
+    _LIBC = None
+
+
+def _is_result_folder(folder: Path) -> bool:
+    try:
+        report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(report, dict) and report.get("schema") == REPORT_SCHEMA
+
+
+def _holds(outer: Path, inner: Path) -> bool:
+    return inner == outer or outer in inner.parents
+
+
+def check_output_folder(out: Path, inputs: Iterable[Path], *, force: bool) -> None:
+    """Refuse, before any work, a result folder that would harm the user's files.
+
+    Raises:
+        OutputError: ``out`` is or holds an input, lies inside an input folder, is a file or a
+            link, exists without ``force``, or exists with ``force`` but is neither empty nor a
+            markergraph result folder.
+    """
+    out = Path(out)
+    resolved = out.resolve()
+    for source in inputs:
+        source = Path(source).resolve()
+        if _holds(resolved, source):
+            raise OutputError(f"--out {out} holds the input {source}; choose another folder")
+        if source.is_dir() and _holds(source, resolved):
+            raise OutputError(f"--out {out} is inside the input folder {source}")
+    if not os.path.lexists(out):
+        return
+    if out.is_symlink() or not out.is_dir():
+        raise OutputError(f"--out {out} is a file or link, not a result folder; refusing it")
+    if not force:
+        raise OutputError(f"{out} exists; pass --force to replace it")
+    if any(out.iterdir()) and not _is_result_folder(out):
+        raise OutputError(
+            f"{out} is not a markergraph result folder (no report.json of ours): --force "
+            "replaces only those; choose another --out"
+        )
+
+
+def check_output_file(out: Path, inputs: Iterable[Path], *, force: bool) -> None:
+    """Refuse, before any work, an output file that is an input, a folder or (without
+    ``force``) an existing file, or that lies in no folder.
+
+    Raises:
+        OutputError: naming ``out`` and why.
+    """
+    out = Path(out)
+    resolved = out.resolve()
+    for source in inputs:
+        if _holds(resolved, Path(source).resolve()):
+            raise OutputError(f"--out {out} is the input {source}; choose another file")
+    if out.is_dir():
+        raise OutputError(f"--out {out} is a folder; name a file")
+    if os.path.lexists(out) and not force:
+        raise OutputError(f"{out} exists; pass --force to overwrite it")
+    if not out.parent.is_dir():
+        raise OutputError(f"cannot write {out}: {out.parent} is not a folder")
+
+
+@contextmanager
+def written_whole(path: Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write one file to; renamed onto ``path`` when the
+    block ends, or removed if it raises."""
+    path = Path(path)
+    clean_stale(path)
+    partial = _temporary_name(path, "partial")
+    try:
+        yield partial
+        os.replace(partial, path)
+    finally:
+        _remove(partial)
+
+
+@contextmanager
+def result_folder(out: Path, *, force: bool = False) -> Iterator[Path]:
+    """A temporary folder of this run's own to write a result into; when the block ends it
+    takes the name ``out``.
+
+    Replacement is by renames only: the old result (ours, or empty: see
+    :func:`check_output_folder`) is moved aside, the new one moved in, then the old deleted.
+
+    Raises:
+        OutputError: ``out`` may not be replaced (checked again at the end), or another run
+            wrote it meanwhile (this run's result is then discarded).
+    """
+    out = Path(out)
+    check_output_folder(out, (), force=force)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    clean_stale(out)
+    partial = _temporary_name(out, "partial")
+    partial.mkdir()
+    aside: Path | None = None
+    installed = False
+    try:
+        yield partial
+        if os.path.lexists(out):
+            if not force:
+                raise OutputError(
+                    f"{out} was written by another run meanwhile; this run's result was not kept"
+                )
+            check_output_folder(out, (), force=force)
+            aside = _temporary_name(out, "old")
+            with suppress(FileNotFoundError):  # another run may have moved it meanwhile
+                os.rename(out, aside)
+        try:
+            _rename_no_replace(partial, out)
+        except FileExistsError:
+            raise OutputError(
+                f"{out} was written by another run meanwhile; this run's result was not kept"
+            ) from None
+        installed = True
+    finally:
+        _remove(partial)
+        if aside is not None and os.path.lexists(aside):
+            if installed or os.path.lexists(out):
+                _remove(aside)
+            else:  # the new result did not go in: put the old one back
+                with suppress(OSError):
+                    _rename_no_replace(aside, out)

@@ -1,0 +1,530 @@
+"""Trust: markergraph never harms the user's files, one bad message costs one frame, and a
+user's mistake is one line naming the file, topic or value, with exit code 1."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from mcap_ros2.writer import Writer
+
+from markergraph.cli import main
+from markergraph.datasets.scenarios import scenario
+from markergraph.datasets.write import write_log
+from markergraph.estimator.types import OutputError
+from markergraph.frontend import files
+from markergraph.frontend.files import result_folder
+
+COLOR = "/camera/camera/color/image_raw/compressed"
+DEPTH = "/camera/camera/aligned_depth_to_color/image_raw"
+INFO = "/camera/camera/color/camera_info"
+SAME_MAP_M = 1e-3  # the issue's bound: two lost frames move no marker by more than 1 mm
+
+
+# --- helpers ---------------------------------------------------------------------------------
+
+
+def snapshot(folder: Path) -> dict[str, str]:
+    """Every file under ``folder`` (hidden ones included) -> the hash of its bytes."""
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+def cli(capsys: pytest.CaptureFixture[str], *arguments: str) -> tuple[int, str, str]:
+    """The ``markergraph`` command in this process: (exit code, stdout, stderr)."""
+    code = main([str(a) for a in arguments])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def one_line_error(err: str, *names: str) -> str:
+    """The single stderr line of a refused command, checked to name each of ``names``."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    for name in names:
+        assert name in lines[0], (name, lines[0])
+    return lines[0]
+
+
+def strict_json(path: Path) -> Any:
+    """A JSON file parsed with NaN and infinities refused, as any strict reader does."""
+
+    def refuse(name: str) -> None:
+        raise AssertionError(f"{path} holds {name}")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def rewrite_log(source: Path, target: Path, change: Callable[[str, int, Any], Any | None]) -> None:
+    """A copy of a ROS 2 MCAP log with messages changed: ``change(topic, index, decoded)``
+    returns the message to write (changed in place or not), or None to drop it."""
+    factory = DecoderFactory()
+    seen: dict[str, int] = {}
+    with open(source, "rb") as stream, open(target, "wb") as out:
+        reader = make_reader(stream, decoder_factories=[factory])
+        writer = Writer(out)
+        schemas: dict[int, Any] = {}
+        for schema, channel, message, decoded in reader.iter_decoded_messages():
+            index = seen.get(channel.topic, 0)
+            seen[channel.topic] = index + 1
+            kept = change(channel.topic, index, decoded)
+            if kept is None:
+                continue
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_msgdef(schema.name, schema.data.decode())
+            writer.write_message(
+                channel.topic, schemas[schema.id], kept, message.log_time, message.publish_time
+            )
+        writer.finish()
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """20 s of the paper room at 5 Hz: 100 JPEG frames, three markers, ground truth."""
+    path = tmp_path_factory.mktemp("log") / "room.mcap"
+    world, route = scenario("paper-room")
+    write_log(world, route, path, seed=3, duration_s=20.0, compressed=True, frame_hz=5.0)
+    return path
+
+
+@pytest.fixture(scope="module")
+def frames_with_markers(log: Path) -> list[int]:
+    """Indices of colour frames in which the simulator saw markers (from the front end)."""
+    from markergraph.frontend.pipeline import extract
+
+    stamps = sorted({o.t_ns for o in extract(log).observations})
+    indices = []
+    with open(log, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for i, (_, _, _, decoded) in enumerate(reader.iter_decoded_messages(topics=[COLOR])):
+            stamp = decoded.header.stamp
+            if stamp.sec * 1_000_000_000 + stamp.nanosec in stamps:
+                indices.append(i)
+    return indices
+
+
+def markers_of(folder: Path) -> dict[int, np.ndarray]:
+    document = strict_json(folder / "map.json")
+    return {m["id"]: np.array([m["x"], m["y"]]) for m in document["markers"]}
+
+
+# --- never harm the user's files --------------------------------------------------------------
+
+
+def test_out_may_not_be_or_hold_the_input(log: Path, tmp_path: Path, capsys) -> None:
+    """--out onto the input log, a rosbag2 folder, or a folder holding them is refused before
+    any work, with --force too, and every file is left byte-identical."""
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "room_0.mcap").write_bytes(log.read_bytes())
+    single = tmp_path / "room.mcap"
+    single.write_bytes(log.read_bytes())
+    before = snapshot(tmp_path)
+    os.chdir(bag)
+    for source, out in (
+        (bag, bag),
+        (bag, tmp_path),
+        (bag, Path("..")),
+        (single, single),
+        (single, tmp_path),
+        (bag, bag / "result"),
+    ):
+        code, out_text, err = cli(capsys, "map", source, "--out", out, "--force")
+        assert code == 1 and not out_text
+        one_line_error(err, f"--out {out}")
+    assert snapshot(tmp_path) == before
+
+
+def test_force_replaces_only_our_own_or_an_empty_folder(log: Path, tmp_path: Path, capsys):
+    """--force onto a user's folder or onto a file is refused before any work; onto an empty
+    folder or a result markergraph wrote, it replaces it with a whole new result."""
+    user = tmp_path / "photos"
+    user.mkdir()
+    (user / "holiday.jpg").write_bytes(b"not yours")
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("mine")
+    before = snapshot(tmp_path)
+    for out, name in ((user, "not a markergraph result folder"), (a_file, "is a file")):
+        code, _, err = cli(capsys, "map", log, "--out", out, "--force")
+        assert code == 1
+        one_line_error(err, str(out), name)
+    assert snapshot(tmp_path) == before
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    code, _, err = cli(capsys, "map", log, "--out", empty, "--force", "--no-plots")
+    assert code == 0, err
+    first = strict_json(empty / "report.json")
+    code, _, err = cli(capsys, "map", log, "--out", empty, "--force", "--no-plots")
+    assert code == 0, err
+    assert strict_json(empty / "report.json")["schema"] == first["schema"]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_a_failure_half_way_keeps_the_old_result_whole(log: Path, tmp_path: Path, monkeypatch):
+    """A --force run that fails while writing leaves the old result byte-identical and no
+    temporary folder behind."""
+    from markergraph.frontend import mapping
+
+    out = tmp_path / "result"
+    run = mapping.map_log(log)
+    mapping.write_results(run, out, plots=False)
+    before = snapshot(out)
+
+    def disk_full(*_: Any, **__: Any) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(mapping, "write_overlay", disk_full)
+    with pytest.raises(OSError, match="No space"):
+        mapping.write_results(run, out, force=True, plots=False)
+    assert snapshot(out) == before
+    assert [p.name for p in tmp_path.iterdir()] == ["result"]
+
+
+def test_two_runs_at_once_never_mix_their_files(tmp_path: Path) -> None:
+    """Two overlapping runs onto the same folder each write into a folder of their own; the
+    first to finish takes the name, the other fails with OutputError and is not mixed in."""
+    out = tmp_path / "result"
+    with pytest.raises(OutputError, match="another run meanwhile"), result_folder(out) as slow:
+        (slow / "report.json").write_text(json.dumps({"schema": files.REPORT_SCHEMA, "run": 1}))
+        with result_folder(out) as fast:
+            assert fast != slow
+            (fast / "report.json").write_text('{"run": 2}')
+            (fast / "map.json").write_text("{}")
+    assert sorted(p.name for p in out.iterdir()) == ["map.json", "report.json"]
+    assert strict_json(out / "report.json")["run"] == 2
+    assert [p.name for p in tmp_path.iterdir()] == ["result"]
+
+
+def dead_pid() -> int:
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+def test_stale_temporary_folders_of_killed_runs_are_cleaned(log: Path, tmp_path: Path, capsys):
+    """What a killed run left (its half-written folder; an old result it had moved aside) is
+    recognised by its dead process id: the half-written one removed, the old one put back."""
+    out = tmp_path / "result"
+    pid = dead_pid()
+    half = tmp_path / f".result.partial-{pid}-0badc0de"
+    half.mkdir()
+    (half / "map.json").write_text("{")
+    old = tmp_path / f".result.old-{pid}-0badc0de"
+    old.mkdir()
+    (old / "report.json").write_text(json.dumps({"schema": files.REPORT_SCHEMA}))
+    live = tmp_path / f".result.partial-{os.getpid()}-00000000"  # a running run's: kept
+    live.mkdir()
+    files.clean_stale(out)
+    assert not half.exists() and not old.exists() and live.exists()
+    assert strict_json(out / "report.json")["schema"] == files.REPORT_SCHEMA
+
+
+def test_killed_run_leaves_no_workers_and_the_next_run_succeeds(log: Path, tmp_path: Path):
+    """SIGKILL to a run with two workers: the workers exit on their own within seconds, and the
+    next run to the same --out succeeds and leaves no temporary folder."""
+    psutil = pytest.importorskip("psutil")
+    out = tmp_path / "result"
+    command = [sys.executable, "-m", "markergraph.cli", "map", str(log), "--out", str(out)]
+    run = subprocess.Popen([*command, "--workers", "2"], stderr=subprocess.DEVNULL)
+    parent = psutil.Process(run.pid)
+    deadline = time.monotonic() + 60
+    workers: list[Any] = []
+    while len(workers) < 2 and time.monotonic() < deadline and run.poll() is None:
+        workers = [c for c in parent.children(recursive=True) if "spawn_main" in " ".join(
+            c.cmdline())]  # fmt: skip
+        time.sleep(0.05)
+    assert len(workers) == 2, "the workers did not start"
+    run.send_signal(signal.SIGKILL)
+    run.wait()
+    _, alive = psutil.wait_procs(workers, timeout=10)
+    assert not alive, "workers outlived their parent"
+    again = subprocess.run(command, capture_output=True, text=True)
+    assert again.returncode == 0, again.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["result"]
+
+
+def test_every_writer_uses_the_one_helper() -> None:
+    """No module but files.py renames or replaces files: every writer goes through it."""
+    root = Path(__file__).resolve().parents[1]
+    offenders = [
+        str(path.relative_to(root))
+        for folder in ("estimator", "frontend", "datasets", "cli")
+        for path in (root / folder).glob("*.py")
+        if path.name != "files.py"
+        and any(s in path.read_text() for s in ("os.replace", "os.rename", ".rename(", ".partial"))
+    ]
+    assert offenders == []
+
+
+# --- one bad message costs one frame ----------------------------------------------------------
+
+
+def test_undecodable_frames_cost_those_frames_only(log, frames_with_markers, tmp_path, capsys):
+    """Three bad JPEGs (garbage, truncated, empty) in frames with markers: the run goes on, says
+    so, and its map equals the map of the log with those frames removed, within 1 mm."""
+    bad = set(frames_with_markers[3:6])
+    assert len(bad) == 3
+
+    def corrupt(topic: str, index: int, decoded: Any) -> Any:
+        if topic == COLOR and index in bad:
+            kind = sorted(bad).index(index)
+            data = bytes(decoded.data)
+            decoded.data = [b"\x55" * len(data), data[:100], b""][kind]
+        return decoded
+
+    def drop(topic: str, index: int, decoded: Any) -> Any:
+        return None if topic == COLOR and index in bad else decoded
+
+    damaged, removed = tmp_path / "damaged.mcap", tmp_path / "removed.mcap"
+    rewrite_log(log, damaged, corrupt)
+    rewrite_log(log, removed, drop)
+    code, out, err = cli(capsys, "map", damaged, "--out", tmp_path / "a", "--no-plots")
+    assert code == 0, err
+    assert "colour image does not decode" in out and COLOR in out
+    report = strict_json(tmp_path / "a" / "report.json")
+    assert report["undecodable_frames"] == 3 and report["frames"] == 100
+    assert sum(report["skipped_frames"].values()) == 3
+    code, _, err = cli(capsys, "map", removed, "--out", tmp_path / "b", "--no-plots")
+    assert code == 0, err
+    a, b = markers_of(tmp_path / "a"), markers_of(tmp_path / "b")
+    assert a.keys() == b.keys() and len(a) == 3
+    for marker_id in a:
+        assert np.linalg.norm(a[marker_id] - b[marker_id]) < SAME_MAP_M
+
+
+def test_empty_depth_frame_costs_its_depth(log: Path, tmp_path: Path, capsys) -> None:
+    """An empty depth image is skipped with a warning naming it; its frame goes on without
+    depth (not 'not aligned')."""
+
+    def empty_depth(topic: str, index: int, decoded: Any) -> Any:
+        if topic == DEPTH and index == 10:
+            decoded.height = decoded.width = decoded.step = 0
+            decoded.data = b""
+        return decoded
+
+    damaged = tmp_path / "empty-depth.mcap"
+    rewrite_log(log, damaged, empty_depth)
+    code, _, err = cli(capsys, "map", damaged, "--out", tmp_path / "r", "--no-plots")
+    assert code == 0, err
+    assert "an empty depth image" in err and DEPTH in err and "not aligned" not in err
+    report = strict_json(tmp_path / "r" / "report.json")
+    assert report["unusable_depth_images"] == 1 and report["frames_with_depth"] == 99
+
+
+def test_damaged_chunk_costs_its_messages(log: Path, tmp_path: Path, capsys) -> None:
+    """A chunk whose zstd data is damaged is skipped, its messages counted per topic; the map is
+    still made from the rest."""
+    with open(log, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    chunk = chunks[len(chunks) // 2]
+    assert chunk.compression == "zstd"
+    # opcode, length, start and end times, uncompressed size and CRC, compression, records length
+    records_at = chunk.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4 + 4 + len("zstd") + 8
+    data = bytearray(log.read_bytes())
+    data[records_at : records_at + 16] = b"\xff" * 16  # the zstd frame header
+    damaged = tmp_path / "damaged-chunk.mcap"
+    damaged.write_bytes(bytes(data))
+    code, _, err = cli(capsys, "map", damaged, "--out", tmp_path / "r", "--no-plots")
+    assert code == 0, err
+    assert "a damaged chunk" in err and str(damaged) in err
+    report = strict_json(tmp_path / "r" / "report.json")
+    assert any("damaged chunk" in note for note in report["notes"])
+    assert report["frames"] < 100 and len(markers_of(tmp_path / "r")) == 3
+
+
+def test_non_finite_and_backward_odometry_is_dropped_with_notes(log, tmp_path, capsys) -> None:
+    """NaN and inf odometry samples and a stamp that jumps back are dropped with notes; every
+    output is strict JSON, map.g2o holds no nan, and the map stays within 1 cm of the clean one."""
+
+    def poison(topic: str, index: int, decoded: Any) -> Any:
+        if topic == "/odom" and index in (100, 400, 700):
+            decoded.pose.pose.position.x = math.nan
+        if topic == "/odom" and index == 500:
+            decoded.pose.pose.orientation.z = math.inf
+        if topic == "/odom" and index == 600:
+            decoded.header.stamp.sec -= 5
+        return decoded
+
+    poisoned = tmp_path / "poisoned.mcap"
+    rewrite_log(log, poisoned, poison)
+    code, _, err = cli(capsys, "map", poisoned, "--out", tmp_path / "r", "--method", "all")
+    assert code == 0, err
+    assert "dropped 4 odometry sample(s) on /odom with NaN or inf" in err
+    assert "dropped 1 odometry sample(s) on /odom whose stamps repeat or go backwards" in err
+    for path in (tmp_path / "r").rglob("*.json"):
+        strict_json(path)
+    for path in (tmp_path / "r").rglob("*.g2o"):
+        assert "nan" not in path.read_text().lower()
+    code, _, err = cli(capsys, "map", log, "--out", tmp_path / "clean", "--no-plots")
+    clean, got = markers_of(tmp_path / "clean"), markers_of(tmp_path / "r")
+    assert max(np.linalg.norm(clean[i] - got[i]) for i in clean) < 0.01
+
+
+# --- a user's mistake is one line and exit 1 --------------------------------------------------
+
+
+def test_wrong_topics_name_the_flag_topic_and_type(log: Path, tmp_path: Path, capsys) -> None:
+    """A topic of the wrong type for its role, or the colour topic given as depth, is refused
+    before any work, naming the topic."""
+    for flag, topic, words in (
+        ("--color-topic", "/tf", "tf2_msgs/msg/TFMessage"),
+        ("--odom-topic", INFO, "sensor_msgs/msg/CameraInfo"),
+        ("--depth-topic", COLOR, "is the colour topic"),
+    ):
+        code, _, err = cli(capsys, "map", log, flag, topic, "--out", tmp_path / "r")
+        assert code == 1
+        one_line_error(err, str(log), topic, words)
+    assert not (tmp_path / "r").exists()
+
+
+def test_bad_settings_name_the_value(log: Path, tmp_path: Path, capsys) -> None:
+    """A dictionary file that is not one, ids outside the dictionary, a settings file that is
+    not UTF-8, a frame rate no camera has: exit 1 naming the file or value."""
+    not_a_dictionary = tmp_path / "dict.yml"
+    not_a_dictionary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00")
+    latin = tmp_path / "robot.toml"
+    latin.write_bytes("marker_size = 0.2 # côté\n".encode("latin-1"))
+    cases = [
+        (("map", log, "--dictionary", not_a_dictionary), (str(not_a_dictionary), "dictionary")),
+        (("map", log, "--ids", "3", "60"), ("--ids 60", "DICT_4X4_50")),
+        (("map", log, "--config", latin), (str(latin), "UTF-8")),
+        (("simulate", "--scenario", "paper-room", "--out", tmp_path / "s.mcap",
+          "--frame-rate", "1e9"), ("--frame-rate", "1e+09")),
+        (("simulate", "--scenario", "paper-room", "--out", tmp_path / "s.mcap",
+          "--duration", "inf"), ("--duration", "inf")),
+    ]  # fmt: skip
+    for arguments, names in cases:
+        code, _, err = (
+            cli(capsys, *arguments, "--out", tmp_path / "r")
+            if arguments[0] == "map"
+            else cli(capsys, *arguments)
+        )
+        assert code == 1, (arguments, err)
+        one_line_error(err, *names)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dict.yml", "robot.toml"]
+
+
+def test_ids_that_leave_nothing_say_which_markers_were_seen(log, tmp_path, capsys) -> None:
+    """--ids that filter out every marker: the error names the markers the log does show."""
+    code, _, err = cli(capsys, "map", log, "--ids", "7", "--out", tmp_path / "r")
+    assert code == 1
+    one_line_error(err, str(log), "markers 0, 1, 2 were seen but are not in --ids")
+
+
+def test_bad_log_files_are_named(log: Path, tmp_path: Path, capsys) -> None:
+    """An MCAP under 37 bytes, a broken metadata.yaml (no silent fallback to the folder's
+    .mcap files), camera info with a zero K: exit 1, naming the file or topic."""
+    tiny = tmp_path / "tiny.mcap"
+    tiny.write_bytes(b"\x89MCAP0\r\n" + bytes(20))
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "room_0.mcap").write_bytes(log.read_bytes())
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed\n")
+
+    def zero_k(topic: str, index: int, decoded: Any) -> Any:
+        if topic == INFO:
+            decoded.k = [0.0] * 9
+        return decoded
+
+    no_k = tmp_path / "no-k.mcap"
+    rewrite_log(log, no_k, zero_k)
+    for source, names in (
+        (tiny, (str(tiny), "not a complete MCAP file")),
+        (bag, (str(bag / "metadata.yaml"), "not a rosbag2 metadata file")),
+        (no_k, (str(no_k), "no camera intrinsics", "intrinsic matrix K")),
+    ):
+        code, _, err = cli(capsys, "map", source, "--out", tmp_path / "r")
+        assert code == 1, err
+        one_line_error(err, *names)
+    assert not (tmp_path / "r").exists()
+
+
+def test_bad_map_files_are_refused_by_export_and_heading(tmp_path: Path, capsys) -> None:
+    """export and heading refuse a map.json with null markers, a missing field, a NaN or bytes
+    that are not UTF-8, naming the file and the field; they never write a file."""
+    good = {
+        "schema": "markergraph.map/1",
+        "marker_size_m": 0.2,
+        "dictionary": "DICT_4X4_50",
+        "markers": [{"id": 0, "x": 0.0, "y": 0.0, "yaw": 0.0, "n_observations": 3}],
+    }
+    variants = {
+        "null.json": ({**good, "markers": None}, "markers must be a list"),
+        "missing.json": ({**good, "markers": [{"id": 0, "x": 1.0}]}, "markers[0].y"),
+        "nan.json": (
+            {**good, "markers": [{**good["markers"][0], "x": math.nan}]},
+            "not a number JSON allows",
+        ),
+    }
+    for name, (document, words) in variants.items():
+        path = tmp_path / name
+        path.write_text(json.dumps(document))
+        for command in (
+            ("export", path, "--format", "csv", "--out", tmp_path / "out.csv"),
+            ("heading", path, "--from", "0", "--at", "1,0", "--to", "1"),
+        ):
+            code, _, err = cli(capsys, *command)
+            assert code == 1, err
+            one_line_error(err, str(path), words)
+    binary = tmp_path / "binary.json"
+    binary.write_bytes(b"\xff\xfe\x00")
+    code, _, err = cli(capsys, "export", binary, "--format", "csv", "--out", tmp_path / "o.csv")
+    assert code == 1
+    one_line_error(err, str(binary), "UTF-8")
+    assert not (tmp_path / "out.csv").exists() and not (tmp_path / "o.csv").exists()
+
+
+def test_export_onto_its_own_map_is_refused(tmp_path: Path, capsys) -> None:
+    """export --out the map it reads is refused even with --force: the map stays."""
+    path = tmp_path / "map.json"
+    path.write_text('{"schema": "markergraph.map/1"}')
+    code, _, err = cli(capsys, "export", path, "--format", "csv", "--out", path, "--force")
+    assert code == 1
+    one_line_error(err, str(path), "is the input")
+    assert path.read_text() == '{"schema": "markergraph.map/1"}'
+
+
+def test_too_many_workers_are_capped_with_a_note(log: Path, tmp_path: Path, capsys) -> None:
+    """--workers 1000 runs on the cores there are and says so."""
+    out = tmp_path / "obs.jsonl"
+    code, stdout, err = cli(capsys, "detect", log, "--out", out, "--workers", "1000")
+    assert code == 0, err
+    assert "--workers 1000 capped at the" in stdout + err
+    assert out.read_text().count("\n") > 10
+
+
+def test_ctrl_c_exits_130_and_writes_nothing(tmp_path: Path) -> None:
+    """SIGINT during a run: exit code 130, one line, and no file or temporary file left."""
+    out = tmp_path / "long.mcap"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "markergraph.cli", "simulate", "--scenario", "corridor-loop",
+         "--out", str(out), "--compressed", "--duration", "300"],
+        stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    deadline = time.monotonic() + 60
+    while not list(tmp_path.glob(".long.mcap.partial-*")) and time.monotonic() < deadline:
+        time.sleep(0.05)  # until the run is writing
+    assert run.poll() is None, "the run ended before it could be interrupted"
+    run.send_signal(signal.SIGINT)
+    _, err = run.communicate(timeout=60)
+    assert run.returncode == 130, err
+    assert "interrupted" in err
+    assert list(tmp_path.iterdir()) == []
