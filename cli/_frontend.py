@@ -7,12 +7,11 @@ import sys
 from pathlib import Path
 
 from markergraph.cli._settings import add_settings, settings_from
-from markergraph.frontend.config import frontend_config, map_config
+from markergraph.formats import write_observations
+from markergraph.frontend import choose_topics, extract, log_topics
 from markergraph.frontend.files import check_output_file
-from markergraph.frontend.jsonl import write_observations
-from markergraph.frontend.log import log_topics
-from markergraph.frontend.pipeline import choose_topics, extract
 from markergraph.frontend.progress import ProgressBar
+from markergraph.settings import map_config
 
 DETECT = "detect markers in an MCAP log and write observations as JSON lines"
 INFO = "list what an MCAP log holds and which topics would be used"
@@ -52,7 +51,7 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 def run_info(args: argparse.Namespace) -> int:
-    config = frontend_config(settings_from(args, "info"))
+    config = map_config(settings_from(args, "info")).frontend
     topics = log_topics(args.log)
     width = max(len(t.topic) for t in topics) if topics else 5
     print(f"{'topic':<{width}}  {'type':<36} messages")

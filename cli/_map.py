@@ -7,10 +7,11 @@ import sys
 from pathlib import Path
 
 from markergraph.cli._settings import add_settings, settings_from
-from markergraph.frontend.config import config_toml, map_config
 from markergraph.frontend.files import check_output_folder
-from markergraph.frontend.mapping import MapRun, map_log, write_results
 from markergraph.frontend.progress import ProgressBar
+from markergraph.results import write_results
+from markergraph.run import MapRun, map_log
+from markergraph.settings import config_toml, map_config
 
 SUMMARY = "estimate a corrected marker map from an MCAP log (default: the bundled sample)"
 DEFAULT_SAMPLE = "corridor-loop"

@@ -6,12 +6,11 @@ import argparse
 import math
 from pathlib import Path
 
-import gtsam
-
 from markergraph.estimator.paper import Form, edge_from_pose2, heading
 from markergraph.estimator.types import SettingsError
+from markergraph.formats import ExportFormat, export_map
 from markergraph.frontend.files import check_output_file
-from markergraph.frontend.formats import ExportFormat, export_map, read_map
+from markergraph.markermap import MarkerMap
 
 EXPORT = "write a map.json in another tool's format"
 HEADING = "the paper's target heading from a localisation on one marker to another"
@@ -50,15 +49,14 @@ def add_parsers(commands: argparse._SubParsersAction) -> None:
 
 def run_export(args: argparse.Namespace) -> int:
     check_output_file(args.out, [args.map], force=args.force)
-    document = read_map(args.map)
-    export_map(document, ExportFormat(args.format), args.out)
-    print(f"wrote {len(document['markers'])} markers as {args.format} to {args.out}")
+    marker_map = MarkerMap.load(args.map)
+    export_map(marker_map, ExportFormat(args.format), args.out)
+    print(f"wrote {len(marker_map.markers)} markers as {args.format} to {args.out}")
     return 0
 
 
 def run_heading(args: argparse.Namespace) -> int:
-    document = read_map(args.map)
-    poses = {m["id"]: gtsam.Pose2(m["x"], m["y"], m["yaw"]) for m in document["markers"]}
+    poses = {i: m.T_map_marker for i, m in MarkerMap.load(args.map).markers.items()}
     for marker_id in (args.source, args.to):
         if marker_id not in poses:
             raise SettingsError(

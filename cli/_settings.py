@@ -1,13 +1,64 @@
-"""Settings on the command line: ``--config FILE`` and one flag per setting, flags winning."""
+"""Settings on the command line: ``--config FILE`` and one flag per setting, flags winning.
+
+The settings themselves (keys, defaults, checks, help) are the library's
+(:mod:`markergraph.settings`); which command takes which, and how argparse reads each flag,
+is decided here.
+"""
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from markergraph.estimator.types import SettingsError
-from markergraph.frontend.config import SETTINGS, read_config_file
+from markergraph.settings import SETTINGS, read_config_file
+
+__all__ = ["FLAGS", "add_settings", "settings_from"]
+
+
+@dataclass(frozen=True)
+class Flag:
+    """How argparse reads one setting's flag, and the commands that take it."""
+
+    flag: str
+    metavar: str | None = None
+    nargs: str | None = None
+    type: Callable[[str], Any] = str
+    commands: tuple[str, ...] = ("map", "detect", "info")
+
+
+_MAP = ("map",)
+FLAGS: dict[str, Flag] = {
+    "dictionary": Flag("--dictionary", "NAME"),
+    "marker_size": Flag("--marker-size", "M", type=float),
+    "marker_sizes": Flag("--marker-sizes", "ID=M", "+"),
+    "yaw_method": Flag("--yaw-method"),
+    "ids": Flag("--ids", "ID", "+", int),
+    "topics.color": Flag("--color-topic", "TOPIC"),
+    "topics.depth": Flag("--depth-topic", "TOPIC"),
+    "topics.camera_info": Flag("--camera-info-topic", "TOPIC"),
+    "topics.odom": Flag("--odom-topic", "TOPIC"),
+    "camera.base_frame": Flag("--base-frame", "FRAME"),
+    "camera.x": Flag("--camera-x", "M", type=float),
+    "camera.y": Flag("--camera-y", "M", type=float),
+    "camera.height": Flag("--camera-height", "M", type=float),
+    "camera.pitch_deg": Flag("--camera-pitch", "DEG", type=float),
+    "camera.yaw_deg": Flag("--camera-yaw", "DEG", type=float),
+    "noise.corner_px": Flag("--corner-noise", "PX", type=float),
+    "noise.depth_base_m": Flag("--depth-noise-base", "M", type=float),
+    "noise.depth_per_m2": Flag("--depth-noise-per-m2", "K", type=float),
+    "noise.depth_max_m": Flag("--depth-max", "M", type=float),
+    "noise.odometry_per_m": Flag("--odometry-noise", "M", type=float, commands=_MAP),
+    "noise.odometry_yaw_per_m": Flag("--odometry-yaw-noise", "RAD", type=float, commands=_MAP),
+    "noise.odometry_yaw_per_rad": Flag("--odometry-turn-noise", "RAD", type=float, commands=_MAP),
+    "noise.robust": Flag("--robust", commands=_MAP),
+    "method": Flag("--method", commands=_MAP),
+    "home": Flag("--home", "ID", type=int, commands=_MAP),
+    "workers": Flag("--workers", "N", type=int, commands=("map", "detect")),
+}
 
 _GROUPS = {
     "": "settings (a flag overrides --config; (file: key) names it in the file)",
@@ -31,7 +82,8 @@ def add_settings(parser: argparse.ArgumentParser, command: str) -> None:
         help="a TOML (.toml) or YAML (.yaml, .yml) file of the settings below",
     )
     for setting in SETTINGS:
-        if command not in setting.commands:
+        flag = FLAGS[setting.key]
+        if command not in flag.commands:
             continue
         shown = setting.default
         default = "" if shown in (None, {}) else f", default {shown}"
@@ -39,29 +91,29 @@ def add_settings(parser: argparse.ArgumentParser, command: str) -> None:
             "dest": _dest(setting.key),
             "default": argparse.SUPPRESS,  # absent unless given, so the file's value stands
             "help": f"{setting.help} (file: {setting.key}{default})",
-            "type": setting.flag_type,
+            "type": flag.type,
         }
         if setting.choices:
             options["choices"] = setting.choices
-        if setting.metavar:
-            options["metavar"] = setting.metavar
-        if setting.nargs:
-            options["nargs"] = setting.nargs
-        section = setting.key.rpartition(".")[0]
-        groups[section].add_argument(setting.flag, **options)
+        if flag.metavar:
+            options["metavar"] = flag.metavar
+        if flag.nargs:
+            options["nargs"] = flag.nargs
+        groups[setting.key.rpartition(".")[0]].add_argument(flag.flag, **options)
 
 
 def settings_from(args: argparse.Namespace, command: str) -> dict[str, Any]:
-    """The settings the file and the flags give (defaults are filled in later).
+    """The settings the file and the flags give, each checked where it comes from so that an
+    error names the file and key or the flag (defaults are filled in by ``MapConfig``).
 
     Raises:
         SettingsError: a bad file or value, naming the file and key or the flag.
     """
     values = read_config_file(args.config) if args.config is not None else {}
     for setting in SETTINGS:
-        if command in setting.commands and hasattr(args, _dest(setting.key)):
+        if command in FLAGS[setting.key].commands and hasattr(args, _dest(setting.key)):
             try:
                 values[setting.key] = setting.check(getattr(args, _dest(setting.key)))
-            except ValueError as error:
-                raise SettingsError(f"{setting.flag} {error}") from None
+            except SettingsError as error:
+                raise SettingsError(f"{FLAGS[setting.key].flag} {error}") from None
     return values

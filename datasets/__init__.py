@@ -1,13 +1,9 @@
-"""markergraph.datasets: simulated worlds, routes, and the measurements made in them."""
+"""markergraph.datasets: simulated worlds, routes, and the measurements and logs made in them.
 
-from markergraph.datasets.rooms import (
-    ConvexRoom,
-    MarkerObservation,
-    observe_marker,
-    random_convex_room,
-    turn_toward,
-)
-from markergraph.datasets.route import GoTo, Look, Route, Trajectory, WheelErrors, plan
+The random convex rooms of the closed-form property tests live in
+:mod:`markergraph.datasets.rooms`."""
+
+from markergraph.datasets.route import GoTo, Look, Route, RoutePlan, WheelErrors, plan
 from markergraph.datasets.scenarios import SCENARIOS, scenario
 from markergraph.datasets.simulate import (
     ObservationNoise,
@@ -17,28 +13,25 @@ from markergraph.datasets.simulate import (
     visible_markers,
 )
 from markergraph.datasets.world import Marker, Wall, World, WorldFileError
+from markergraph.datasets.write import write_log
 
 __all__ = [
     "SCENARIOS",
-    "ConvexRoom",
     "GoTo",
     "Look",
     "Marker",
-    "MarkerObservation",
     "ObservationNoise",
     "Route",
+    "RoutePlan",
     "SimulatedRun",
-    "Trajectory",
     "Visibility",
     "Wall",
     "WheelErrors",
     "World",
     "WorldFileError",
-    "observe_marker",
     "plan",
-    "random_convex_room",
     "scenario",
     "simulate_fast",
-    "turn_toward",
     "visible_markers",
+    "write_log",
 ]

@@ -18,7 +18,7 @@ __all__ = [
     "GoTo",
     "Look",
     "Route",
-    "Trajectory",
+    "RoutePlan",
     "WheelErrors",
     "drive",
     "plan",
@@ -63,8 +63,8 @@ class Route:
 
 
 @dataclass(frozen=True)
-class Trajectory:
-    """Piecewise motion: each segment a pure turn, a straight drive or a pause.
+class RoutePlan:
+    """A route's piecewise motion: each segment a pure turn, a straight drive or a pause.
 
     Attributes:
         t0_s: (S,) segment start times from the route's start [s].
@@ -97,7 +97,7 @@ class Trajectory:
         )
 
 
-def plan(world: World, route: Route) -> Trajectory:
+def plan(world: World, route: Route) -> RoutePlan:
     """The trajectory a route drives in a world."""
     x, y, yaw = route.start
     t = 0.0
@@ -128,7 +128,7 @@ def plan(world: World, route: Route) -> Trajectory:
                 t += step.pause_s
     segments.append((t, x, y, yaw, 0.0, 0.0))  # standing still at the end
     table = np.array(segments, dtype=np.float64)
-    return Trajectory(table[:, 0], table[:, 1:4], table[:, 4], table[:, 5], t)
+    return RoutePlan(table[:, 0], table[:, 1:4], table[:, 4], table[:, 5], t)
 
 
 @dataclass(frozen=True, slots=True)

@@ -69,12 +69,12 @@ def _row(
     ate = rpe = mean_nees = float("nan")
     if len(result.trajectory):
         true_by_stamp = dict(zip(run.frame_t_ns.tolist(), run.true_trajectory(), strict=True))
-        true_path = np.array([true_by_stamp[int(t)] for t in result.trajectory_t_ns])
-        trajectory = trajectory_error(result.trajectory, true_path)
+        true_path = np.array([true_by_stamp[int(t)] for t in result.trajectory.t_ns])
+        trajectory = trajectory_error(result.trajectory.poses, true_path)
         ate, rpe = trajectory.ate_rmse_m, trajectory.rpe_rmse_m_per_m
         if result.trajectory_covariance is not None:
             mean_nees = float(
-                np.mean(nees(result.trajectory, result.trajectory_covariance, true_path))
+                np.mean(nees(result.trajectory.poses, result.trajectory_covariance, true_path))
             )
     label = method.value if method is not Method.CLOSED_FORM else f"{method.value}/{form.value}"
     return StudyRow(

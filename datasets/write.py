@@ -43,6 +43,7 @@ from markergraph.frontend.ros2 import (
     quaternion_from_yaw,
     transform_stamped,
 )
+from markergraph.frontend.topics import TRUE_MARKERS, TRUE_POSE, TRUE_WORLD
 
 __all__ = ["LogSummary", "Topics", "write_log"]
 
@@ -62,9 +63,9 @@ class Topics:
     odom: str = "/odom"
     tf: str = "/tf"
     tf_static: str = "/tf_static"
-    true_pose: str = "/ground_truth/pose"
-    true_markers: str = "/ground_truth/markers"
-    world: str = "/ground_truth/world"
+    true_pose: str = TRUE_POSE
+    true_markers: str = TRUE_MARKERS
+    world: str = TRUE_WORLD
 
 
 OPTICAL_FRAME = "camera_color_optical_frame"

@@ -24,6 +24,7 @@ from markergraph.estimator.paper import (
     odometry,
 )
 from markergraph.estimator.run import estimate, estimate_frames
+from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     Estimate,
     FactorResidual,
@@ -60,6 +61,7 @@ __all__ = [
     "RejectedObservationError",
     "Robust",
     "SettingsError",
+    "Trajectory",
     "TrajectoryError",
     "angle_diff",
     "build_frames",

@@ -25,6 +25,7 @@ from markergraph.estimator.paper import (
     edge_from_observation,
     edge_to_pose2,
 )
+from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Estimate, MarkerEstimate, MarkerLink, Method, Observation
 
 __all__ = ["solve_closed_form"]
@@ -97,8 +98,7 @@ def solve_closed_form(
         method=Method.CLOSED_FORM,
         home_id=home,
         markers={i: MarkerEstimate(i, T, None, counts[i]) for i, T in T_map_marker.items()},
-        trajectory_t_ns=np.array(trajectory_t_ns, dtype=np.int64),
-        trajectory=np.array(trajectory).reshape(-1, 3),
+        trajectory=Trajectory(np.array(trajectory_t_ns, dtype=np.int64), np.array(trajectory)),
         links=links,
         unplaced=unplaced,
         notes=list(frames.notes),

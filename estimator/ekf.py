@@ -26,6 +26,7 @@ from markergraph.estimator.angles import wrap_array
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.graph import observation_measurement
 from markergraph.estimator.models import ekf_marker_init, ekf_motion, ekf_observation
+from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Estimate, MarkerEstimate, Method, Observation
 
 __all__ = ["MarkerEkf", "solve_ekf"]
@@ -224,8 +225,7 @@ def solve_ekf(frames: Frames, T_base_camera: gtsam.Pose2) -> Estimate:
         method=Method.EKF,
         home_id=frames.home_id,
         markers=markers,
-        trajectory_t_ns=np.array(t_ns, dtype=np.int64),
-        trajectory=np.array(trajectory),
+        trajectory=Trajectory(np.array(t_ns, dtype=np.int64), np.array(trajectory)),
         trajectory_covariance=np.array(covariances),
         nis=np.array(ekf.nis),
         innovations=np.array(ekf.innovations).reshape(-1, 3),

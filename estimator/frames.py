@@ -10,7 +10,8 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.models import compose_covariance, interpolate_pose
+from markergraph.estimator.models import compose_covariance
+from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     MarkerGraphError,
     Observation,
@@ -19,10 +20,7 @@ from markergraph.estimator.types import (
     RejectedObservationError,
 )
 
-__all__ = ["Frame", "Frames", "build_frames", "odometry_at_stamps"]
-
-# Frames this far outside the odometry's time span still take its first or last pose.
-MAX_EXTRAPOLATION_NS = 100_000_000
+__all__ = ["Frame", "Frames", "build_frames"]
 
 
 @dataclass(frozen=True)
@@ -71,7 +69,7 @@ class Frames:
 
 def build_frames(
     observations: Iterable[Observation],
-    odometry: Iterable[OdometrySample],
+    odometry: Trajectory | Iterable[OdometrySample],
     home_id: int | None = None,
     marker_ids: Collection[int] | None = None,
     odometry_noise: OdometryNoise = OdometryNoise(),
@@ -80,7 +78,7 @@ def build_frames(
 
     Args:
         observations: marker observations, any order.
-        odometry: odometry samples, any order, at least one.
+        odometry: ``T_odom_base``: a trajectory, or samples in any order; at least one pose.
         home_id: the map's home marker (default: the first marker observed).
         marker_ids: if given, the only ids allowed; others are rejected.
         odometry_noise: the noise model of one odometry increment.
@@ -100,26 +98,25 @@ def build_frames(
         current = by_stamp.setdefault(obs.t_ns, {}).get(obs.marker_id)
         if current is None or obs.range_m < current.range_m:
             by_stamp[obs.t_ns][obs.marker_id] = obs
-    samples = sorted(odometry, key=lambda sample: sample.t_ns)
-    if not samples:
+    path = odometry if isinstance(odometry, Trajectory) else Trajectory.from_samples(odometry)
+    if not len(path):
         raise MarkerGraphError("no odometry samples: the estimators need odometry")
     if not by_stamp:
         raise MarkerGraphError("no marker observations: nothing to map")
-    stamps = np.array([sample.t_ns for sample in samples], dtype=np.int64)
     frames: list[Frame] = []
     skipped = 0
     for t_ns in sorted(by_stamp):
-        T_odom_base = _odometry_at(samples, stamps, t_ns)
+        T_odom_base = path.at(t_ns)
         if T_odom_base is None:
             skipped += 1
             continue
         if frames:
             previous = frames[-1]
             inside = [
-                samples[i].pose()
+                path.pose(i)
                 for i in range(
-                    int(np.searchsorted(stamps, previous.t_ns, "right")),
-                    int(np.searchsorted(stamps, t_ns, "left")),
+                    int(np.searchsorted(path.t_ns, previous.t_ns, "right")),
+                    int(np.searchsorted(path.t_ns, t_ns, "left")),
                 )
             ]
             covariance = _motion_covariance(
@@ -147,27 +144,3 @@ def _motion_covariance(poses: list[gtsam.Pose2], noise: OdometryNoise) -> NDArra
     heading errors early in a long gap show up as lateral errors at its end."""
     steps = [start.between(end) for start, end in itertools.pairwise(poses)]
     return compose_covariance(steps, [noise.covariance(step) for step in steps])[1]
-
-
-def _odometry_at(
-    samples: list[OdometrySample], stamps: np.ndarray, t_ns: int
-) -> gtsam.Pose2 | None:
-    """The odometry pose at ``t_ns``, interpolated in SE(2); None if too far outside the span."""
-    i = int(np.searchsorted(stamps, t_ns))
-    if i == 0:
-        return samples[0].pose() if stamps[0] - t_ns <= MAX_EXTRAPOLATION_NS else None
-    if i == len(samples):
-        return samples[-1].pose() if t_ns - stamps[-1] <= MAX_EXTRAPOLATION_NS else None
-    t0, t1 = stamps[i - 1], stamps[i]
-    return interpolate_pose(samples[i - 1].pose(), samples[i].pose(), (t_ns - t0) / (t1 - t0))
-
-
-def odometry_at_stamps(
-    odometry: Iterable[OdometrySample], stamps_ns: Iterable[int]
-) -> list[gtsam.Pose2 | None]:
-    """``T_odom_base`` at each stamp, interpolated in SE(2); None where odometry does not reach."""
-    samples = sorted(odometry, key=lambda sample: sample.t_ns)
-    if not samples:
-        return [None for _ in stamps_ns]
-    stamps = np.array([sample.t_ns for sample in samples], dtype=np.int64)
-    return [_odometry_at(samples, stamps, int(t_ns)) for t_ns in stamps_ns]

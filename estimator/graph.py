@@ -1,4 +1,5 @@
-"""Factor construction in one place: keys, noise models, robust kernels, residual read-out."""
+"""Factor construction in one place: keys, noise models, robust kernels, the graph builder every
+GTSAM method uses, and the residual read-out."""
 
 from __future__ import annotations
 
@@ -10,11 +11,13 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 from numpy.typing import NDArray
 
+from markergraph.estimator.frames import Frames
 from markergraph.estimator.models import observation_covariance, observation_pose
 from markergraph.estimator.types import FactorResidual, Observation
 
 __all__ = [
     "HOME_PRIOR_NOISE",
+    "GraphBuilder",
     "Robust",
     "gaussian",
     "key_name",
@@ -77,6 +80,77 @@ def observation_factor(
     return gtsam.BetweenFactorPose2(
         X(k), L(obs.marker_id), T_base_marker, gaussian(covariance, robust)
     )
+
+
+class GraphBuilder:
+    """A factor graph and its initial values, grown frame by frame (batch SLAM, iSAM2) or link
+    by link (the marker graph): the one place factors are made.
+
+    ``graph``, ``values`` and ``kinds`` hold everything added; :meth:`take_new` hands out what
+    was added since its last call (iSAM2's increments).
+    """
+
+    def __init__(self, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE) -> None:
+        self.T_base_camera, self.robust = T_base_camera, robust
+        self.graph, self.values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        self.kinds: list[str] = []
+        self._new_graph, self._new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+
+    def _add(self, factor: gtsam.NonlinearFactor, kind: str) -> None:
+        self.graph.add(factor)
+        self._new_graph.add(factor)
+        self.kinds.append(kind)
+
+    def _initial(self, key: int, pose: gtsam.Pose2) -> None:
+        self.values.insert(key, pose)
+        self._new_values.insert(key, pose)
+
+    def add_home_prior(self, home_id: int) -> None:
+        """Fix the home marker at the map origin."""
+        self._add(gtsam.PriorFactorPose2(L(home_id), gtsam.Pose2(), HOME_PRIOR_NOISE), "prior")
+
+    def add_frame(self, frames: Frames, k: int, T_map_odom: gtsam.Pose2) -> None:
+        """Robot pose ``X(k)`` (initially odometry carried into the map by ``T_map_odom``), the
+        odometry factor from ``X(k-1)``, and one factor per observation; a marker seen for the
+        first time starts where this observation puts it."""
+        frame = frames.frames[k]
+        T_map_base = T_map_odom.compose(frame.T_odom_base)
+        self._initial(X(k), T_map_base)
+        if k > 0:
+            delta = frames.frames[k - 1].T_odom_base.between(frame.T_odom_base)
+            self._add(
+                gtsam.BetweenFactorPose2(
+                    X(k - 1), X(k), delta, gaussian(frame.odometry_covariance)
+                ),
+                "odometry",
+            )
+        for obs in frame.observations:
+            self._add(observation_factor(k, obs, self.T_base_camera, self.robust), "observation")
+            if not self.values.exists(L(obs.marker_id)):
+                T_base_marker, _ = observation_measurement(obs, self.T_base_camera)
+                self._initial(L(obs.marker_id), T_map_base.compose(T_base_marker))
+
+    def add_link(
+        self, marker_a: int, marker_b: int, T_a_b: gtsam.Pose2, covariance: NDArray[np.float64]
+    ) -> None:
+        """A measured marker-to-marker relative pose (the paper's E_ab) between ``L(a)`` and
+        ``L(b)``, under the robust kernel."""
+        self._add(
+            gtsam.BetweenFactorPose2(
+                L(marker_a), L(marker_b), T_a_b, gaussian(covariance, self.robust)
+            ),
+            "edge",
+        )
+
+    def set_initial(self, marker_id: int, T_map_marker: gtsam.Pose2) -> None:
+        """A marker's initial pose, where no frame gives it (the marker graph)."""
+        self._initial(L(marker_id), T_map_marker)
+
+    def take_new(self) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """The factors and initial values added since the last call."""
+        new = self._new_graph, self._new_values
+        self._new_graph, self._new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        return new
 
 
 def key_name(key: int) -> str:

@@ -11,10 +11,8 @@ from gtsam.symbol_shorthand import L, X
 
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.graph import (
-    HOME_PRIOR_NOISE,
+    GraphBuilder,
     Robust,
-    gaussian,
-    observation_factor,
     observation_measurement,
     read_residuals,
 )
@@ -24,6 +22,7 @@ from markergraph.estimator.links import (
     link_counts,
     measure_links,
 )
+from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Estimate, MarkerEstimate, Method
 
 __all__ = ["IncrementalSlam", "solve_isam2", "solve_marker_graph", "solve_slam"]
@@ -86,37 +85,23 @@ def _observation_counts(frames: Frames) -> Counter[int]:
 
 def build_slam_graph(
     frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE
-) -> tuple[gtsam.NonlinearFactorGraph, list[str], gtsam.Values]:
-    """The full SLAM graph: home prior, odometry chain, one factor per observation.
-
-    Returns:
-        (graph, a kind label per factor, initial values from odometry anchored on home).
-    """
-    graph, kinds, initial = gtsam.NonlinearFactorGraph(), [], gtsam.Values()
-    graph.add(gtsam.PriorFactorPose2(L(frames.home_id), gtsam.Pose2(), HOME_PRIOR_NOISE))
-    kinds.append("prior")
+) -> GraphBuilder:
+    """The full SLAM graph: home prior, odometry chain, one factor per observation, with
+    initial values from odometry anchored on home."""
+    builder = GraphBuilder(T_base_camera, robust)
+    builder.add_home_prior(frames.home_id)
     T_map_odom = _T_map_odom(frames, T_base_camera)
-    for k, frame in enumerate(frames.frames):
-        T_map_base = T_map_odom.compose(frame.T_odom_base)
-        initial.insert(X(k), T_map_base)
-        if k > 0:
-            delta = frames.frames[k - 1].T_odom_base.between(frame.T_odom_base)
-            graph.add(
-                gtsam.BetweenFactorPose2(X(k - 1), X(k), delta, gaussian(frame.odometry_covariance))
-            )
-            kinds.append("odometry")
-        for obs in frame.observations:
-            graph.add(observation_factor(k, obs, T_base_camera, robust))
-            kinds.append("observation")
-            if not initial.exists(L(obs.marker_id)):
-                T_base_marker, _ = observation_measurement(obs, T_base_camera)
-                initial.insert(L(obs.marker_id), T_map_base.compose(T_base_marker))
-    return graph, kinds, initial
+    for k in range(len(frames.frames)):
+        builder.add_frame(frames, k, T_map_odom)
+    return builder
 
 
-def _trajectory(values: gtsam.Values, n: int) -> np.ndarray:
-    poses = [values.atPose2(X(k)) for k in range(n)]
-    return np.array([[p.x(), p.y(), p.theta()] for p in poses]).reshape(-1, 3)
+def _trajectory(values: gtsam.Values, frames: Frames) -> Trajectory:
+    poses = [values.atPose2(X(k)) for k in range(len(frames.frames))]
+    return Trajectory(
+        np.array([f.t_ns for f in frames.frames], dtype=np.int64),
+        np.array([[p.x(), p.y(), p.theta()] for p in poses]),
+    )
 
 
 def _slam_notes(frames: Frames, T_base_camera: gtsam.Pose2) -> tuple[list, list[str]]:
@@ -135,55 +120,88 @@ def solve_slam(
     """``Method.SLAM``: batch Levenberg-Marquardt over robot poses and markers."""
     timings: dict[str, float] = {}
     start = time.perf_counter()
-    graph, kinds, initial = build_slam_graph(frames, T_base_camera, robust)
+    builder = build_slam_graph(frames, T_base_camera, robust)
     timings["build"] = time.perf_counter() - start
-    start = time.perf_counter()
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, _lm_params())
-    result = optimizer.optimize()
-    timings["optimize"] = time.perf_counter() - start
-    converged = optimizer.iterations() < MAX_ITERATIONS
+    result, converged = _optimise(builder, timings)
     stop_note = (
         f"Levenberg-Marquardt stopped after {MAX_ITERATIONS} iterations without "
         "converging; the map is its last estimate"
     )
     return _slam_estimate(
-        Method.SLAM, frames, T_base_camera, graph, kinds, result, converged, stop_note, timings
+        Method.SLAM, frames, T_base_camera, builder, result, converged, stop_note, timings
     )
+
+
+def _optimise(builder: GraphBuilder, timings: dict[str, float]) -> tuple[gtsam.Values, bool]:
+    """Levenberg-Marquardt from the builder's initial values; (solution, converged)."""
+    start = time.perf_counter()
+    optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, builder.values, _lm_params())
+    result = optimizer.optimize()
+    timings["optimize"] = time.perf_counter() - start
+    return result, optimizer.iterations() < MAX_ITERATIONS
+
+
+def _solved_estimate(
+    method: Method,
+    frames: Frames,
+    builder: GraphBuilder,
+    result: gtsam.Values,
+    *,
+    marker_ids: list[int],
+    trajectory: Trajectory,
+    links: list,
+    notes: list[str],
+    converged: bool,
+    timings: dict[str, float],
+    unplaced: dict[int, str] | None = None,
+) -> Estimate:
+    """The Estimate of a solved factor graph: markers with their joint marginals, the
+    trajectory, residuals, links and notes, and the graph and solution themselves."""
+    graph = builder.graph
+    start = time.perf_counter()
+    marginals = _marginals(graph, result, notes)
+    estimate = Estimate(
+        method=method,
+        home_id=frames.home_id,
+        markers=_marker_estimates(result, marker_ids, _observation_counts(frames), marginals),
+        trajectory=trajectory,
+        residuals=read_residuals(graph, result, builder.kinds),
+        links=links,
+        unplaced=unplaced or {},
+        converged=converged,
+        notes=notes,
+        graph=graph,
+        values=result,
+    )
+    timings["marginals"] = time.perf_counter() - start
+    estimate.timings_s = timings
+    return estimate
 
 
 def _slam_estimate(
     method: Method,
     frames: Frames,
     T_base_camera: gtsam.Pose2,
-    graph: gtsam.NonlinearFactorGraph,
-    kinds: list[str],
+    builder: GraphBuilder,
     result: gtsam.Values,
     converged: bool,
     stop_note: str,
     timings: dict[str, float],
 ) -> Estimate:
-    """The Estimate of a solved SLAM graph, batch or incremental: markers with marginals,
-    the trajectory, residuals, links and notes."""
+    """The Estimate of a solved SLAM graph, batch or incremental."""
     links, notes = _slam_notes(frames, T_base_camera)
-    notes = frames.notes + notes + ([] if converged else [stop_note])
-    start = time.perf_counter()
-    marginals = _marginals(graph, result, notes)
-    estimate = Estimate(
-        method=method,
-        home_id=frames.home_id,
-        markers=_marker_estimates(
-            result, frames.marker_ids(), _observation_counts(frames), marginals
-        ),
-        trajectory_t_ns=np.array([f.t_ns for f in frames.frames], dtype=np.int64),
-        trajectory=_trajectory(result, len(frames.frames)),
-        residuals=read_residuals(graph, result, kinds),
+    return _solved_estimate(
+        method,
+        frames,
+        builder,
+        result,
+        marker_ids=frames.marker_ids(),
+        trajectory=_trajectory(result, frames),
         links=links,
+        notes=frames.notes + notes + ([] if converged else [stop_note]),
         converged=converged,
-        notes=notes,
+        timings=timings,
     )
-    timings["marginals"] = time.perf_counter() - start
-    estimate.timings_s = timings
-    return estimate
 
 
 class IncrementalSlam:
@@ -207,46 +225,21 @@ class IncrementalSlam:
         # odometry nearly exact in translation); QR solves it at the same speed.
         params.setFactorization("QR")
         self.isam = gtsam.ISAM2(params)
-        self.frames, self.T_base_camera, self.robust = frames, T_base_camera, robust
+        self.frames = frames
+        self.builder = GraphBuilder(T_base_camera, robust)
         self.T_map_odom = _T_map_odom(frames, T_base_camera)
         self.next_frame = 0
         self.updates = 0
-        # Everything added so far, for the residual read-out at the end.
-        self.graph, self.kinds = gtsam.NonlinearFactorGraph(), list[str]()
-        self.markers_added: set[int] = set()
 
     def add_frames_through(self, k: int) -> None:
         """Add every frame up to and including ``k`` in one iSAM2 update (if home was seen)."""
         if k < self.frames.home_frame:
             return
-        new_graph, new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if self.next_frame == 0:
-            new_graph.add(
-                gtsam.PriorFactorPose2(L(self.frames.home_id), gtsam.Pose2(), HOME_PRIOR_NOISE)
-            )
-            self.kinds.append("prior")
+            self.builder.add_home_prior(self.frames.home_id)
         for j in range(self.next_frame, k + 1):
-            frame = self.frames.frames[j]
-            T_map_base = self.T_map_odom.compose(frame.T_odom_base)
-            if j > 0:
-                previous = self.frames.frames[j - 1]
-                delta = previous.T_odom_base.between(frame.T_odom_base)
-                new_graph.add(
-                    gtsam.BetweenFactorPose2(
-                        X(j - 1), X(j), delta, gaussian(frame.odometry_covariance)
-                    )
-                )
-                self.kinds.append("odometry")
-            new_values.insert(X(j), T_map_base)
-            for obs in frame.observations:
-                new_graph.add(observation_factor(j, obs, self.T_base_camera, self.robust))
-                self.kinds.append("observation")
-                if obs.marker_id not in self.markers_added:
-                    T_base_marker, _ = observation_measurement(obs, self.T_base_camera)
-                    new_values.insert(L(obs.marker_id), T_map_base.compose(T_base_marker))
-                    self.markers_added.add(obs.marker_id)
-        self.graph.push_back(new_graph)
-        self.isam.update(new_graph, new_values)
+            self.builder.add_frame(self.frames, j, self.T_map_odom)
+        self.isam.update(*self.builder.take_new())
         self.next_frame = k + 1
         self.updates += 1
         if self.updates % self.REANCHOR_EVERY == 0:
@@ -297,8 +290,7 @@ def solve_isam2(
         Method.ISAM2,
         frames,
         T_base_camera,
-        slam.graph,
-        slam.kinds,
+        slam.builder,
         result,
         converged,
         "iSAM2 did not come to rest after its final relinearisations",
@@ -308,7 +300,7 @@ def solve_isam2(
 
 def _localise_on_markers(
     frames: Frames, values: gtsam.Values, placed: set[int], T_base_camera: gtsam.Pose2
-) -> tuple[np.ndarray, np.ndarray]:
+) -> Trajectory:
     """The robot in each frame, from its nearest placed marker: the marker graph keeps no
     robot poses, so this is how the paper's robot localises on the map."""
     t_ns, rows = [], []
@@ -321,7 +313,7 @@ def _localise_on_markers(
         T_map_base = values.atPose2(L(nearest.marker_id)).compose(T_base_marker.inverse())
         t_ns.append(frame.t_ns)
         rows.append([T_map_base.x(), T_map_base.y(), T_map_base.theta()])
-    return np.array(t_ns, dtype=np.int64), np.array(rows).reshape(-1, 3)
+    return Trajectory(np.array(t_ns, dtype=np.int64), np.array(rows))
 
 
 def solve_marker_graph(
@@ -341,22 +333,13 @@ def solve_marker_graph(
         if frames.home_id not in group
         for i in group
     }
-    graph, kinds = gtsam.NonlinearFactorGraph(), ["prior"]
-    graph.add(gtsam.PriorFactorPose2(L(frames.home_id), gtsam.Pose2(), HOME_PRIOR_NOISE))
+    builder = GraphBuilder(T_base_camera, robust)
+    builder.add_home_prior(frames.home_id)
     for link in links:
         if link.marker_a in placed:
-            graph.add(
-                gtsam.BetweenFactorPose2(
-                    L(link.marker_a),
-                    L(link.marker_b),
-                    link.T_a_b,
-                    gaussian(link.covariance, robust),
-                )
-            )
-            kinds.append("edge")
+            builder.add_link(link.marker_a, link.marker_b, link.T_a_b, link.covariance)
     # Initial values: compose the first link found outward from home (a spanning tree).
-    initial = gtsam.Values()
-    initial.insert(L(frames.home_id), gtsam.Pose2())
+    builder.set_initial(frames.home_id, gtsam.Pose2())
     by_marker: dict[int, list] = {}
     for link in links:
         by_marker.setdefault(link.marker_a, []).append((link.marker_b, link.T_a_b))
@@ -365,30 +348,21 @@ def solve_marker_graph(
     while queue:
         a = queue.popleft()
         for b, T_a_b in by_marker.get(a, []):
-            if not initial.exists(L(b)):
-                initial.insert(L(b), initial.atPose2(L(a)).compose(T_a_b))
+            if not builder.values.exists(L(b)):
+                builder.set_initial(b, builder.values.atPose2(L(a)).compose(T_a_b))
                 queue.append(b)
     timings["build"] = time.perf_counter() - start
-    start = time.perf_counter()
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, _lm_params())
-    result = optimizer.optimize()
-    timings["optimize"] = time.perf_counter() - start
-    converged = optimizer.iterations() < MAX_ITERATIONS
-    start = time.perf_counter()
-    marginals = _marginals(graph, result, notes)
-    t_ns, trajectory = _localise_on_markers(frames, result, set(placed), T_base_camera)
-    estimate = Estimate(
-        method=Method.MARKER_GRAPH,
-        home_id=frames.home_id,
-        markers=_marker_estimates(result, placed, _observation_counts(frames), marginals),
-        trajectory_t_ns=t_ns,
-        trajectory=trajectory,
-        residuals=read_residuals(graph, result, kinds),
+    result, converged = _optimise(builder, timings)
+    return _solved_estimate(
+        Method.MARKER_GRAPH,
+        frames,
+        builder,
+        result,
+        marker_ids=placed,
+        trajectory=_localise_on_markers(frames, result, set(placed), T_base_camera),
         links=link_counts(links),
-        unplaced=unplaced,
-        converged=converged,
         notes=notes,
+        converged=converged,
+        timings=timings,
+        unplaced=unplaced,
     )
-    timings["marginals"] = time.perf_counter() - start
-    estimate.timings_s = timings
-    return estimate

@@ -5,10 +5,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:  # trajectory.py builds on these records
+    from markergraph.estimator.trajectory import Trajectory
 
 __all__ = [
     "Estimate",
@@ -217,8 +221,7 @@ class Estimate:
         method: the method that made it.
         home_id: the marker whose frame is the map frame.
         markers: marker id -> its estimate.
-        trajectory_t_ns: (N,) stamps of the estimated robot poses [ns].
-        trajectory: (N, 3) robot base poses in the map frame, rows (x, y, yaw).
+        trajectory: the estimated robot base poses in the map frame.
         residuals: per-factor whitened errors (empty for methods without factors).
         links: which markers are linked and by how many measurements.
         unplaced: marker id -> why it could not be placed.
@@ -229,13 +232,14 @@ class Estimate:
         innovations: (M, 3) innovation (bearing, theta, range) of each update (EKF only).
         nis: (M,) normalised innovation squared of each observation update (EKF only).
         notes: diagnostics a person should read: what was skipped, what is disconnected.
+        graph, values: the factor graph the GTSAM methods solved and its solution (None for
+            the closed form and the EKF), so exports write what was solved.
     """
 
     method: Method
     home_id: int
     markers: dict[int, MarkerEstimate]
-    trajectory_t_ns: NDArray[np.int64]
-    trajectory: NDArray[np.float64]
+    trajectory: Trajectory
     residuals: list[FactorResidual] = field(default_factory=list)
     links: list[MarkerLink] = field(default_factory=list)
     unplaced: dict[int, str] = field(default_factory=dict)
@@ -245,3 +249,5 @@ class Estimate:
     innovations: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)))
     nis: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
     notes: list[str] = field(default_factory=list)
+    graph: gtsam.NonlinearFactorGraph | None = None
+    values: gtsam.Values | None = None

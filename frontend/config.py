@@ -1,399 +1,61 @@
-"""Settings of the main job: one table, read from a TOML or YAML file, flags or keywords.
-
-Every setting has a key (dotted for a section: ``camera.height`` is ``height`` under
-``[camera]``), a default and a line of help; the command line makes a flag of each. Angles are
-written in degrees in the file and on the command line (``*_deg`` keys) and are radians inside.
-Later sources win: defaults, then the file, then flags.
-"""
+"""How the front end reads a log: dictionary, sizes, topics, camera and noise."""
 
 from __future__ import annotations
 
-import math
-import sys
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
-from functools import cached_property
-from pathlib import Path
-from typing import Any, cast
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
-from markergraph.estimator import Method, OdometryNoise, Robust, SettingsError
-from markergraph.frontend.camera import CameraMount
-from markergraph.frontend.observe import DepthModel
-from markergraph.frontend.pipeline import FrontendConfig
+from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.observe import DepthModel, ObservationModel
 from markergraph.frontend.yaw import YawMethod
 
-__all__ = [
-    "ALL_METHODS",
-    "SETTINGS",
-    "MapConfig",
-    "Setting",
-    "config_toml",
-    "frontend_config",
-    "map_config",
-    "read_config_file",
-]
-
-# With "all", SLAM comes first: the result folder's top-level files are its.
-ALL_METHODS = (Method.SLAM, Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.ISAM2, Method.EKF)
-
-
-def _number(minimum: float = -math.inf, *, above: bool = False) -> Callable[[Any], float]:
-    def parse(value: Any) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise SettingsError(f"must be a number, got {value!r}")
-        if not math.isfinite(value) or value < minimum or (above and value == minimum):
-            bound = "positive" if above and minimum == 0 else f"at least {minimum:g}"
-            raise SettingsError(f"must be {bound}, got {value!r}")
-        return float(value)
-
-    return parse
-
-
-def _count(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise SettingsError(f"must be a whole number of at least 1, got {value!r}")
-    return value
-
-
-def _marker_id(value: Any) -> int:
-    if isinstance(value, str) and value.strip().isdigit():
-        value = int(value)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise SettingsError(f"must be a marker id (a whole number >= 0), got {value!r}")
-    return value
-
-
-def _optional_id(value: Any) -> int | None:
-    return None if value is None else _marker_id(value)
-
-
-def _text(value: Any) -> str:
-    if not isinstance(value, str) or not value:
-        raise SettingsError(f"must be a non-empty string, got {value!r}")
-    return value
-
-
-def _optional_text(value: Any) -> str | None:
-    return None if value is None else _text(value)
-
-
-def _ids(value: Any) -> tuple[int, ...] | None:
-    if value is None:
-        return None
-    if not isinstance(value, (list, tuple)) or not value:
-        raise SettingsError(f"must be a list of marker ids, got {value!r}")
-    return tuple(sorted({_marker_id(v) for v in value}))
-
-
-def _sizes(value: Any) -> dict[int, float]:
-    """``{id: side}`` from a table, or from ``ID=M`` words on the command line."""
-    if isinstance(value, (list, tuple)):
-        pairs = {}
-        for word in value:
-            marker_id, _, side = str(word).partition("=")
-            try:
-                pairs[marker_id] = float(side)
-            except ValueError:
-                raise SettingsError(f"must be ID=M pairs such as 7=0.15, got {word!r}") from None
-        value = pairs
-    if not isinstance(value, Mapping):
-        raise SettingsError(f"must be a table of marker id = side in metres, got {value!r}")
-    positive = _number(0.0, above=True)
-    return {_marker_id(k): positive(v) for k, v in value.items()}
+__all__ = ["FrontendConfig"]
 
 
 @dataclass(frozen=True)
-class Setting:
-    """One setting.
+class FrontendConfig:
+    """How to read a log. Topics left as None are chosen automatically.
 
     Attributes:
-        key: its name in a configuration file, dotted under a section.
-        flag: its command-line flag.
-        default: the value when nothing sets it (degrees for ``*_deg`` keys).
-        parse: converts a value from a file or a flag, or raises ValueError (a SettingsError).
-        help: one line for ``--help``.
-        commands: the commands it applies to.
-        metavar, nargs, flag_type: how argparse reads the flag.
-        choices: the only values allowed, if limited.
+        dictionary: the markers' dictionary.
+        marker_length_m: side of the markers' black square [m].
+        marker_lengths_m: the sides of markers whose size differs, by id [m].
+        method: how theta is computed.
+        allowed_ids: if given, only these marker ids are kept.
+        color_topic, depth_topic, camera_info_topic, odom_topic: topics to read.
+        base_frame: the robot's base frame in /tf_static.
+        mount: the camera's mount; None reads it from /tf_static.
+        default_mount: the mount assumed when /tf_static does not give it.
+        camera: intrinsics; None reads them from the camera info topic.
+        pair_tolerance_ns: largest stamp difference between a colour frame and its depth.
+        depth_model: the depth camera's error model.
+        corner_sigma_px: the corners' noise after sub-pixel refinement [px].
     """
 
-    key: str
-    flag: str
-    default: Any
-    parse: Callable[[Any], Any]
-    help: str
-    commands: tuple[str, ...] = ("map", "detect", "info")
-    metavar: str | None = None
-    nargs: str | None = None
-    flag_type: Callable[[str], Any] = str
-    choices: list[str] | None = None
-
-    def check(self, value: Any) -> Any:
-        """The value converted and checked, or ValueError saying what is wrong with it."""
-        value = self.parse(value)
-        if self.choices is not None and value not in self.choices:
-            raise SettingsError(f"must be one of {', '.join(self.choices)}, got {value!r}")
-        return value
-
-
-_MAP = ("map",)
-_POSITIVE, _NON_NEGATIVE = _number(0.0, above=True), _number(0.0)
-
-SETTINGS: tuple[Setting, ...] = (
-    Setting("dictionary", "--dictionary", "DICT_4X4_50", _text,
-            "OpenCV dictionary name (DICT_*, incl. AprilTag) or a dictionary file",
-            metavar="NAME"),
-    Setting("marker_size", "--marker-size", 0.2, _POSITIVE,
-            "side of the markers' black square [m]", metavar="M", flag_type=float),
-    Setting("marker_sizes", "--marker-sizes", {}, _sizes,
-            "sides of markers whose size differs, by id [m]",
-            metavar="ID=M", nargs="+"),
-    Setting("yaw_method", "--yaw-method", YawMethod.PNP.value, _text,
-            "how theta comes from the corners", choices=[m.value for m in YawMethod]),
-    Setting("ids", "--ids", None, _ids, "only these marker ids (default: all the dictionary's)",
-            metavar="ID", nargs="+", flag_type=int),
-    *(
-        Setting(f"topics.{role}", f"--{role.replace('_', '-')}-topic", None, _optional_text,
-                f"{role.replace('_', ' ')} topic (default: chosen from the log)", metavar="TOPIC")
-        for role in ("color", "depth", "camera_info", "odom")
-    ),
-    Setting("camera.base_frame", "--base-frame", "base_link", _text,
-            "the robot's base frame, to read the camera mount from /tf_static",
-            metavar="FRAME"),
-    Setting("camera.x", "--camera-x", 0.1, _number(), "without /tf_static: camera ahead of "
-            "the base origin [m]", metavar="M", flag_type=float),
-    Setting("camera.y", "--camera-y", 0.0, _number(), "without /tf_static: camera left of the "
-            "base origin [m]", metavar="M", flag_type=float),
-    Setting("camera.height", "--camera-height", 0.6, _NON_NEGATIVE,
-            "without /tf_static: optical centre above the floor [m]", metavar="M",
-            flag_type=float),
-    Setting("camera.pitch_deg", "--camera-pitch", 10.0, _number(-90.0),
-            "without /tf_static: optical axis tilted up from level [deg]", metavar="DEG",
-            flag_type=float),
-    Setting("camera.yaw_deg", "--camera-yaw", 0.0, _number(), "without /tf_static: optical "
-            "axis turned left of the base's x axis [deg]", metavar="DEG", flag_type=float),
-    Setting("noise.corner_px", "--corner-noise", 0.3, _POSITIVE,
-            "corner noise after sub-pixel refinement, propagated into theta [px]", metavar="PX",
-            flag_type=float),
-    Setting("noise.depth_base_m", "--depth-noise-base", DepthModel().base_m, _NON_NEGATIVE,
-            "depth sigma = base + per_m2 * Z^2: its constant term [m]", metavar="M",
-            flag_type=float),
-    Setting("noise.depth_per_m2", "--depth-noise-per-m2", DepthModel().per_m2, _NON_NEGATIVE,
-            "depth sigma's quadratic term [1/m]", metavar="K", flag_type=float),
-    Setting("noise.depth_max_m", "--depth-max", DepthModel().max_range_m, _POSITIVE,
-            "depths beyond this are treated as no return [m]", metavar="M", flag_type=float),
-    Setting("noise.odometry_per_m", "--odometry-noise", OdometryNoise().per_m, _POSITIVE,
-            "odometry position sigma after 1 m travelled [m/sqrt(m)]", _MAP, "M",
-            flag_type=float),
-    Setting("noise.odometry_yaw_per_m", "--odometry-yaw-noise", OdometryNoise().yaw_per_m,
-            _POSITIVE, "odometry heading sigma after 1 m travelled [rad/sqrt(m)]", _MAP,
-            "RAD", flag_type=float),
-    Setting("noise.odometry_yaw_per_rad", "--odometry-turn-noise", OdometryNoise().yaw_per_rad,
-            _POSITIVE, "odometry heading sigma after 1 rad turned [rad/sqrt(rad)]", _MAP, "RAD",
-            flag_type=float),
-    # Huber by default: real detections have outliers (near-frontal pose flips); on the
-    # rendered paper-room log it cut SLAM's marker error 4x, and cost nothing elsewhere.
-    Setting("noise.robust", "--robust", Robust.HUBER.value, _text,
-            "robust kernel on observation factors (SLAM, iSAM2, marker graph)", _MAP,
-            choices=[r.value for r in Robust]),
-    Setting("method", "--method", Method.SLAM.value, _text,
-            "which estimator; all runs every one side by side", _MAP,
-            choices=[m.value for m in Method] + ["all"]),
-    Setting("home", "--home", None, _optional_id,
-            "the marker whose frame is the map (default: the first seen)", _MAP, "ID",
-            flag_type=int),
-    Setting("workers", "--workers", 1, _count, "processes that decode and detect",
-            ("map", "detect"), "N", flag_type=int),
-)  # fmt: skip
-_BY_KEY = {s.key: s for s in SETTINGS}
-
-
-@dataclass(frozen=True)
-class MapConfig:
-    """Everything ``markergraph map`` needs besides the log and the output folder: its
-    settings, every key present and checked (build one with :func:`map_config`), and the
-    objects they make.
-    """
-
-    values: Mapping[str, Any]
-
-    @cached_property
-    def frontend(self) -> FrontendConfig:
-        """How the log is read."""
-        return frontend_config(self.values)
+    dictionary: str = "DICT_4X4_50"
+    marker_length_m: float = 0.2
+    marker_lengths_m: Mapping[int, float] = field(default_factory=dict)
+    method: YawMethod = YawMethod.PNP
+    allowed_ids: tuple[int, ...] | None = None
+    color_topic: str | None = None
+    depth_topic: str | None = None
+    camera_info_topic: str | None = None
+    odom_topic: str | None = None
+    base_frame: str = "base_link"
+    mount: CameraMount | None = None
+    default_mount: CameraMount = CameraMount()
+    camera: Camera | None = None
+    pair_tolerance_ns: int = 20_000_000
+    depth_model: DepthModel = DepthModel()
+    corner_sigma_px: float = 0.3
 
     @property
-    def methods(self) -> tuple[Method, ...]:
-        """The estimators to run; the first one's map is on top of the result folder."""
-        method = self.values["method"]
-        return ALL_METHODS if method == "all" else (Method(method),)
-
-    @property
-    def home_id(self) -> int | None:
-        """The map's home marker (None: the first seen)."""
-        return cast("int | None", self.values["home"])
-
-    @property
-    def workers(self) -> int:
-        """Processes that decode and detect."""
-        return cast(int, self.values["workers"])
-
-    @property
-    def odometry_noise(self) -> OdometryNoise:
-        """The odometry noise model the estimators assume."""
-        v = self.values
-        return OdometryNoise(
-            v["noise.odometry_per_m"],
-            v["noise.odometry_yaw_per_m"],
-            v["noise.odometry_yaw_per_rad"],
+    def observation_model(self) -> ObservationModel:
+        """How detected corners become observations."""
+        return ObservationModel(
+            self.marker_length_m,
+            self.marker_lengths_m,
+            self.method,
+            self.corner_sigma_px,
+            self.depth_model,
         )
-
-    @property
-    def robust(self) -> Robust:
-        """The kernel on observation factors."""
-        return Robust(self.values["noise.robust"])
-
-
-def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    flat: dict[str, Any] = {}
-    for name, value in table.items():
-        key = f"{prefix}{name}"
-        if isinstance(value, Mapping) and key not in _BY_KEY:
-            flat.update(_flatten(value, f"{key}."))
-        else:
-            flat[key] = value
-    return flat
-
-
-def read_config_file(path: str | Path) -> dict[str, Any]:
-    """The settings a TOML (``.toml``) or YAML (``.yaml``, ``.yml``) file gives, checked.
-
-    Raises:
-        SettingsError: unreadable file, unknown key or bad value, in one line naming file and key.
-    """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as error:
-        raise SettingsError(f"{path}: cannot read the configuration ({error.strerror})") from None
-    except UnicodeDecodeError:
-        raise SettingsError(f"{path}: not UTF-8 text, so not a settings file") from None
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".toml":
-            if sys.version_info >= (3, 11):
-                import tomllib
-            else:  # pragma: no cover - Python 3.10
-                import tomli as tomllib
-            table: Any = tomllib.loads(text)
-        elif suffix in (".yaml", ".yml"):
-            import yaml
-
-            table = yaml.safe_load(text) or {}
-        else:
-            raise SettingsError("a configuration file ends in .toml, .yaml or .yml")
-    except ValueError as error:  # tomllib's and yaml's errors are ValueErrors too
-        raise SettingsError(f"{path}: {str(error).splitlines()[0]}") from None
-    except Exception as error:  # yaml.YAMLError
-        raise SettingsError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
-    if not isinstance(table, Mapping):
-        raise SettingsError(f"{path}: expected a table of settings at the top")
-    values = {}
-    for key, value in _flatten(table).items():
-        setting = _BY_KEY.get(key)
-        if setting is None:
-            raise SettingsError(f"{path}: unknown setting {key!r} (see markergraph map --help)")
-        try:
-            values[key] = setting.check(value)
-        except ValueError as error:
-            raise SettingsError(f"{path}: {key} {error}") from None
-    return values
-
-
-def _complete(values: Mapping[str, Any]) -> dict[str, Any]:
-    """Every setting: the given ones checked (parsing is idempotent), the rest defaults."""
-    complete = {}
-    for setting in SETTINGS:
-        if setting.key not in values:
-            complete[setting.key] = setting.default
-            continue
-        try:
-            complete[setting.key] = setting.check(values[setting.key])
-        except ValueError as error:
-            raise SettingsError(f"setting {setting.key} {error}") from None
-    unknown = set(values) - set(complete)
-    if unknown:
-        raise SettingsError(f"unknown setting(s) {', '.join(sorted(unknown))}")
-    return complete
-
-
-def frontend_config(values: Mapping[str, Any]) -> FrontendConfig:
-    """The front end's configuration from settings (missing keys take their defaults)."""
-    v = _complete(values)
-    mount = CameraMount(
-        v["camera.x"],
-        v["camera.y"],
-        v["camera.height"],
-        math.radians(v["camera.yaw_deg"]),
-        math.radians(v["camera.pitch_deg"]),
-    )
-    return FrontendConfig(
-        dictionary=v["dictionary"],
-        marker_length_m=v["marker_size"],
-        marker_lengths_m=dict(v["marker_sizes"]),
-        method=YawMethod(v["yaw_method"]),
-        allowed_ids=v["ids"],
-        color_topic=v["topics.color"],
-        depth_topic=v["topics.depth"],
-        camera_info_topic=v["topics.camera_info"],
-        odom_topic=v["topics.odom"],
-        base_frame=v["camera.base_frame"],
-        default_mount=mount,
-        depth_model=DepthModel(
-            v["noise.depth_base_m"], v["noise.depth_per_m2"], v["noise.depth_max_m"]
-        ),
-        corner_sigma_px=v["noise.corner_px"],
-    )
-
-
-def map_config(values: Mapping[str, Any] | None = None) -> MapConfig:
-    """The main job's configuration from settings (missing keys take their defaults).
-
-    Raises:
-        SettingsError: an unknown setting or a bad value, naming it.
-    """
-    return MapConfig(_complete(values or {}))
-
-
-def _toml_value(value: Any) -> str:
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    return repr(value)
-
-
-def config_toml(values: Mapping[str, Any]) -> str:
-    """Settings as a TOML file that :func:`read_config_file` reads back to the same values;
-    unset optional settings are left as comments."""
-    v = _complete(values)
-    sections: dict[str, list[str]] = {"": []}
-    for setting in SETTINGS:
-        section, _, name = setting.key.rpartition(".")
-        lines = sections.setdefault(section, [])
-        if setting.key == "marker_sizes":
-            continue  # a table of its own, last
-        value = v[setting.key]
-        lines.append(f"# {setting.help}")
-        lines.append(f"# {name} = ..." if value is None else f"{name} = {_toml_value(value)}")
-    parts = ["\n".join(sections.pop(""))]
-    parts += [f"[{name}]\n" + "\n".join(lines) for name, lines in sections.items()]
-    sizes = v["marker_sizes"]
-    parts.append(
-        f"# {_BY_KEY['marker_sizes'].help}\n[marker_sizes]\n"
-        + (
-            "".join(f"{marker_id} = {side!r}\n" for marker_id, side in sizes.items())
-            or "# 7 = 0.1\n"
-        )
-    )
-    return "\n\n".join(part.rstrip("\n") for part in parts) + "\n"

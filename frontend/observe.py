@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -15,7 +15,7 @@ from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import Detection, Detector
 from markergraph.frontend.yaw import YawMethod, marker_centre, yaw_from_corners, yaw_sigma
 
-__all__ = ["DepthModel", "Flags", "observe", "observe_detections"]
+__all__ = ["DepthModel", "Flags", "ObservationModel", "observe", "observe_detections"]
 
 
 class Flags:
@@ -52,6 +52,30 @@ class DepthModel:
         return self.base_m + self.per_m2 * z_m * z_m
 
 
+@dataclass(frozen=True)
+class ObservationModel:
+    """How detected corners become observations: the markers' sizes, the yaw method and the
+    noise of corners and depth.
+
+    Attributes:
+        marker_length_m: side of the markers' black square [m].
+        marker_lengths_m: the sides of markers whose size differs, by id [m].
+        method: how theta is computed from the corners.
+        corner_sigma_px: the corners' noise after sub-pixel refinement [px].
+        depth_model: the depth camera's error model.
+    """
+
+    marker_length_m: float = 0.2
+    marker_lengths_m: Mapping[int, float] = field(default_factory=dict)
+    method: YawMethod = YawMethod.PNP
+    corner_sigma_px: float = 0.3
+    depth_model: DepthModel = DepthModel()
+
+    def length_of(self, marker_id: int) -> float:
+        """The side of one marker's black square [m]."""
+        return self.marker_lengths_m.get(marker_id, self.marker_length_m)
+
+
 def _marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthModel) -> float | None:
     """Median depth [m] of valid pixels inside the marker, shrunk by a fifth toward its centre
     to stay clear of the edge where depth mixes with the wall; None without a valid pixel."""
@@ -74,22 +98,18 @@ def _marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthMode
 def observe_detections(
     detections: list[Detection],
     camera: Camera,
-    marker_length_m: float,
+    model: ObservationModel,
     *,
     depth: NDArray | None = None,
-    method: YawMethod = YawMethod.PNP,
     mount: CameraMount = CameraMount(),
     t_ns: int = 0,
-    corner_sigma_px: float = 0.3,
-    depth_model: DepthModel = DepthModel(),
-    marker_lengths_m: Mapping[int, float] | None = None,
 ) -> list[Observation]:
     """Observations of already detected markers; see :func:`observe`."""
     observations = []
     R_base_optical = mount.R_base_optical
-    lengths_m = marker_lengths_m or {}
+    method, corner_sigma_px, depth_model = model.method, model.corner_sigma_px, model.depth_model
     for detection in detections:
-        length_m = lengths_m.get(detection.marker_id, marker_length_m)
+        length_m = model.length_of(detection.marker_id)
         corners = camera.undistort(detection.corners)
         theta = yaw_from_corners(corners, method, camera, length_m)
         if not math.isfinite(theta):
@@ -185,15 +205,7 @@ def observe(
             f"{image.shape[1]}x{image.shape[0]} colour image"
         )
     detections = (detector or Detector(dictionary)).detect(image)
-    return observe_detections(
-        detections,
-        camera,
-        marker_length_m,
-        depth=depth,
-        method=method,
-        mount=mount,
-        t_ns=t_ns,
-        corner_sigma_px=corner_sigma_px,
-        depth_model=depth_model,
-        marker_lengths_m=marker_lengths_m,
+    model = ObservationModel(
+        marker_length_m, marker_lengths_m or {}, method, corner_sigma_px, depth_model
     )
+    return observe_detections(detections, camera, model, depth=depth, mount=mount, t_ns=t_ns)

@@ -216,8 +216,8 @@ ax_error.plot(
     travelled, np.hypot(*(odometry_path - true_path[:, :2]).T), color="grey", label="wheel odometry"
 )
 for label, estimate in estimates.items():
-    index = np.searchsorted(stamps, estimate.trajectory_t_ns)
-    error = np.hypot(*(estimate.trajectory[:, :2] - true_path[index, :2]).T)
+    index = np.searchsorted(stamps, estimate.trajectory.t_ns)
+    error = np.hypot(*(estimate.trajectory.poses[:, :2] - true_path[index, :2]).T)
     ax_error.plot(travelled[index], error, color=COLOURS[label], lw=1, label=label)
 ax_error.set(xlabel="distance travelled [m]", ylabel="position error [m]", yscale="log")
 ax_error.grid(True, which="both", alpha=0.3)

@@ -51,7 +51,7 @@ import numpy as np
 from markergraph.datasets import Marker, Wall, World
 from markergraph.datasets.render import Renderer
 from markergraph.frontend.detect import Detector
-from markergraph.frontend.observe import observe_detections
+from markergraph.frontend.observe import ObservationModel, observe_detections
 from markergraph.frontend.yaw import YawMethod
 
 DISTANCES = np.arange(1.0, 5.01, 0.5)
@@ -91,9 +91,8 @@ for d in DISTANCES:
                 found = observe_detections(
                     detections,
                     renderer.camera,
-                    0.2,
+                    ObservationModel(0.2, method=method),
                     depth=frame.depth_mm,
-                    method=method,
                     mount=renderer.mount,
                 )
                 if not found:  # not detected, or no solution (the paper's formula)

@@ -34,7 +34,7 @@ import gtsam
 import matplotlib.pyplot as plt
 import numpy as np
 
-from markergraph.datasets import observe_marker, turn_toward
+from markergraph.datasets.rooms import observe_marker, turn_toward
 from markergraph.estimator import (
     Form,
     Goal,

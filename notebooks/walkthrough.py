@@ -72,16 +72,16 @@ sh("markergraph info robot.mcap")
 # pitch), and its **bearing** in the image.
 
 # %%
-from markergraph.frontend.camera import Camera
-from markergraph.frontend.detect import Detector
-from markergraph.frontend.log import (
+from markergraph.frontend import (
     decode_depth,
     decode_image,
     messages,
     mount_from_transforms,
     transforms_of,
 )
-from markergraph.frontend.observe import observe_detections
+from markergraph.frontend.camera import Camera
+from markergraph.frontend.detect import Detector
+from markergraph.frontend.observe import ObservationModel, observe_detections
 
 COLOR = "/camera/camera/color/image_raw/compressed"
 DEPTH = "/camera/camera/aligned_depth_to_color/image_raw"
@@ -120,7 +120,9 @@ for (stamp, image, depth_image, detections), top, bottom in zip(shown, *axes, st
         np.array([d.marker_id for d in detections]),
     )  # fmt: skip
     top.imshow(drawn)
-    for obs in observe_detections(detections, camera, 0.2, depth=depth_image, mount=mount):
+    for obs in observe_detections(
+        detections, camera, ObservationModel(0.2), depth=depth_image, mount=mount
+    ):
         u, v = np.asarray(obs.corners).mean(axis=0)
         top.annotate(
             f"id {obs.marker_id}\nθ {np.degrees(obs.theta):.1f}°\nd {obs.range_m:.2f} m",

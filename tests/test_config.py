@@ -9,18 +9,19 @@ from pathlib import Path
 
 import pytest
 
+from markergraph.cli._settings import FLAGS
 from markergraph.estimator import Method, OdometryNoise, Robust
+from markergraph.frontend import FrontendConfig
 from markergraph.frontend.camera import CameraMount
-from markergraph.frontend.config import (
+from markergraph.frontend.observe import DepthModel
+from markergraph.frontend.yaw import YawMethod
+from markergraph.settings import (
     ALL_METHODS,
     SETTINGS,
     config_toml,
     map_config,
     read_config_file,
 )
-from markergraph.frontend.observe import DepthModel
-from markergraph.frontend.pipeline import FrontendConfig
-from markergraph.frontend.yaw import YawMethod
 
 TOML = """
 dictionary = "DICT_6X6_250"
@@ -161,7 +162,7 @@ def test_help_explains_every_setting_with_its_default() -> None:
     run = cli("map", "--help")
     text = " ".join(run.stdout.split())  # argparse wraps lines
     for setting in SETTINGS:
-        assert setting.flag in text and f"file: {setting.key}" in text
+        assert FLAGS[setting.key].flag in text and f"file: {setting.key}" in text
         if setting.default not in (None, {}):
             assert f"{setting.key}, default {setting.default}" in text
 

@@ -45,8 +45,8 @@ def test_ekf_is_consistent_when_its_odometry_model_is_true() -> None:
         frames = build_frames(run.observations, run.odometry, 0, odometry_noise=model)
         result = estimate_frames(frames, Method.EKF, run.mount.T_base_camera)
         true_by_stamp = dict(zip(run.frame_t_ns.tolist(), run.true_trajectory(), strict=True))
-        truth = np.array([true_by_stamp[int(t)] for t in result.trajectory_t_ns])
-        run_means.append(nees(result.trajectory, result.trajectory_covariance, truth).mean())
+        truth = np.array([true_by_stamp[int(t)] for t in result.trajectory.t_ns])
+        run_means.append(nees(result.trajectory.poses, result.trajectory_covariance, truth).mean())
         assert 1.5 < result.nis.mean() < 4.5  # 3 dof innovations, averaged over ~2000 updates
     low, high = (bound / len(seeds) for bound in chi2_interval(3 * len(seeds)))
     assert low < np.mean(run_means) < high

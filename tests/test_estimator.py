@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -12,6 +13,7 @@ import pytest
 from markergraph.datasets import ObservationNoise, WheelErrors, scenario, simulate_fast
 from markergraph.datasets.simulate import SimulatedRun
 from markergraph.estimator import (
+    Estimate,
     Form,
     MarkerGraphError,
     Method,
@@ -127,41 +129,30 @@ def test_ekf_jacobians_match_numerical(seed: int) -> None:
     marker = np.array([*(robot[:2] + rng.uniform(1, 4, 2)), rng.uniform(-3, 3)])
     delta = np.array([*rng.uniform(-0.5, 0.5, 2), rng.uniform(-0.3, 0.3)])
 
+    def check(analytic: np.ndarray, function: Any, at: np.ndarray) -> None:
+        np.testing.assert_allclose(analytic, numerical_jacobian(function, at), atol=JACOBIAN_TOL)
+
     _, F, G = ekf_motion(robot, gtsam.Pose2(*delta))
-    np.testing.assert_allclose(
-        F,
-        numerical_jacobian(lambda r: ekf_motion(r, gtsam.Pose2(*delta))[0], robot),
-        atol=JACOBIAN_TOL,
-    )
-    np.testing.assert_allclose(
-        G,
-        numerical_jacobian(lambda d: ekf_motion(robot, gtsam.Pose2(*d))[0], delta),
-        atol=JACOBIAN_TOL,
-    )
-
+    check(F, lambda r: ekf_motion(r, gtsam.Pose2(*delta))[0], robot)
+    check(G, lambda d: ekf_motion(robot, gtsam.Pose2(*d))[0], delta)
     z, H_robot, H_marker = ekf_observation(robot, marker, MOUNT)
-    np.testing.assert_allclose(
-        H_robot,
-        numerical_jacobian(lambda r: ekf_observation(r, marker, MOUNT)[0], robot),
-        atol=JACOBIAN_TOL,
-    )
-    np.testing.assert_allclose(
-        H_marker,
-        numerical_jacobian(lambda m: ekf_observation(robot, m, MOUNT)[0], marker),
-        atol=JACOBIAN_TOL,
-    )
-
+    check(H_robot, lambda r: ekf_observation(r, marker, MOUNT)[0], robot)
+    check(H_marker, lambda m: ekf_observation(robot, m, MOUNT)[0], marker)
     placed, G_robot, G_z = ekf_marker_init(robot, z, MOUNT)
     np.testing.assert_allclose(placed, marker, atol=EXACT_ALGEBRA)  # the inverse of h
-    np.testing.assert_allclose(
-        G_robot,
-        numerical_jacobian(lambda r: ekf_marker_init(r, z, MOUNT)[0], robot),
-        atol=JACOBIAN_TOL,
-    )
-    np.testing.assert_allclose(
-        G_z,
-        numerical_jacobian(lambda zz: ekf_marker_init(robot, zz, MOUNT)[0], z),
-        atol=JACOBIAN_TOL,
+    check(G_robot, lambda r: ekf_marker_init(r, z, MOUNT)[0], robot)
+    check(G_z, lambda zz: ekf_marker_init(robot, zz, MOUNT)[0], z)
+
+
+def solve(run: SimulatedRun, method: Method, **options: Any) -> Estimate:
+    """One method on a simulated run, with its camera mount and odometry noise."""
+    return estimate(
+        run.observations,
+        run.odometry,
+        method,
+        T_base_camera=run.mount.T_base_camera,
+        odometry_noise=run.odometry_noise,
+        **options,
     )
 
 
@@ -221,13 +212,7 @@ def test_noise_free_inputs_recover_the_true_map(
 def test_paper_form_maps_wrongly_even_without_noise(noise_free_run: SimulatedRun) -> None:
     """The printed closed forms misplace markers of the corridor by metres on exact inputs."""
     run = noise_free_run
-    result = estimate(
-        run.observations,
-        run.odometry,
-        Method.CLOSED_FORM,
-        T_base_camera=run.mount.T_base_camera,
-        form=Form.PAPER,
-    )
+    result = solve(run, Method.CLOSED_FORM, form=Form.PAPER)
     assert map_error(result, run.true_markers()).rmse_position_m > 1.0
 
 
@@ -250,19 +235,15 @@ def test_isam2_matches_batch_slam(noisy_run: SimulatedRun) -> None:
         other = incremental.markers[marker_id]
         assert marker.T_map_marker.equals(other.T_map_marker, AFTER_OPTIMISATION)
         np.testing.assert_allclose(marker.covariance, other.covariance, rtol=1e-3, atol=1e-12)
-    np.testing.assert_allclose(batch.trajectory, incremental.trajectory, atol=AFTER_OPTIMISATION)
+    np.testing.assert_allclose(
+        batch.trajectory.poses, incremental.trajectory.poses, atol=AFTER_OPTIMISATION
+    )
 
 
 def test_slam_covariances_are_honest(noisy_run: SimulatedRun) -> None:
     """Marker errors normalised by SLAM's marginals are chi-square(2) on average over markers."""
     run = noisy_run
-    result = estimate(
-        run.observations,
-        run.odometry,
-        Method.SLAM,
-        T_base_camera=run.mount.T_base_camera,
-        odometry_noise=run.odometry_noise,
-    )
+    result = solve(run, Method.SLAM)
     squared = []
     for marker_id, T_true in run.true_markers().items():
         if marker_id == run.world.home_id:
@@ -393,13 +374,7 @@ def test_optimiser_that_stops_early_says_so(noisy_run: SimulatedRun, monkeypatch
 def test_ekf_keeps_innovations_and_nis(noisy_run: SimulatedRun) -> None:
     """One innovation and one NIS per update (observations of known markers), NIS = y S^-1 y > 0."""
     run = noisy_run
-    result = estimate(
-        run.observations,
-        run.odometry,
-        Method.EKF,
-        T_base_camera=run.mount.T_base_camera,
-        odometry_noise=run.odometry_noise,
-    )
+    result = solve(run, Method.EKF)
     n_first_sightings = len(result.markers) - 1  # the home marker is never added
     assert len(result.nis) == len(result.innovations)
     # The very first observation (of home) only initialises the robot.
@@ -410,14 +385,10 @@ def test_ekf_keeps_innovations_and_nis(noisy_run: SimulatedRun) -> None:
 def test_marker_graph_localises_the_robot_on_its_map(noisy_run: SimulatedRun) -> None:
     """The marker graph's trajectory (nearest-marker localisation) is within 0.5 m of the truth."""
     run = noisy_run
-    result = estimate(
-        run.observations,
-        run.odometry,
-        Method.MARKER_GRAPH,
-        T_base_camera=run.mount.T_base_camera,
-        odometry_noise=run.odometry_noise,
-    )
+    result = solve(run, Method.MARKER_GRAPH)
     true_by_stamp = dict(zip(run.frame_t_ns.tolist(), run.true_trajectory(), strict=True))
-    truth = np.array([true_by_stamp[int(t)] for t in result.trajectory_t_ns])
+    truth = np.array([true_by_stamp[int(t)] for t in result.trajectory.t_ns])
     assert len(truth) > 1000
-    assert np.sqrt(np.mean(np.sum((result.trajectory[:, :2] - truth[:, :2]) ** 2, axis=1))) < 0.5
+    assert (
+        np.sqrt(np.mean(np.sum((result.trajectory.poses[:, :2] - truth[:, :2]) ** 2, axis=1))) < 0.5
+    )

@@ -18,18 +18,14 @@ import yaml
 
 from markergraph.datasets import scenario, simulate_fast
 from markergraph.estimator import Edge, Method, build_frames, estimate_frames
-from markergraph.estimator.slam import build_slam_graph
-from markergraph.frontend.formats import (
-    MAP_SCHEMA,
+from markergraph.formats import (
     MARKER_VERTEX_OFFSET,
     ExportFormat,
-    estimate_values,
-    map_document,
     read_tum,
     write_g2o,
-    write_json,
     write_tum,
 )
+from markergraph.markermap import MAP_SCHEMA, MarkerMap
 
 
 @pytest.fixture(scope="module")
@@ -44,17 +40,14 @@ def solved():
 def map_json(solved, tmp_path_factory: pytest.TempPathFactory) -> Path:
     _, _, result = solved
     path = tmp_path_factory.mktemp("export") / "map.json"
-    write_json(
-        path,
-        map_document(
-            result,
-            log="sim.mcap",
-            dictionary="DICT_4X4_50",
-            marker_length_m=0.2,
-            marker_lengths_m={3: 0.1},  # one smaller marker
-            marker_heights_m={0: 1.0},
-        ),
-    )
+    MarkerMap.from_estimate(
+        result,
+        log="sim.mcap",
+        dictionary="DICT_4X4_50",
+        marker_size_m=0.2,
+        marker_sizes_m={3: 0.1},  # one smaller marker
+        marker_heights_m={0: 1.0},
+    ).save(path)
     return path
 
 
@@ -85,19 +78,19 @@ def test_tum_round_trip(solved, tmp_path: Path) -> None:
     """A TUM trajectory reads back to the same stamps (ns) and poses."""
     _, _, result = solved
     path = tmp_path / "estimate.tum"
-    write_tum(path, result.trajectory_t_ns, result.trajectory)
-    stamps, poses = read_tum(path)
-    np.testing.assert_array_equal(stamps, result.trajectory_t_ns)
-    np.testing.assert_allclose(poses, result.trajectory, atol=1e-12)
+    write_tum(path, result.trajectory)
+    read = read_tum(path)
+    np.testing.assert_array_equal(read.t_ns, result.trajectory.t_ns)
+    np.testing.assert_allclose(read.poses, result.trajectory.poses, atol=1e-12)
 
 
 def test_g2o_loads_in_gtsam_and_reoptimises_to_the_same_map(solved, tmp_path: Path) -> None:
     """gtsam.readG2o loads map.g2o (markers at offset ids, full precision) and, with the home
     vertex fixed, re-optimises to the same markers."""
-    run, frames, result = solved
-    graph, _, _ = build_slam_graph(frames, run.mount.T_base_camera)
+    _, _, result = solved
+    graph = result.graph
     path = tmp_path / "map.g2o"
-    write_g2o(path, graph, estimate_values(result))
+    write_g2o(path, graph, result.values)
     loaded, initial = gtsam.readG2o(str(path), False)
     assert loaded.size() == graph.size() - 1  # all but the home prior
     assert initial.size() == len(result.trajectory) + len(result.markers)

@@ -18,15 +18,21 @@ from mcap_ros2.writer import Writer
 from markergraph.datasets import Marker, Wall, World, scenario
 from markergraph.datasets.write import write_log
 from markergraph.estimator import MarkerGraphError
+from markergraph.formats import read_observations
+from markergraph.frontend import (
+    FrontendConfig,
+    LogError,
+    decode_image,
+    extract,
+    log_topics,
+    messages,
+)
 from markergraph.frontend.camera import Camera, CameraMount
-from markergraph.frontend.config import frontend_config
 from markergraph.frontend.detect import Detector
-from markergraph.frontend.jsonl import read_observations
-from markergraph.frontend.log import LogError, decode_image, log_topics, messages
 from markergraph.frontend.observe import observe
-from markergraph.frontend.pipeline import FrontendConfig, extract
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, header
 from markergraph.frontend.yaw import YawMethod, yaw_from_corners
+from markergraph.settings import MapConfig
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 TUTORIAL = DATA / "opencv-aruco-tutorial" / "modules" / "aruco"
@@ -189,11 +195,9 @@ def test_observations_match_ground_truth_on_simulated_logs(simulated) -> None:
     median range error <= 2 cm; bearings within 0.2 deg."""
     rows = []
     for _, result in simulated:
-        poses = result.true_poses
         T_base_camera = result.mount.T_base_camera
         for obs in result.observations:
-            i = int(np.argmin(np.abs(poses[:, 0] - obs.t_ns)))
-            T_camera = gtsam.Pose2(*poses[i, 1:]).compose(T_base_camera)
+            T_camera = result.true_path.at(obs.t_ns).compose(T_base_camera)
             T_marker = result.true_markers[obs.marker_id]
             local = T_marker.transformTo(T_camera.translation())
             seen = T_camera.transformTo(T_marker.translation())
@@ -391,7 +395,7 @@ def to_foxglove(source: Path, target: Path) -> None:
     from google.protobuf.timestamp_pb2 import Timestamp
     from mcap_protobuf.writer import Writer as ProtobufWriter
 
-    from markergraph.frontend.log import stamp_ns
+    from markergraph.frontend import stamp_ns
 
     def timestamp(decoded) -> Timestamp:
         t_ns = stamp_ns(decoded)
@@ -478,7 +482,7 @@ def test_foxglove_log_gives_the_same_observations(simulated, tmp_path: Path) -> 
 @needs_data
 def test_foxglove_pose_decodes_as_odometry() -> None:
     """A real Foxglove PoseInFrame (protobuf) decodes to an odometry sample."""
-    from markergraph.frontend.log import odometry_sample
+    from markergraph.frontend import odometry_sample
 
     path = DATA / "mcap-rerun-fixtures" / "simple-protobuf.mcap"
     (pose,) = [odometry_sample(m) for m in messages(path, ["pose"])]
@@ -531,8 +535,11 @@ def test_configured_mount_stands_in_for_missing_tf_static(simulated, tmp_path: P
     stripped = tmp_path / "no-tf-static.mcap"
     copy_without(path, stripped, "/tf_static")
     ids = {"ids": list(range(30))}
-    true = extract(stripped, frontend_config({**ids, "camera.height": 0.6, "camera.pitch_deg": 10}))
-    level = extract(stripped, frontend_config({**ids, "camera.pitch_deg": 0.0}))
+    true = extract(
+        stripped,
+        MapConfig.from_values({**ids, "camera.height": 0.6, "camera.pitch_deg": 10}).frontend,
+    )
+    level = extract(stripped, MapConfig.from_values({**ids, "camera.pitch_deg": 0.0}).frontend)
     assert true.topics.tf_static is None and any("/tf_static" in n for n in true.notes)
     assert [o.range_m for o in true.observations] == pytest.approx(
         [o.range_m for o in result.observations], abs=1e-9
@@ -574,7 +581,7 @@ def test_compressed_depth_decodes_like_raw_depth() -> None:
     """A compressedDepth message (12-byte header, then a 16-bit PNG) decodes to the same depth."""
     from types import SimpleNamespace
 
-    from markergraph.frontend.log import Message, decode_depth
+    from markergraph.frontend import Message, decode_depth
 
     depth = np.random.default_rng(0).integers(0, 8000, (48, 64)).astype(np.uint16)
     ok, png = cv2.imencode(".png", depth)

@@ -13,7 +13,8 @@ import gtsam
 import numpy as np
 import pytest
 
-from markergraph.frontend.formats import MAP_SCHEMA, MARKER_VERTEX_OFFSET, read_tum
+from markergraph.formats import MARKER_VERTEX_OFFSET, read_tum
+from markergraph.markermap import MAP_SCHEMA
 
 METHODS = ("slam", "closed-form", "marker-graph", "isam2", "ekf")
 
@@ -63,7 +64,7 @@ def test_map_json_matches_ground_truth(mapped) -> None:
         report["methods"]["closed-form"]["marker_rmse_m"]
         > (report["methods"]["slam"]["marker_rmse_m"])
     )
-    truth = read_tum(folder / "ground_truth.tum")[1]
+    truth = read_tum(folder / "ground_truth.tum").poses
     assert len(truth) > 1000
 
 
@@ -73,7 +74,8 @@ def test_g2o_tum_png_and_per_method_files_read_back(mapped) -> None:
     folder, _ = mapped
     graph, initial = gtsam.readG2o(str(folder / "map.g2o"), False)
     assert graph.size() > 100 and initial.exists(MARKER_VERTEX_OFFSET + 0)
-    stamps, poses = read_tum(folder / "trajectory.tum")
+    read = read_tum(folder / "trajectory.tum")
+    stamps, poses = read.t_ns, read.poses
     assert len(stamps) == len(poses) > 100 and np.all(np.diff(stamps) > 0)
     for image in (folder / "map.png", folder / "comparison.png"):
         assert cv2.imread(str(image)) is not None
@@ -143,7 +145,7 @@ def test_one_marker_maps_honestly_and_none_fails_in_one_line(mapped, tmp_path: P
     assert "only marker 0 was seen" in run.stderr
     document = json.loads((tmp_path / "one" / "map.json").read_text())
     assert [m["id"] for m in document["markers"]] == [0] and document["links"] == []
-    assert len(read_tum(tmp_path / "one" / "trajectory.tum")[0]) > 10
+    assert len(read_tum(tmp_path / "one" / "trajectory.tum").t_ns) > 10
     run = run_map("--ids", "49", "--out", str(tmp_path / "none"), cache=cache)
     assert run.returncode == 1 and "no markers of DICT_4X4_50" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "none").exists()

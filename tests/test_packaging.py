@@ -14,7 +14,7 @@ import pytest
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SUBPACKAGES = ("estimator", "frontend", "datasets", "cli")
 # Top-level names our folders would shadow if they leaked onto sys.path (Hugging Face `datasets`).
-SHADOW_CANDIDATES = ("datasets", "frontend", "estimator", "cli")
+SHADOW_CANDIDATES = ("datasets", "frontend", "estimator", "cli", "app")
 
 PROBE = """
 import importlib.util, json, sys
@@ -65,7 +65,9 @@ def test_wheel_contains_every_subpackage(wheel_path: Path) -> None:
         assert f"markergraph/{package}/__init__.py" in names
         assert f"markergraph/{package}/py.typed" in names
     assert "markergraph/estimator/paper.py" in names
-    assert "markergraph/__init__.py" not in names  # an implicit namespace package
+    # app/ is the root package itself: the public API and the application layer
+    root = {"markergraph/__init__.py", "markergraph/py.typed", "markergraph/formats/tum.py"}
+    assert root <= names
     top_level = {name.split("/")[0] for name in names}
     assert not top_level & set(SHADOW_CANDIDATES)
 
@@ -97,6 +99,7 @@ def test_installed_wheel_imports_under_markergraph_only(wheel_path: Path, tmp_pa
             "-S",
             "-c",
             script,
+            "markergraph",
             *(f"markergraph.{p}" for p in SUBPACKAGES),
             *SHADOW_CANDIDATES,
         ],
@@ -106,8 +109,8 @@ def test_installed_wheel_imports_under_markergraph_only(wheel_path: Path, tmp_pa
         text=True,
     ).stdout
     origins = json.loads(out)
-    for package in SUBPACKAGES:
-        assert origins[f"markergraph.{package}"].startswith(str(target))
+    for package in ("markergraph", *(f"markergraph.{p}" for p in SUBPACKAGES)):
+        assert origins[package].startswith(str(target))
     for name in SHADOW_CANDIDATES:
         origin = origins[name]
         assert origin is None or not origin.startswith((str(target), str(REPO_ROOT))), name

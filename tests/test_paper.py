@@ -10,7 +10,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from markergraph.datasets import observe_marker, random_convex_room, turn_toward
+from markergraph.datasets.rooms import observe_marker, random_convex_room, turn_toward
 from markergraph.estimator import (
     Edge,
     Form,

@@ -180,19 +180,20 @@ def test_force_replaces_only_our_own_or_an_empty_folder(log: Path, tmp_path: Pat
 def test_a_failure_half_way_keeps_the_old_result_whole(log: Path, tmp_path: Path, monkeypatch):
     """A --force run that fails while writing leaves the old result byte-identical and no
     temporary folder behind."""
-    from markergraph.frontend import mapping
+    from markergraph import results
+    from markergraph.run import map_log
 
     out = tmp_path / "result"
-    run = mapping.map_log(log)
-    mapping.write_results(run, out, plots=False)
+    run = map_log(log)
+    results.write_results(run, out, plots=False)
     before = snapshot(out)
 
     def disk_full(*_: Any, **__: Any) -> None:
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(mapping, "write_overlay", disk_full)
+    monkeypatch.setattr(results, "write_overlay", disk_full)
     with pytest.raises(OSError, match="No space"):
-        mapping.write_results(run, out, force=True, plots=False)
+        results.write_results(run, out, force=True, plots=False)
     assert snapshot(out) == before
     assert [p.name for p in tmp_path.iterdir()] == ["result"]
 

@@ -26,9 +26,8 @@ import numpy as np
 
 from markergraph.datasets import scenario
 from markergraph.datasets.write import write_log
+from markergraph.frontend import FrontendConfig, extract, messages
 from markergraph.frontend.detect import Detector
-from markergraph.frontend.log import messages
-from markergraph.frontend.pipeline import FrontendConfig, extract
 
 TOPIC = "/camera/camera/color/image_raw/compressed"
 

@@ -18,7 +18,7 @@ from markergraph.datasets import scenario
 from markergraph.datasets.render import Renderer
 from markergraph.datasets.route import drive
 from markergraph.frontend.detect import Detector
-from markergraph.frontend.observe import observe_detections
+from markergraph.frontend.observe import ObservationModel, observe_detections
 from markergraph.frontend.yaw import YawMethod
 
 
@@ -38,9 +38,8 @@ def main() -> None:
                 for obs in observe_detections(
                     detections,
                     renderer.camera,
-                    0.2,
+                    ObservationModel(0.2, method=method),
                     depth=frame.depth_mm,
-                    method=method,
                     mount=renderer.mount,
                 ):
                     T_marker = world.T_world_marker(obs.marker_id)

@@ -9,26 +9,23 @@ Each line: ``t_ns`` (int), ``marker_id``, ``bearing``, ``theta`` [rad], ``range_
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
 from pathlib import Path
 
-from markergraph.estimator.frames import odometry_at_stamps
+from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import MarkerGraphError, Observation, OdometrySample
 from markergraph.frontend.files import written_whole
 
 __all__ = ["read_observations", "write_observations"]
 
 
-def write_observations(
-    path: Path, observations: list[Observation], odometry: Iterable[OdometrySample]
-) -> int:
+def write_observations(path: Path, observations: list[Observation], odometry: Trajectory) -> int:
     """Write observations as JSON lines, whole or not at all.
 
     Returns:
         The number of lines written.
     """
     path = Path(path)
-    poses = odometry_at_stamps(odometry, [o.t_ns for o in observations])
+    poses = [odometry.at(o.t_ns) for o in observations]
     with written_whole(path) as partial, open(partial, "w", encoding="utf-8") as stream:
         for obs, pose in zip(observations, poses, strict=True):
             stream.write(
@@ -55,7 +52,7 @@ def write_observations(
     return len(observations)
 
 
-def read_observations(path: Path) -> tuple[list[Observation], list[OdometrySample]]:
+def read_observations(path: Path) -> tuple[list[Observation], Trajectory]:
     """Observations and the odometry poses they carry (one sample per distinct stamp).
 
     Raises:
@@ -89,4 +86,4 @@ def read_observations(path: Path) -> tuple[list[Observation], list[OdometrySampl
                 raise MarkerGraphError(
                     f"{path}:{number}: not an observation line ({error})"
                 ) from error
-    return observations, [odometry[t] for t in sorted(odometry)]
+    return observations, Trajectory.from_samples(odometry.values())

@@ -9,15 +9,11 @@ the original log.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Sequence
 from pathlib import Path
 
-import gtsam
-import numpy as np
 from mcap_ros2.writer import Writer
 
-from markergraph.estimator.types import Estimate, OdometrySample
+from markergraph.estimator.trajectory import Trajectory
 from markergraph.frontend.files import written_whole
 from markergraph.frontend.ros2 import (
     MESSAGE_DEFINITIONS,
@@ -25,6 +21,7 @@ from markergraph.frontend.ros2 import (
     quaternion_from_yaw,
     transform_stamped,
 )
+from markergraph.markermap import MarkerMap
 
 __all__ = ["write_overlay"]
 
@@ -66,15 +63,12 @@ def _pose(x: float, y: float, z: float, yaw: float) -> dict:
 
 
 def write_overlay(
-    path: Path,
-    estimate: Estimate,
-    odometry: Sequence[OdometrySample],
-    heights_m: dict[int, float] | None = None,
+    path: Path, marker_map: MarkerMap, trajectory: Trajectory, odometry: Trajectory
 ) -> None:
-    """Write the overlay MCAP, whole or not at all."""
-    heights = heights_m or {}
-    stamps = estimate.trajectory_t_ns
-    start = int(stamps[0]) if len(stamps) else (odometry[0].t_ns if odometry else 0)
+    """Write the overlay MCAP, whole or not at all: the map, the estimated path and
+    ``map -> odom`` at each estimated pose (where odometry reaches)."""
+    stamps = trajectory.t_ns
+    start = int(stamps[0]) if len(stamps) else (int(odometry.t_ns[0]) if len(odometry) else 0)
     with written_whole(path) as partial, open(partial, "wb") as stream:
         writer = Writer(stream)
         schemas = {
@@ -86,49 +80,25 @@ def write_overlay(
             )
         }
         markers = []
-        for marker_id, marker in sorted(estimate.markers.items()):
+        for marker_id, marker in marker_map.markers.items():
             T = marker.T_map_marker
-            z = heights.get(marker_id, 0.0)
+            z = marker.z_m or 0.0
             markers.append(
-                _marker(
-                    start,
-                    marker_id,
-                    "normals",
-                    ARROW,
-                    _pose(T.x(), T.y(), z, T.theta()),
-                    (0.3, 0.04, 0.04),
-                    (0.1, 0.4, 0.9, 1.0),
-                )
-            )
+                _marker(start, marker_id, "normals", ARROW, _pose(T.x(), T.y(), z, T.theta()),
+                        (0.3, 0.04, 0.04), (0.1, 0.4, 0.9, 1.0))
+            )  # fmt: skip
             markers.append(
-                _marker(
-                    start,
-                    marker_id,
-                    "ids",
-                    TEXT,
-                    _pose(T.x(), T.y(), z + 0.25, 0.0),
-                    (0.0, 0.0, 0.2),
-                    (1.0, 1.0, 1.0, 1.0),
-                    str(marker_id),
-                )
-            )
-            if marker.covariance is not None:
-                c, s = math.cos(T.theta()), math.sin(T.theta())
-                R = np.array([[c, -s], [s, c]])
-                values, vectors = np.linalg.eigh(R @ marker.covariance[:2, :2] @ R.T)
-                axis_yaw = math.atan2(vectors[1, 1], vectors[0, 1])  # the larger axis
-                diameters = 4.0 * np.sqrt(np.maximum(values[::-1], 1e-12))  # 2 sigma
+                _marker(start, marker_id, "ids", TEXT, _pose(T.x(), T.y(), z + 0.25, 0.0),
+                        (0.0, 0.0, 0.2), (1.0, 1.0, 1.0, 1.0), str(marker_id))
+            )  # fmt: skip
+            ellipse = marker.position_ellipse(2.0)
+            if ellipse is not None:
+                (major, minor), heading = ellipse
                 markers.append(
-                    _marker(
-                        start,
-                        marker_id,
-                        "ellipses",
-                        CYLINDER,
-                        _pose(T.x(), T.y(), z, axis_yaw),
-                        (float(diameters[0]), float(diameters[1]), 0.01),
-                        (0.1, 0.4, 0.9, 0.3),
-                    )
-                )
+                    _marker(start, marker_id, "ellipses", CYLINDER,
+                            _pose(T.x(), T.y(), z, heading), (float(major), float(minor), 0.01),
+                            (0.1, 0.4, 0.9, 0.3))
+                )  # fmt: skip
         writer.write_message(
             MARKER_TOPIC,
             schemas["visualization_msgs/msg/MarkerArray"],
@@ -136,33 +106,28 @@ def write_overlay(
             log_time=start,
             publish_time=start,
         )
-        odometry_stamps = np.array([s.t_ns for s in odometry], dtype=np.int64)
-        for t_ns, (x, y, yaw) in zip(stamps, estimate.trajectory, strict=True):
-            if not len(odometry_stamps):
-                break
-            i = int(np.argmin(np.abs(odometry_stamps - t_ns)))
-            T_map_odom = gtsam.Pose2(x, y, yaw).compose(odometry[i].pose().inverse())
+        for t_ns in stamps:
+            T_map_odom = trajectory.T_self_other(odometry, int(t_ns))
+            if T_map_odom is None:
+                continue
+            transform = transform_stamped(
+                int(t_ns),
+                "map",
+                "odom",
+                (T_map_odom.x(), T_map_odom.y(), 0.0),
+                quaternion_from_yaw(T_map_odom.theta()),
+            )
             writer.write_message(
                 TF_TOPIC,
                 schemas["tf2_msgs/msg/TFMessage"],
-                {
-                    "transforms": [
-                        transform_stamped(
-                            int(t_ns),
-                            "map",
-                            "odom",
-                            (T_map_odom.x(), T_map_odom.y(), 0.0),
-                            quaternion_from_yaw(T_map_odom.theta()),
-                        )
-                    ]
-                },
+                {"transforms": [transform]},
                 log_time=int(t_ns),
                 publish_time=int(t_ns),
             )
         end = int(stamps[-1]) if len(stamps) else start
         poses = [
             {"header": header(int(t), "map"), "pose": _pose(x, y, 0.0, yaw)}
-            for t, (x, y, yaw) in zip(stamps, estimate.trajectory, strict=True)
+            for t, (x, y, yaw) in zip(stamps, trajectory.poses, strict=True)
         ]
         writer.write_message(
             PATH_TOPIC,

@@ -1,10 +1,9 @@
-"""Reading ROS 2 MCAP logs without ROS: a single ``.mcap`` or a rosbag2 folder, its topics,
-and the decoding of images, depth, camera info, odometry and transforms."""
+"""Reading MCAP logs without ROS: a single ``.mcap`` or a rosbag2 folder, its topics, and its
+messages decoded, chunk by chunk, so that damage costs only the damaged stretch."""
 
 from __future__ import annotations
 
 import heapq
-import math
 import struct
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -12,8 +11,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
-import cv2
-import numpy as np
 import yaml
 import zstandard
 from mcap.data_stream import ReadDataStream
@@ -24,30 +21,19 @@ from mcap.records import Message as McapMessage
 from mcap.stream_reader import breakup_chunk
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 from mcap_ros2.decoder import DecoderFactory
-from numpy.typing import NDArray
 
-from markergraph.estimator.types import MarkerGraphError, OdometrySample
-from markergraph.frontend.camera import CameraMount
+from markergraph.estimator.types import MarkerGraphError
 from markergraph.frontend.cdr import FAST_DECODERS
-from markergraph.frontend.ros2 import yaw_from_quaternion
 
 __all__ = [
     "DecodeFailures",
     "LogError",
     "LogTopic",
     "Message",
-    "decode_depth",
-    "decode_image",
-    "frame_id",
     "log_files",
     "log_time_range",
     "log_topics",
     "messages",
-    "mount_from_transforms",
-    "odometry_from_tf",
-    "odometry_sample",
-    "stamp_ns",
-    "transforms_of",
 ]
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -362,193 +348,3 @@ def log_time_range(path: Path) -> tuple[int, int]:
     if first is None or last is None:
         raise LogError(f"{path}: no messages")
     return int(first), int(last)
-
-
-def stamp_ns(decoded: Any) -> int:
-    """A message's capture stamp in nanoseconds: a ROS header's, or a Foxglove ``timestamp``."""
-    if hasattr(decoded, "header"):
-        stamp = decoded.header.stamp
-        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-    return int(decoded.timestamp.seconds) * 1_000_000_000 + int(decoded.timestamp.nanos)
-
-
-def frame_id(decoded: Any) -> str:
-    """The frame a message is in: a ROS header's, or a Foxglove ``frame_id``."""
-    return str(decoded.header.frame_id if hasattr(decoded, "header") else decoded.frame_id)
-
-
-def decode_image(message: Message) -> NDArray[np.uint8]:
-    """A grey image from ``sensor_msgs/msg/Image`` (rgb8, bgr8, mono8) or ``CompressedImage``."""
-    msg = message.decoded
-    if "CompressedImage" in message.schema:
-        if len(msg.data) == 0:
-            raise LogError(f"{message.topic}: an empty compressed image")
-        try:
-            image = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_GRAYSCALE)
-        except cv2.error:  # OpenCV raises on some damaged streams, returns None on others
-            image = None
-        if image is None:
-            raise LogError(
-                f"{message.topic}: a compressed image OpenCV cannot decode (format {msg.format!r})"
-            )
-        return np.asarray(image, dtype=np.uint8)
-    encoding = msg.encoding.lower()
-    channels = {"rgb8": 3, "bgr8": 3, "mono8": 1, "8uc1": 1, "rgba8": 4, "bgra8": 4}.get(encoding)
-    if channels is None:
-        raise LogError(
-            f"{message.topic}: unsupported image encoding {msg.encoding!r} (rgb8, bgr8, mono8 are)"
-        )
-    data = np.frombuffer(msg.data, np.uint8)
-    if msg.height == 0 or msg.width == 0:
-        raise LogError(f"{message.topic}: an empty image")
-    if data.size < msg.step * msg.height or msg.step < msg.width * channels:
-        raise LogError(f"{message.topic}: image data shorter than height x step")
-    rows = data[: msg.step * msg.height].reshape(msg.height, msg.step)
-    pixels = rows[:, : msg.width * channels].reshape(msg.height, msg.width, channels)
-    if channels == 1:
-        return np.ascontiguousarray(pixels[..., 0])
-    code = {
-        "rgb8": cv2.COLOR_RGB2GRAY,
-        "bgr8": cv2.COLOR_BGR2GRAY,
-        "rgba8": cv2.COLOR_RGBA2GRAY,
-        "bgra8": cv2.COLOR_BGRA2GRAY,
-    }[encoding]
-    return np.asarray(cv2.cvtColor(np.ascontiguousarray(pixels), code), dtype=np.uint8)
-
-
-def decode_depth(message: Message) -> NDArray:
-    """Aligned depth: 16UC1 in millimetres or 32FC1 in metres (``Image``), or a
-    ``compressedDepth`` ``CompressedImage`` (12-byte header, then a 16-bit PNG)."""
-    msg = message.decoded
-    if "CompressedImage" in message.schema:
-        if len(msg.data) <= 12:
-            raise LogError(f"{message.topic}: an empty compressedDepth image")
-        try:
-            depth = cv2.imdecode(
-                np.frombuffer(bytes(msg.data[12:]), np.uint8), cv2.IMREAD_UNCHANGED
-            )
-        except cv2.error:
-            depth = None
-        if depth is None or depth.dtype != np.uint16:
-            raise LogError(f"{message.topic}: compressedDepth that is not a 16-bit PNG")
-        return depth
-    encoding = msg.encoding.upper()
-    dtype: np.dtype[Any]
-    if encoding in ("16UC1", "MONO16"):
-        dtype = np.dtype(np.uint16)
-    elif encoding == "32FC1":
-        dtype = np.dtype(np.float32)
-    else:
-        raise LogError(
-            f"{message.topic}: unsupported depth encoding {msg.encoding!r} (16UC1 and 32FC1 "
-            "are; is it a colour topic?)"
-        )
-    dtype = dtype.newbyteorder(">" if getattr(msg, "is_bigendian", 0) else "<")
-    data = np.frombuffer(msg.data, np.uint8)
-    if msg.height == 0 or msg.width == 0:
-        raise LogError(f"{message.topic}: an empty depth image")
-    if data.size < msg.step * msg.height or msg.step < msg.width * dtype.itemsize:
-        raise LogError(f"{message.topic}: depth data shorter than height x step")
-    rows = data[: msg.step * msg.height].reshape(msg.height, msg.step)
-    width_bytes = int(msg.width) * dtype.itemsize
-    return np.ascontiguousarray(rows[:, :width_bytes]).view(dtype).reshape(msg.height, msg.width)
-
-
-def odometry_sample(message: Message) -> OdometrySample:
-    """``T_odom_base`` from ``nav_msgs/msg/Odometry`` or a Foxglove ``PoseInFrame``."""
-    pose = message.decoded.pose
-    pose = pose.pose if hasattr(pose, "pose") else pose
-    q = pose.orientation
-    return OdometrySample(
-        stamp_ns(message.decoded),
-        float(pose.position.x),
-        float(pose.position.y),
-        yaw_from_quaternion(q.x, q.y, q.z, q.w),
-    )
-
-
-def odometry_from_tf(
-    decoded: Any, base_frame: str, odom_frame: str = "odom"
-) -> list[OdometrySample]:
-    """``T_odom_base`` samples from a ``/tf`` message's odom -> base transforms (for logs
-    without an odometry topic)."""
-    samples = []
-    for transform in transforms_of(decoded):
-        if transform.child_frame_id == base_frame and transform.header.frame_id == odom_frame:
-            t, q = transform.transform.translation, transform.transform.rotation
-            samples.append(
-                OdometrySample(
-                    stamp_ns(transform),
-                    float(t.x),
-                    float(t.y),
-                    yaw_from_quaternion(q.x, q.y, q.z, q.w),
-                )
-            )
-    return samples
-
-
-def _rotation(q: Any) -> NDArray[np.float64]:
-    x, y, z, w = q.x, q.y, q.z, q.w
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-@dataclass
-class _TransformTree:
-    """Static transforms parent -> child as (R, t)."""
-
-    edges: dict[str, tuple[str, NDArray[np.float64], NDArray[np.float64]]] = field(
-        default_factory=dict
-    )
-
-    def add(self, transform: Any) -> None:
-        """A ROS ``TransformStamped`` or a Foxglove ``FrameTransform``."""
-        if hasattr(transform, "transform"):
-            parent, moved = transform.header.frame_id, transform.transform
-            t, q = moved.translation, moved.rotation
-        else:
-            parent, t, q = transform.parent_frame_id, transform.translation, transform.rotation
-        self.edges[transform.child_frame_id] = (parent, _rotation(q), np.array([t.x, t.y, t.z]))
-
-    def chain(self, base: str, frame: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(R, t) of ``frame`` in ``base``, or raise if they are not joined."""
-        R, t = np.eye(3), np.zeros(3)
-        current = frame
-        while current != base:
-            if current not in self.edges:
-                raise LogError(f"/tf_static does not join {frame} to {base}")
-            parent, R_parent_child, t_parent_child = self.edges[current]
-            R, t = R_parent_child @ R, R_parent_child @ t + t_parent_child
-            current = parent
-        return R, t
-
-
-def mount_from_transforms(transforms: list[Any], base: str, optical_frame: str) -> CameraMount:
-    """The camera's mount from ``/tf_static``: the chain from ``base`` to the optical frame.
-
-    The optical frame is x right, y down, z forward; its z axis gives the heading and pitch
-    (roll is assumed zero, as on a wheeled robot).
-    """
-    tree = _TransformTree()
-    for transform in transforms:
-        tree.add(transform)
-    R, t = tree.chain(base, optical_frame)
-    forward = R[:, 2]
-    return CameraMount(
-        x_m=float(t[0]),
-        y_m=float(t[1]),
-        height_m=float(t[2]),
-        yaw_rad=math.atan2(forward[1], forward[0]),
-        pitch_rad=math.atan2(forward[2], math.hypot(forward[0], forward[1])),
-    )
-
-
-def transforms_of(decoded: Any) -> list[Any]:
-    """The transforms a ``tf2_msgs/TFMessage``, Foxglove ``FrameTransforms`` or a single
-    Foxglove ``FrameTransform`` carries."""
-    return list(decoded.transforms) if hasattr(decoded, "transforms") else [decoded]

@@ -1,0 +1,90 @@
+"""markergraph: a robot's recorded log in, a corrected map of the fiducial markers on its walls out.
+
+The public API (``import markergraph as mg``)::
+
+    result = mg.map_log("robot.mcap", mg.MapConfig.from_values({"method": "all"}))
+    mg.write_results(result, "robot-map")
+    marker_map = mg.MarkerMap.load("robot-map/map.json")
+
+Layers, each importing only those below it: ``markergraph.estimator`` (numpy, GTSAM, filterpy:
+observations and odometry to an :class:`Estimate`), ``markergraph.frontend`` (OpenCV and log
+reading: logs to observations), ``markergraph.datasets`` (simulated worlds and logs), this
+application layer (the main job, settings, file formats, plots, overlay, report) and
+``markergraph.cli``. The names below load on first use, so ``import markergraph.estimator``
+stays free of OpenCV.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from markergraph.estimator import (
+        Estimate,
+        MarkerGraphError,
+        Method,
+        OdometrySample,
+        OutputError,
+        RejectedObservationError,
+        SettingsError,
+        Trajectory,
+        estimate,
+    )
+    from markergraph.frontend import LogError, extract
+    from markergraph.markermap import MarkerMap, MarkerMapError
+    from markergraph.results import write_results
+    from markergraph.run import MapRun, map_log
+    from markergraph.settings import MapConfig
+
+__all__ = [
+    "Estimate",
+    "LogError",
+    "MapConfig",
+    "MapRun",
+    "MarkerGraphError",
+    "MarkerMap",
+    "MarkerMapError",
+    "Method",
+    "OdometrySample",
+    "OutputError",
+    "RejectedObservationError",
+    "SettingsError",
+    "Trajectory",
+    "estimate",
+    "extract",
+    "map_log",
+    "write_results",
+]
+
+_HOME = {
+    "Estimate": "markergraph.estimator",
+    "MarkerGraphError": "markergraph.estimator",
+    "Method": "markergraph.estimator",
+    "OdometrySample": "markergraph.estimator",
+    "OutputError": "markergraph.estimator",
+    "RejectedObservationError": "markergraph.estimator",
+    "SettingsError": "markergraph.estimator",
+    "Trajectory": "markergraph.estimator",
+    "estimate": "markergraph.estimator",
+    "LogError": "markergraph.frontend",
+    "extract": "markergraph.frontend",
+    "MarkerMap": "markergraph.markermap",
+    "MarkerMapError": "markergraph.markermap",
+    "write_results": "markergraph.results",
+    "MapRun": "markergraph.run",
+    "map_log": "markergraph.run",
+    "MapConfig": "markergraph.settings",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOME:
+        raise AttributeError(f"module 'markergraph' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_HOME[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

@@ -1,0 +1,67 @@
+"""The solved pose graph in g2o's text format."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.estimator.types import MarkerGraphError
+from markergraph.frontend.files import written_whole
+
+__all__ = ["MARKER_VERTEX_OFFSET", "write_g2o"]
+
+# g2o has one id space: marker vertices start here so they never meet robot poses.
+MARKER_VERTEX_OFFSET = 1_000_000
+
+
+def _information(model: Any) -> NDArray[np.float64]:
+    """The information matrix of a Gaussian noise model (or a robust one's Gaussian part)."""
+    gaussian: Any = model.noise() if isinstance(model, gtsam.noiseModel.Robust) else model
+    R = np.asarray(gaussian.R())  # square-root information
+    return np.asarray(R.T @ R)
+
+
+def _vertex(key: int) -> int:
+    symbol = gtsam.Symbol(key)
+    index = int(symbol.index())
+    return index + MARKER_VERTEX_OFFSET if chr(symbol.chr()) == "l" else index
+
+
+def write_g2o(path: Path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+    """A solved pose graph in g2o's text format, whole or not at all.
+
+    Robot poses ``X(k)`` become ``VERTEX_SE2 k`` and markers ``L(id)`` become
+    ``VERTEX_SE2 1000000+id``; every between factor an ``EDGE_SE2`` with its full information
+    matrix; full float precision. There is no header comment and no ``FIX`` line, because
+    ``gtsam.readG2o`` returns no factors for such files (the home prior is left out with them:
+    fix the home vertex when re-optimising). Unlike ``gtsam.writeG2o``, ids of robot poses and
+    markers never collide and nothing is rounded.
+
+    Raises:
+        MarkerGraphError: a pose is NaN or infinite (never written).
+    """
+    lines = []
+    for key in sorted(values.keys(), key=_vertex):
+        pose = values.atPose2(key)
+        if not all(math.isfinite(v) for v in (pose.x(), pose.y(), pose.theta())):
+            raise MarkerGraphError(f"{path}: refusing to write a non-finite pose ({pose})")
+        lines.append(f"VERTEX_SE2 {_vertex(key)} {pose.x()!r} {pose.y()!r} {pose.theta()!r}")
+    for index in range(graph.size()):
+        factor: Any = graph.at(index)
+        if not isinstance(factor, gtsam.BetweenFactorPose2):
+            continue
+        measured = factor.measured()
+        info = _information(factor.noiseModel())
+        keys = factor.keys()  # a gtsam KeyVector
+        upper = [info[0, 0], info[0, 1], info[0, 2], info[1, 1], info[1, 2], info[2, 2]]
+        lines.append(
+            f"EDGE_SE2 {_vertex(keys[0])} {_vertex(keys[1])} {measured.x()!r} {measured.y()!r} "
+            f"{measured.theta()!r} " + " ".join(repr(float(v)) for v in upper)
+        )
+    with written_whole(path) as partial:
+        partial.write_text("\n".join(lines) + "\n", encoding="utf-8")

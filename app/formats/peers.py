@@ -1,0 +1,129 @@
+"""The marker map in peer tools' formats: ArUco's MarkerMap, fiducial_slam, TagSLAM and CSV."""
+
+from __future__ import annotations
+
+import math
+from enum import Enum
+from pathlib import Path
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.frontend.files import written_whole
+from markergraph.markermap import MapMarker, MarkerMap
+
+__all__ = ["ExportFormat", "export_map"]
+
+
+class ExportFormat(Enum):
+    """Formats ``markergraph export`` writes."""
+
+    ARUCO_YAML = "aruco-yaml"  # the ArUco library's MarkerMap (corners in metres)
+    FIDUCIAL_SLAM = "fiducial-slam"  # UbiquityRobotics fiducial_slam map.txt (degrees)
+    TAGSLAM = "tagslam"  # a TagSLAM static body of tags (rotation vectors)
+    CSV = "csv"
+
+
+def _R_map_tag(yaw: float) -> NDArray[np.float64]:
+    """A wall marker's rotation in OpenCV's marker convention (x to the viewer's right, y up,
+    z out of the marker) from its top-view yaw (the normal's heading)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[-s, 0.0, c], [c, 0.0, s], [0.0, 1.0, 0.0]])
+
+
+def _centre(m: MapMarker) -> NDArray[np.float64]:
+    T = m.T_map_marker
+    return np.array([T.x(), T.y(), m.z_m or 0.0])
+
+
+def _corners(m: MapMarker) -> NDArray[np.float64]:
+    """The black square's corners in the map, OpenCV's order (top-left first)."""
+    R = _R_map_tag(m.T_map_marker.theta())
+    centre = _centre(m)
+    right, up = R[:, 0] * m.size_m / 2.0, R[:, 1] * m.size_m / 2.0
+    return np.array(
+        [centre - right + up, centre + right + up, centre + right - up, centre - right - up]
+    )
+
+
+def _csv(marker_map: MarkerMap) -> list[str]:
+    lines = ["id,x_m,y_m,z_m,yaw_rad,sigma_x_m,sigma_y_m,sigma_yaw_rad,n_observations"]
+    for m in marker_map.markers.values():
+        values = (*_centre(m), m.T_map_marker.theta(), *m.sigmas())
+        lines.append(",".join([str(m.marker_id), *(repr(float(v)) for v in values),
+                               str(m.n_observations)]))  # fmt: skip
+    return lines
+
+
+def _aruco(marker_map: MarkerMap) -> list[str]:
+    lines = [
+        "%YAML:1.0",
+        f"aruco_bc_dict: {marker_map.dictionary}",
+        f"aruco_bc_nmarkers: {len(marker_map.markers)}",
+        "aruco_bc_mInfoType: 1",
+        "aruco_bc_markers:",
+    ]
+    for m in marker_map.markers.values():
+        corners = ", ".join(
+            "[" + ", ".join(repr(float(v)) for v in corner) + "]" for corner in _corners(m)
+        )
+        lines.append(f"   - {{ id: {m.marker_id}, corners: [ {corners} ] }}")
+    return lines
+
+
+def _fiducial_slam(marker_map: MarkerMap) -> list[str]:
+    """``id x y z roll pitch yaw variance n`` per marker, angles in degrees."""
+    lines = []
+    for m in marker_map.markers.values():
+        rpy = gtsam.Rot3(_R_map_tag(m.T_map_marker.theta())).rpy()
+        sx, sy, _ = m.sigmas()
+        fields = [*_centre(m), *(math.degrees(float(a)) for a in rpy), sx * sx + sy * sy]
+        lines.append(" ".join([str(m.marker_id), *(repr(float(v)) for v in fields),
+                               str(m.n_observations)]))  # fmt: skip
+    return lines
+
+
+def _tagslam(marker_map: MarkerMap) -> list[str]:
+    lines = [
+        "bodies:",
+        " - map:",
+        "     is_static: true",
+        "     type: simple",
+        f"     default_tag_size: {marker_map.marker_size_m!r}",
+        "     tags:",
+    ]
+    for m in marker_map.markers.values():
+        x, y, z = _centre(m)
+        rotation = [
+            float(v) for v in gtsam.Rot3.Logmap(gtsam.Rot3(_R_map_tag(m.T_map_marker.theta())))
+        ]
+        sx, sy, syaw = m.sigmas()
+        lines += [
+            f"       - id: {m.marker_id}",
+            f"         size: {m.size_m!r}",
+            "         pose:",
+            f"           position: {{x: {float(x)!r}, y: {float(y)!r}, z: {float(z)!r}}}",
+            f"           rotation: {{x: {rotation[0]!r}, y: {rotation[1]!r}, z: {rotation[2]!r}}}",
+            f"           position_noise: {{x: {sx!r}, y: {sy!r}, z: {max(sx, sy)!r}}}",
+            f"           rotation_noise: {{x: {syaw!r}, y: {syaw!r}, z: {syaw!r}}}",
+        ]
+    return lines
+
+
+_WRITERS = {
+    ExportFormat.CSV: _csv,
+    ExportFormat.ARUCO_YAML: _aruco,
+    ExportFormat.FIDUCIAL_SLAM: _fiducial_slam,
+    ExportFormat.TAGSLAM: _tagslam,
+}
+
+
+def export_map(marker_map: MarkerMap, fmt: ExportFormat, path: Path) -> None:
+    """Write a marker map in another tool's format, whole or not at all.
+
+    Marker heights are the map's (0 where unknown); orientations are those of markers on
+    vertical walls.
+    """
+    with written_whole(path) as partial:
+        partial.write_text("\n".join(_WRITERS[fmt](marker_map)) + "\n", encoding="utf-8")

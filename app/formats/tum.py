@@ -1,0 +1,57 @@
+"""TUM trajectories (``t tx ty tz qx qy qz qw``, seconds), as evo reads them."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.types import MarkerGraphError
+from markergraph.frontend.files import written_whole
+
+__all__ = ["read_tum", "write_tum"]
+
+
+def write_tum(path: Path, trajectory: Trajectory) -> None:
+    """A trajectory in TUM format, whole or not at all; non-finite poses are refused.
+
+    Raises:
+        MarkerGraphError: a pose is NaN or infinite (a bug upstream: never written).
+    """
+    if not np.all(np.isfinite(trajectory.poses)):
+        raise MarkerGraphError(f"{path}: refusing to write a trajectory with non-finite poses")
+    lines = []
+    for t, (x, y, yaw) in zip(trajectory.t_ns, trajectory.poses, strict=True):
+        seconds = f"{int(t) // 1_000_000_000}.{int(t) % 1_000_000_000:09d}"
+        half = float(yaw) / 2.0
+        lines.append(
+            f"{seconds} {float(x)!r} {float(y)!r} 0.0 0.0 0.0 "
+            f"{math.sin(half)!r} {math.cos(half)!r}\n"
+        )
+    with written_whole(path) as partial:
+        partial.write_text("".join(lines), encoding="utf-8")
+
+
+def read_tum(path: Path, frame: str = "map") -> Trajectory:
+    """A TUM trajectory's stamps [ns] and (x, y, yaw) poses (roll and pitch ignored).
+
+    Raises:
+        MarkerGraphError: a line that is not ``t tx ty tz qx qy qz qw``; it is named.
+    """
+    stamps, rows = [], []
+    with open(path, encoding="utf-8") as stream:
+        for number, line in enumerate(stream, start=1):
+            if not line.strip() or line.startswith("#"):
+                continue
+            fields = line.split()
+            if len(fields) != 8:
+                raise MarkerGraphError(
+                    f"{path}:{number}: a TUM line has 8 fields, not {len(fields)}"
+                )
+            whole, _, fraction = fields[0].partition(".")
+            stamps.append(int(whole) * 1_000_000_000 + int((fraction + "000000000")[:9]))
+            x, y, _, qx, qy, qz, qw = map(float, fields[1:])
+            rows.append([x, y, math.atan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))])
+    return Trajectory(np.array(stamps, dtype=np.int64), np.array(rows).reshape(-1, 3), frame)

@@ -1,0 +1,121 @@
+"""The result folder: maps, trajectories, the solved graph, plots, the overlay and the report,
+written whole or not at all."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from markergraph.formats import write_g2o, write_tum
+from markergraph.frontend.files import REPORT_SCHEMA, result_folder
+from markergraph.markermap import write_json
+from markergraph.overlay import write_overlay
+from markergraph.run import MapRun, MethodResult
+
+__all__ = ["write_results"]
+
+
+def _report(run: MapRun) -> dict[str, Any]:
+    extraction = run.extraction
+    report: dict[str, Any] = {
+        "schema": REPORT_SCHEMA,
+        "log": str(run.log),
+        "frames": extraction.frames,
+        "frames_with_depth": extraction.frames_with_depth,
+        "observations": len(extraction.observations),
+        "markers_seen": len({o.marker_id for o in extraction.observations}),
+        "odometry_samples": len(extraction.odometry),
+        "skipped_frames": dict(extraction.skipped),
+        "undecodable_frames": extraction.undecodable_frames,
+        "unusable_depth_images": extraction.unusable_depth,
+        "notes": extraction.notes + extraction.warnings,
+        "ground_truth": bool(run.true_markers),
+        "seconds": run.seconds,
+        "settings": dict(run.config.values),
+        "methods": {},
+    }
+    for result in run.results:
+        entry: dict[str, Any] = {
+            "markers_placed": len(result.estimate.markers),
+            "links": len(result.estimate.links),
+            "unplaced": {str(k): v for k, v in result.estimate.unplaced.items()},
+            "converged": result.estimate.converged,
+            "notes": result.estimate.notes,
+        }
+        if result.map_error is not None:
+            entry["marker_rmse_m"] = result.map_error.rmse_position_m
+            entry["marker_yaw_rmse_rad"] = result.map_error.rmse_yaw_rad
+        if result.map_error_aligned is not None:
+            entry["marker_rmse_aligned_m"] = result.map_error_aligned.rmse_position_m
+        if result.trajectory_error is not None:
+            entry["ate_m"] = result.trajectory_error.ate_rmse_m
+            entry["rpe_m_per_m"] = result.trajectory_error.rpe_rmse_m_per_m
+        report["methods"][result.label] = entry
+    return report
+
+
+def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = True) -> list[Path]:
+    """The result folder, written whole or not at all
+    (:func:`~markergraph.frontend.files.result_folder`); an existing one is replaced only with
+    ``force``, and only if markergraph wrote it or it is empty.
+
+    Files: ``map.json``, ``map.g2o`` (graph methods), ``map.png`` and ``map.svg`` for the first
+    method, and ``overlay.mcap`` (its map and trajectory as ROS 2 messages, to show over the
+    log); ``methods/<method>/`` with the same for every method when there are several, and
+    ``comparison.png``; TUM trajectories (estimated per method, odometry, ground truth);
+    ``report.json``.
+
+    Returns:
+        The files written, relative to ``out``.
+
+    Raises:
+        OutputError: ``out`` may not be replaced, or another run wrote it meanwhile.
+    """
+    with result_folder(Path(out), force=force) as folder:
+        _write_all(run, folder, plots)
+        written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
+    return written
+
+
+def _write_method(run: MapRun, result: MethodResult, folder: Path, plots: bool) -> None:
+    estimate = result.estimate
+    result.marker_map.save(folder / "map.json")
+    if estimate.graph is not None and estimate.values is not None:
+        write_g2o(folder / "map.g2o", estimate.graph, estimate.values)  # what was solved
+    if len(estimate.trajectory):
+        write_tum(folder / "trajectory.tum", estimate.trajectory)
+    if plots:
+        from markergraph.plots import plot_map
+
+        plot_map(
+            result.marker_map,
+            run.true_markers,
+            folder / "map.png",
+            trajectory=estimate.trajectory,
+            odometry=run.extraction.odometry,
+            truth_path=result.true_path,
+        )
+
+
+def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
+    first = run.results[0]
+    _write_method(run, first, folder, plots)
+    if len(run.results) > 1:
+        for result in run.results:
+            method_folder = folder / "methods" / result.label
+            method_folder.mkdir(parents=True)
+            _write_method(run, result, method_folder, plots)
+        if plots:
+            from markergraph.plots import plot_comparison
+
+            plot_comparison(
+                [(r.label, r.marker_map) for r in run.results],
+                run.true_markers,
+                folder / "comparison.png",
+            )
+    odometry = run.extraction.odometry
+    write_overlay(folder / "overlay.mcap", first.marker_map, first.estimate.trajectory, odometry)
+    write_tum(folder / "odometry.tum", odometry)
+    if run.true_path is not None:
+        write_tum(folder / "ground_truth.tum", run.true_path)
+    write_json(folder / "report.json", _report(run))

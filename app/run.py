@@ -1,0 +1,181 @@
+"""The main job as a library call: a log to corrected marker maps, scored when the log carries
+ground truth."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from markergraph.estimator import (
+    Estimate,
+    Form,
+    Frames,
+    MapError,
+    MarkerGraphError,
+    Method,
+    Trajectory,
+    TrajectoryError,
+    build_frames,
+    estimate_frames,
+    map_error,
+    trajectory_error,
+)
+from markergraph.frontend import Extraction, extract
+from markergraph.markermap import MarkerMap
+from markergraph.settings import MapConfig
+
+__all__ = ["MapRun", "MethodResult", "map_log"]
+
+
+@dataclass
+class MethodResult:
+    """One method's map, and its error against ground truth when the log carries it.
+
+    Attributes:
+        method: the method.
+        estimate: what it estimated.
+        marker_map: the estimate as a map (what map.json holds).
+        map_error, map_error_aligned: marker errors in the home frame, and after the best
+            rigid alignment.
+        trajectory_error: ATE and RPE at the estimate's stamps.
+        true_path: the true base poses at the estimate's stamps, in the home marker's frame.
+    """
+
+    method: Method
+    estimate: Estimate
+    marker_map: MarkerMap
+    map_error: MapError | None = None
+    map_error_aligned: MapError | None = None
+    trajectory_error: TrajectoryError | None = None
+    true_path: Trajectory | None = None
+
+    @property
+    def label(self) -> str:
+        return self.method.value
+
+
+@dataclass
+class MapRun:
+    """Everything the main job produced.
+
+    Attributes:
+        log: the log read.
+        config: the settings it was read and estimated with.
+        extraction: the front end's output.
+        frames: the estimator's input.
+        results: one per method, in the order asked.
+        true_markers: ground truth ``T_map_marker`` in the estimate's map frame (empty for a
+            real log).
+        true_path: the true base path in the estimate's map frame, if logged.
+        seconds: stage -> wall time.
+    """
+
+    log: Path
+    config: MapConfig
+    extraction: Extraction
+    frames: Frames
+    results: list[MethodResult]
+    true_markers: dict[int, gtsam.Pose2] = field(default_factory=dict)
+    true_path: Trajectory | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def _score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory | None) -> None:
+    """Marker and trajectory errors against the logged truth, where it covers the estimate."""
+    estimate = result.estimate
+    if not truth or not set(estimate.markers) & set(truth):
+        return
+    result.map_error = map_error(estimate, truth)
+    if len(estimate.markers) >= 2:
+        result.map_error_aligned = map_error(estimate, truth, align=True)
+    if path is None or len(path) < 2:
+        return
+    true_path = path.at_stamps(estimate.trajectory.t_ns)
+    result.true_path = true_path
+    covered = np.isin(estimate.trajectory.t_ns, true_path.t_ns)
+    if len(true_path) >= 2:
+        result.trajectory_error = trajectory_error(
+            estimate.trajectory.poses[covered], true_path.poses
+        )
+
+
+def map_log(
+    log: Path,
+    config: MapConfig | None = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+) -> MapRun:
+    """Read a log, estimate the map with each method, and score it when ground truth is logged.
+
+    Args:
+        log: an MCAP file or a rosbag2 folder.
+        config: the settings (default: every default).
+        progress: called with (units done, units in all) while the log is read.
+
+    Raises:
+        MarkerGraphError: the log cannot be read, has no marker observations, or no odometry
+            (``LogError`` and ``SettingsError`` among them).
+    """
+    config = config or MapConfig.from_values()
+    seconds: dict[str, float] = {}
+    start = time.perf_counter()
+    extraction = extract(log, config.frontend, progress=progress, workers=config.workers)
+    seconds["front end"] = time.perf_counter() - start
+    if not extraction.observations:
+        left_out = sorted(extraction.ids_left_out)
+        raise MarkerGraphError(
+            f"{log}: no markers of {config.frontend.dictionary} were found in "
+            f"{extraction.frames} frames"
+            + (
+                f" (markers {', '.join(map(str, left_out))} were seen but are not in --ids)"
+                if left_out
+                else ""
+            )
+        )
+    if not len(extraction.odometry):
+        raise MarkerGraphError(
+            f"{log}: no odometry (no nav_msgs/Odometry topic and no odom -> base transforms on /tf)"
+        )
+    seen = {o.marker_id for o in extraction.observations}
+    if len(seen) == 1:
+        extraction.notes.append(
+            f"only marker {seen.pop()} was seen: the map is that marker alone, with the robot's "
+            "path in its frame; there is nothing to link"
+        )
+    frames = build_frames(
+        extraction.observations,
+        extraction.odometry,
+        config.home_id,
+        odometry_noise=config.odometry_noise,
+    )
+    # Ground truth, when logged, re-expressed in the frame of the estimate's home marker.
+    truth, true_path = {}, None
+    if frames.home_id in extraction.true_markers:
+        T_home_map = extraction.true_markers[frames.home_id].inverse()
+        truth = {i: T_home_map.compose(T) for i, T in extraction.true_markers.items()}
+        if len(extraction.true_path):
+            true_path = extraction.true_path.in_frame(T_home_map, "map")
+    frontend = config.frontend
+    results = []
+    for method in config.methods:
+        start = time.perf_counter()
+        estimate = estimate_frames(
+            frames, method, extraction.mount.T_base_camera, form=Form.SIGNED, robust=config.robust
+        )
+        seconds[method.value] = time.perf_counter() - start
+        marker_map = MarkerMap.from_estimate(
+            estimate,
+            log=str(log),
+            dictionary=frontend.dictionary,
+            marker_size_m=frontend.marker_length_m,
+            marker_sizes_m=frontend.marker_lengths_m,
+        )
+        result = MethodResult(method, estimate, marker_map)
+        _score(result, truth, true_path)
+        results.append(result)
+    return MapRun(Path(log), config, extraction, frames, results, truth, true_path, seconds)

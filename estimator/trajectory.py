@@ -1,0 +1,111 @@
+"""Timed SE(2) paths: odometry, estimated and true trajectories alike, and the pose at a stamp."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.estimator.models import interpolate_pose
+from markergraph.estimator.types import OdometrySample
+
+__all__ = ["MAX_EXTRAPOLATION_NS", "Trajectory"]
+
+# Stamps this far outside a trajectory's time span still take its first or last pose.
+MAX_EXTRAPOLATION_NS = 100_000_000
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """The robot base's poses at increasing stamps, in one frame.
+
+    Attributes:
+        t_ns: (N,) int64 stamps, increasing [ns].
+        poses: (N, 3) rows (x, y, yaw) of ``T_frame_base`` [m, m, rad].
+        frame: the frame the poses are in (``"odom"`` for odometry, ``"map"`` for estimates and
+            ground truth).
+    """
+
+    t_ns: NDArray[np.int64]
+    poses: NDArray[np.float64]
+    frame: str = "map"
+
+    def __post_init__(self) -> None:
+        t_ns = np.asarray(self.t_ns, dtype=np.int64).reshape(-1)
+        poses = np.asarray(self.poses, dtype=np.float64).reshape(-1, 3)
+        if len(t_ns) != len(poses):
+            raise ValueError(f"{len(t_ns)} stamps for {len(poses)} poses")
+        t_ns.flags.writeable = poses.flags.writeable = False
+        object.__setattr__(self, "t_ns", t_ns)
+        object.__setattr__(self, "poses", poses)
+
+    @classmethod
+    def from_samples(cls, samples: Iterable[OdometrySample], frame: str = "odom") -> Trajectory:
+        """From odometry samples, sorted by stamp."""
+        ordered = sorted(samples, key=lambda sample: sample.t_ns)
+        return cls(
+            np.array([s.t_ns for s in ordered], dtype=np.int64),
+            np.array([[s.x, s.y, s.yaw] for s in ordered], dtype=np.float64),
+            frame,
+        )
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def __eq__(self, other: object) -> bool:
+        return (
+            isinstance(other, Trajectory)
+            and self.frame == other.frame
+            and np.array_equal(self.t_ns, other.t_ns)
+            and np.array_equal(self.poses, other.poses)
+        )
+
+    __hash__ = None  # type: ignore[assignment]  # mutable-looking arrays: not hashable
+
+    def samples(self) -> Iterator[OdometrySample]:
+        """The poses as :class:`OdometrySample` records."""
+        for t, (x, y, yaw) in zip(self.t_ns, self.poses, strict=True):
+            yield OdometrySample(int(t), float(x), float(y), float(yaw))
+
+    def pose(self, i: int) -> gtsam.Pose2:
+        """The i-th pose."""
+        return gtsam.Pose2(*self.poses[i])
+
+    def at(self, t_ns: int, max_extrapolation_ns: int = MAX_EXTRAPOLATION_NS) -> gtsam.Pose2 | None:
+        """The pose at ``t_ns``, interpolated in SE(2) (a constant twist between samples); the
+        first or last pose up to ``max_extrapolation_ns`` outside the span; None beyond."""
+        if not len(self):
+            return None
+        i = int(np.searchsorted(self.t_ns, t_ns))
+        if i == 0:
+            return self.pose(0) if self.t_ns[0] - t_ns <= max_extrapolation_ns else None
+        if i == len(self):
+            return self.pose(-1) if t_ns - self.t_ns[-1] <= max_extrapolation_ns else None
+        t0, t1 = self.t_ns[i - 1], self.t_ns[i]
+        return interpolate_pose(self.pose(i - 1), self.pose(i), (t_ns - t0) / (t1 - t0))
+
+    def at_stamps(self, stamps_ns: Iterable[int], frame: str | None = None) -> Trajectory:
+        """This trajectory at the given stamps (those it does not reach are left out)."""
+        kept_t, kept = [], []
+        for t in stamps_ns:
+            pose = self.at(int(t))
+            if pose is not None:
+                kept_t.append(int(t))
+                kept.append([pose.x(), pose.y(), pose.theta()])
+        return Trajectory(np.array(kept_t, dtype=np.int64), np.array(kept), frame or self.frame)
+
+    def in_frame(self, T_new_frame: gtsam.Pose2, frame: str) -> Trajectory:
+        """The same path expressed in another frame: ``T_new_base = T_new_frame * T_frame_base``."""
+        moved = [T_new_frame.compose(self.pose(i)) for i in range(len(self))]
+        return Trajectory(self.t_ns, np.array([[p.x(), p.y(), p.theta()] for p in moved]), frame)
+
+    def T_self_other(self, other: Trajectory, t_ns: int) -> gtsam.Pose2 | None:
+        """The transform from ``other``'s frame into this one's at a stamp both reach: for an
+        estimated path and odometry, ``T_map_odom``."""
+        mine, theirs = self.at(t_ns), other.at(t_ns)
+        if mine is None or theirs is None:
+            return None
+        return mine.compose(theirs.inverse())

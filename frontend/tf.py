@@ -1,0 +1,105 @@
+"""Transforms: the camera's mount from ``/tf_static``, and odometry from ``/tf``."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.estimator.types import OdometrySample
+from markergraph.frontend.camera import CameraMount
+from markergraph.frontend.decode import stamp_ns
+from markergraph.frontend.ros2 import yaw_from_quaternion
+from markergraph.frontend.sources import LogError
+
+__all__ = ["mount_from_transforms", "odometry_from_tf", "transforms_of"]
+
+
+def odometry_from_tf(
+    decoded: Any, base_frame: str, odom_frame: str = "odom"
+) -> list[OdometrySample]:
+    """``T_odom_base`` samples from a ``/tf`` message's odom -> base transforms (for logs
+    without an odometry topic)."""
+    samples = []
+    for transform in transforms_of(decoded):
+        if transform.child_frame_id == base_frame and transform.header.frame_id == odom_frame:
+            t, q = transform.transform.translation, transform.transform.rotation
+            samples.append(
+                OdometrySample(
+                    stamp_ns(transform),
+                    float(t.x),
+                    float(t.y),
+                    yaw_from_quaternion(q.x, q.y, q.z, q.w),
+                )
+            )
+    return samples
+
+
+def _rotation(q: Any) -> NDArray[np.float64]:
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@dataclass
+class _TransformTree:
+    """Static transforms parent -> child as (R, t)."""
+
+    edges: dict[str, tuple[str, NDArray[np.float64], NDArray[np.float64]]] = field(
+        default_factory=dict
+    )
+
+    def add(self, transform: Any) -> None:
+        """A ROS ``TransformStamped`` or a Foxglove ``FrameTransform``."""
+        if hasattr(transform, "transform"):
+            parent, moved = transform.header.frame_id, transform.transform
+            t, q = moved.translation, moved.rotation
+        else:
+            parent, t, q = transform.parent_frame_id, transform.translation, transform.rotation
+        self.edges[transform.child_frame_id] = (parent, _rotation(q), np.array([t.x, t.y, t.z]))
+
+    def chain(self, base: str, frame: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(R, t) of ``frame`` in ``base``, or raise if they are not joined."""
+        R, t = np.eye(3), np.zeros(3)
+        current = frame
+        while current != base:
+            if current not in self.edges:
+                raise LogError(f"/tf_static does not join {frame} to {base}")
+            parent, R_parent_child, t_parent_child = self.edges[current]
+            R, t = R_parent_child @ R, R_parent_child @ t + t_parent_child
+            current = parent
+        return R, t
+
+
+def mount_from_transforms(transforms: list[Any], base: str, optical_frame: str) -> CameraMount:
+    """The camera's mount from ``/tf_static``: the chain from ``base`` to the optical frame.
+
+    The optical frame is x right, y down, z forward; its z axis gives the heading and pitch
+    (roll is assumed zero, as on a wheeled robot).
+    """
+    tree = _TransformTree()
+    for transform in transforms:
+        tree.add(transform)
+    R, t = tree.chain(base, optical_frame)
+    forward = R[:, 2]
+    return CameraMount(
+        x_m=float(t[0]),
+        y_m=float(t[1]),
+        height_m=float(t[2]),
+        yaw_rad=math.atan2(forward[1], forward[0]),
+        pitch_rad=math.atan2(forward[2], math.hypot(forward[0], forward[1])),
+    )
+
+
+def transforms_of(decoded: Any) -> list[Any]:
+    """The transforms a ``tf2_msgs/TFMessage``, Foxglove ``FrameTransforms`` or a single
+    Foxglove ``FrameTransform`` carries."""
+    return list(decoded.transforms) if hasattr(decoded, "transforms") else [decoded]
