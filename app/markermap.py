@@ -259,7 +259,7 @@ class MarkerMap:
             )
         home = document.get("home_id", min(markers, default=0))
         dictionary = document.get("dictionary")
-        if not isinstance(dictionary, str):
+        if not isinstance(dictionary, str) or not dictionary.isprintable() or not dictionary:
             raise MarkerMapError(f"{source}: dictionary must be a name, got {dictionary!r}")
         unplaced = document.get("unplaced") or {}
         return cls(
@@ -299,6 +299,10 @@ class MarkerMap:
 
 
 _EDGE_KEYS = ("phi", "theta_ab", "theta_ba", "d")
+# Bounds on what a map may hold: any coordinate beyond 10,000 km, or a variance whose square
+# root squared would overflow in a peer format, is a corrupted file, not a map.
+MAX_VALUE = 1e7
+MAX_VARIANCE = 1e100
 
 
 def _matrix(matrix: NDArray[np.float64] | None) -> list[list[float]] | None:
@@ -327,14 +331,23 @@ class _Reader:
     source: str
 
     def fail(self, where: str, what: str, value: Any) -> MarkerMapError:
-        return MarkerMapError(f"{self.source}: {where} must be {what}, got {value!r}")
+        text = repr(value)
+        shown = text if len(text) <= 40 else f"{text[:20]}... ({len(text)} characters)"
+        return MarkerMapError(f"{self.source}: {where} must be {what}, got {shown}")
 
-    def number(self, where: str, value: Any, *, positive: bool = False) -> float:
+    def number(
+        self, where: str, value: Any, *, positive: bool = False, limit: float = MAX_VALUE
+    ) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.fail(where, "a number", value)
-        if not math.isfinite(value) or (positive and value <= 0):
-            raise self.fail(where, "a positive number" if positive else "finite", value)
-        return float(value)
+        try:
+            number = float(value)
+        except OverflowError:  # an integer of hundreds of digits
+            number = math.inf
+        if not abs(number) <= limit or (positive and number <= 0):
+            what = "a positive number" if positive else "a number"
+            raise self.fail(where, f"{what} of magnitude at most {limit:g}", value)
+        return number
 
     def whole(self, where: str, value: Any) -> int:
         if isinstance(value, bool) or not isinstance(value, int) or value < 0:
@@ -358,4 +371,4 @@ class _Reader:
             or not all(isinstance(row, list) and len(row) == 3 for row in value)
         ):
             raise self.fail(where, "a 3x3 matrix or null", value)
-        return np.array([[self.number(where, v) for v in row] for row in value])
+        return np.array([[self.number(where, v, limit=MAX_VARIANCE) for v in row] for row in value])

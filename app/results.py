@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from markergraph.formats import write_g2o, write_tum
-from markergraph.frontend.files import REPORT_SCHEMA, result_folder
+from markergraph.frontend.files import MANIFEST_KEY, REPORT_SCHEMA, result_folder
 from markergraph.markermap import write_json
 from markergraph.overlay import write_overlay
 from markergraph.run import MapRun, MethodResult
@@ -15,10 +15,11 @@ from markergraph.run import MapRun, MethodResult
 __all__ = ["write_results"]
 
 
-def _report(run: MapRun) -> dict[str, Any]:
+def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
     extraction = run.extraction
     report: dict[str, Any] = {
         "schema": REPORT_SCHEMA,
+        MANIFEST_KEY: files,  # what --force may later replace, and nothing else
         "log": str(run.log),
         "frames": extraction.frames,
         "frames_with_depth": extraction.frames_with_depth,
@@ -118,4 +119,5 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
     write_tum(folder / "odometry.tum", odometry)
     if run.true_path is not None:
         write_tum(folder / "ground_truth.tum", run.true_path)
-    write_json(folder / "report.json", _report(run))
+    files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+    write_json(folder / "report.json", _report(run, sorted([*files, "report.json"])))

@@ -13,6 +13,7 @@ import numpy as np
 
 from markergraph.estimator import (
     Estimate,
+    EstimationError,
     Form,
     Frames,
     MapError,
@@ -138,8 +139,13 @@ def map_log(
             )
         )
     if not len(extraction.odometry):
+        topic = extraction.topics.odom
+        dropped = [n for n in extraction.notes if topic and n.startswith("dropped") and topic in n]
         raise MarkerGraphError(
-            f"{log}: no odometry (no nav_msgs/Odometry topic and no odom -> base transforms on /tf)"
+            f"{log}: no usable odometry on {topic} ({'; '.join(dropped) or 'no samples'})"
+            if topic
+            else f"{log}: no odometry (no nav_msgs/Odometry topic and no odom -> base "
+            "transforms on /tf)"
         )
     seen = {o.marker_id for o in extraction.observations}
     if len(seen) == 1:
@@ -164,9 +170,13 @@ def map_log(
     results = []
     for method in config.methods:
         start = time.perf_counter()
-        estimate = estimate_frames(
-            frames, method, extraction.mount.T_base_camera, form=Form.SIGNED, robust=config.robust
-        )
+        try:
+            estimate = estimate_frames(
+                frames, method, extraction.mount.T_base_camera, form=Form.SIGNED,
+                robust=config.robust,
+            )  # fmt: skip
+        except EstimationError as error:
+            raise EstimationError(f"{log}: {method.value}: {error}") from None
         seconds[method.value] = time.perf_counter() - start
         marker_map = MarkerMap.from_estimate(
             estimate,

@@ -39,16 +39,34 @@ __all__ = [
 ALL_METHODS = (Method.SLAM, Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.ISAM2, Method.EKF)
 
 
-def _number(minimum: float = -math.inf, *, above: bool = False) -> Callable[[Any], float]:
+def _shown(value: Any) -> str:
+    """A value for an error message, cut short if it is a huge number."""
+    text = repr(value)
+    return text if len(text) <= 24 else f"{text[:12]}... ({len(text)} characters)"
+
+
+def _number(minimum: float = -math.inf, maximum: float = math.inf) -> Callable[[Any], float]:
+    """A parser of finite numbers in [minimum, maximum]. Every number setting is bounded: a
+    value far outside what a robot has would only overflow, or make GTSAM's system singular,
+    after all the work."""
+
     def parse(value: Any) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise SettingsError(f"must be a number, got {value!r}")
-        if not math.isfinite(value) or value < minimum or (above and value == minimum):
-            bound = "positive" if above and minimum == 0 else f"at least {minimum:g}"
-            raise SettingsError(f"must be {bound}, got {value!r}")
-        return float(value)
+            raise SettingsError(f"must be a number, got {_shown(value)}")
+        try:
+            number = float(value)
+        except OverflowError:  # an integer of hundreds of digits
+            number = math.inf
+        if math.isfinite(number) and minimum <= number <= maximum:
+            return number
+        if minimum > 0 and number <= 0:
+            raise SettingsError(f"must be positive, got {_shown(value)}")
+        raise SettingsError(f"must be between {minimum:g} and {maximum:g}, got {_shown(value)}")
 
     return parse
+
+
+_SIDE = _number(0.001, 10.0)  # a marker's side [m]
 
 
 def _count(value: Any) -> int:
@@ -100,8 +118,7 @@ def _sizes(value: Any) -> dict[int, float]:
         value = pairs
     if not isinstance(value, Mapping):
         raise SettingsError(f"must be a table of marker id = side in metres, got {value!r}")
-    positive = _number(0.0, above=True)
-    return {_marker_id(k): positive(v) for k, v in value.items()}
+    return {_marker_id(k): _SIDE(v) for k, v in value.items()}
 
 
 @dataclass(frozen=True)
@@ -131,12 +148,13 @@ class Setting:
         return value
 
 
-_POSITIVE, _NON_NEGATIVE = _number(0.0, above=True), _number(0.0)
+_NOISE_M = _number(0.0, 10.0)
+_ODOMETRY_NOISE = _number(1e-6, 10.0)
 
 SETTINGS: tuple[Setting, ...] = (
     Setting("dictionary", "DICT_4X4_50", _text,
             "OpenCV dictionary name (DICT_*, incl. AprilTag) or a dictionary file"),
-    Setting("marker_size", 0.2, _POSITIVE, "side of the markers' black square [m]"),
+    Setting("marker_size", 0.2, _SIDE, "side of the markers' black square [m]"),
     Setting("marker_sizes", {}, _sizes, "sides of markers whose size differs, by id [m]"),
     Setting("yaw_method", YawMethod.PNP.value, _text, "how theta comes from the corners",
             choices=[m.value for m in YawMethod]),
@@ -148,27 +166,29 @@ SETTINGS: tuple[Setting, ...] = (
     ),
     Setting("camera.base_frame", "base_link", _text,
             "the robot's base frame, to read the camera mount from /tf_static"),
-    Setting("camera.x", 0.1, _number(), "without /tf_static: camera ahead of the base origin [m]"),
-    Setting("camera.y", 0.0, _number(), "without /tf_static: camera left of the base origin [m]"),
-    Setting("camera.height", 0.6, _NON_NEGATIVE,
+    Setting("camera.x", 0.1, _number(-100.0, 100.0),
+            "without /tf_static: camera ahead of the base origin [m]"),
+    Setting("camera.y", 0.0, _number(-100.0, 100.0),
+            "without /tf_static: camera left of the base origin [m]"),
+    Setting("camera.height", 0.6, _number(0.0, 100.0),
             "without /tf_static: optical centre above the floor [m]"),
-    Setting("camera.pitch_deg", 10.0, _number(-90.0),
+    Setting("camera.pitch_deg", 10.0, _number(-90.0, 90.0),
             "without /tf_static: optical axis tilted up from level [deg]"),
-    Setting("camera.yaw_deg", 0.0, _number(),
+    Setting("camera.yaw_deg", 0.0, _number(-360.0, 360.0),
             "without /tf_static: optical axis turned left of the base's x axis [deg]"),
-    Setting("noise.corner_px", 0.3, _POSITIVE,
+    Setting("noise.corner_px", 0.3, _number(0.01, 100.0),
             "corner noise after sub-pixel refinement, propagated into theta [px]"),
-    Setting("noise.depth_base_m", DepthModel().base_m, _NON_NEGATIVE,
+    Setting("noise.depth_base_m", DepthModel().base_m, _NOISE_M,
             "depth sigma = base + per_m2 * Z^2: its constant term [m]"),
-    Setting("noise.depth_per_m2", DepthModel().per_m2, _NON_NEGATIVE,
+    Setting("noise.depth_per_m2", DepthModel().per_m2, _NOISE_M,
             "depth sigma's quadratic term [1/m]"),
-    Setting("noise.depth_max_m", DepthModel().max_range_m, _POSITIVE,
+    Setting("noise.depth_max_m", DepthModel().max_range_m, _number(0.1, 1000.0),
             "depths beyond this are treated as no return [m]"),
-    Setting("noise.odometry_per_m", OdometryNoise().per_m, _POSITIVE,
+    Setting("noise.odometry_per_m", OdometryNoise().per_m, _ODOMETRY_NOISE,
             "odometry position sigma after 1 m travelled [m/sqrt(m)]"),
-    Setting("noise.odometry_yaw_per_m", OdometryNoise().yaw_per_m, _POSITIVE,
+    Setting("noise.odometry_yaw_per_m", OdometryNoise().yaw_per_m, _ODOMETRY_NOISE,
             "odometry heading sigma after 1 m travelled [rad/sqrt(m)]"),
-    Setting("noise.odometry_yaw_per_rad", OdometryNoise().yaw_per_rad, _POSITIVE,
+    Setting("noise.odometry_yaw_per_rad", OdometryNoise().yaw_per_rad, _ODOMETRY_NOISE,
             "odometry heading sigma after 1 rad turned [rad/sqrt(rad)]"),
     # Huber by default: real detections have outliers (near-frontal pose flips); on the
     # rendered paper-room log it cut SLAM's marker error 4x, and cost nothing elsewhere.
@@ -340,6 +360,11 @@ def _complete(values: Mapping[str, Any]) -> dict[str, Any]:
     unknown = set(values) - set(complete)
     if unknown:
         raise SettingsError(f"unknown setting(s) {', '.join(sorted(unknown))}")
+    if complete["noise.depth_base_m"] == 0 and complete["noise.depth_per_m2"] == 0:
+        raise SettingsError(
+            "noise.depth_base_m (--depth-noise-base) and noise.depth_per_m2 "
+            "(--depth-noise-per-m2) are both 0: depth would count as exact"
+        )
     return complete
 
 

@@ -81,8 +81,8 @@ def _print_summary(result: MapRun) -> None:
             trajectory = method_result.trajectory_error
             line += (
                 f" {method_result.map_error.rmse_position_m:>9.3f} m"
-                f" {aligned.rmse_position_m if aligned else float('nan'):>8.3f}"
-                f" {trajectory.ate_rmse_m if trajectory else float('nan'):>7.3f}"
+                + (f" {aligned.rmse_position_m:>8.3f}" if aligned else f" {'-':>8}")
+                + (f" {trajectory.ate_rmse_m:>7.3f}" if trajectory else f" {'-':>7}")
             )
         print(line)
         for note in estimate.notes:

@@ -27,6 +27,7 @@ from markergraph.estimator.run import estimate, estimate_frames
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     Estimate,
+    EstimationError,
     FactorResidual,
     MarkerEstimate,
     MarkerGraphError,
@@ -43,6 +44,7 @@ from markergraph.estimator.types import (
 __all__ = [
     "Edge",
     "Estimate",
+    "EstimationError",
     "FactorResidual",
     "Form",
     "Frame",

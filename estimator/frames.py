@@ -125,6 +125,13 @@ def build_frames(
         else:
             covariance = np.zeros((3, 3))
         frames.append(Frame(t_ns, T_odom_base, tuple(by_stamp[t_ns].values()), covariance))
+    if not frames:
+        first, last = min(by_stamp), max(by_stamp)
+        raise MarkerGraphError(
+            f"none of the {len(by_stamp)} frames with markers (stamps {first} to {last} ns) "
+            f"falls within the odometry's time span ({path.t_ns[0]} to {path.t_ns[-1]} ns): "
+            "do the camera and odometry stamps come from different clocks?"
+        )
     notes = []
     if skipped:
         notes.append(f"{skipped} frame(s) outside the odometry's time span were skipped")

@@ -23,7 +23,7 @@ from markergraph.estimator.links import (
     measure_links,
 )
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import Estimate, MarkerEstimate, Method
+from markergraph.estimator.types import Estimate, EstimationError, MarkerEstimate, Method
 
 __all__ = ["IncrementalSlam", "solve_isam2", "solve_marker_graph", "solve_slam"]
 
@@ -136,7 +136,12 @@ def _optimise(builder: GraphBuilder, timings: dict[str, float]) -> tuple[gtsam.V
     """Levenberg-Marquardt from the builder's initial values; (solution, converged)."""
     start = time.perf_counter()
     optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, builder.values, _lm_params())
-    result = optimizer.optimize()
+    try:
+        result = optimizer.optimize()
+    except RuntimeError as error:  # GTSAM's IndeterminantLinearSystemException
+        raise EstimationError(
+            f"GTSAM could not solve the graph: {str(error).splitlines()[0]}"
+        ) from None
     timings["optimize"] = time.perf_counter() - start
     return result, optimizer.iterations() < MAX_ITERATIONS
 
@@ -239,7 +244,12 @@ class IncrementalSlam:
             self.builder.add_home_prior(self.frames.home_id)
         for j in range(self.next_frame, k + 1):
             self.builder.add_frame(self.frames, j, self.T_map_odom)
-        self.isam.update(*self.builder.take_new())
+        try:
+            self.isam.update(*self.builder.take_new())
+        except RuntimeError as error:  # GTSAM's IndeterminantLinearSystemException
+            raise EstimationError(
+                f"iSAM2 could not solve the graph at frame {k}: {str(error).splitlines()[0]}"
+            ) from None
         self.next_frame = k + 1
         self.updates += 1
         if self.updates % self.REANCHOR_EVERY == 0:

@@ -16,6 +16,7 @@ if TYPE_CHECKING:  # trajectory.py builds on these records
 
 __all__ = [
     "Estimate",
+    "EstimationError",
     "FactorResidual",
     "MarkerEstimate",
     "MarkerGraphError",
@@ -40,6 +41,11 @@ class RejectedObservationError(MarkerGraphError, ValueError):
 
 class SettingsError(MarkerGraphError, ValueError):
     """A setting, flag or settings file with a bad value; the message names it."""
+
+
+class EstimationError(MarkerGraphError):
+    """A graph the optimiser cannot solve (an indeterminate system: a marker or pose that no
+    factor pins down); the message says which method and what GTSAM reported."""
 
 
 class OutputError(MarkerGraphError):

@@ -46,6 +46,8 @@ class Camera:
         d = list(getattr(info, "d", None) or getattr(info, "D", None) or [])
         if len(k) != 9 or not all(math.isfinite(v) for v in k) or not (k[0] > 0 and k[4] > 0):
             raise ValueError(f"camera info has no usable intrinsic matrix K: {k}")
+        if not all(math.isfinite(v) for v in d):
+            raise ValueError(f"camera info has a non-finite distortion coefficient D: {d}")
         distortion = tuple(float(v) for v in d) if any(v != 0.0 for v in d) else ()
         return cls(
             float(k[0]),

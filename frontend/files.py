@@ -7,8 +7,9 @@ every instant the target's name holds nothing, the old whole result, or the new 
 A run that was killed leaves its temporary folder behind; the next run aimed at the same target
 recognises it by its dead process id and removes it.
 
-A folder is replaced only when markergraph wrote it (its ``report.json`` carries
-:data:`REPORT_SCHEMA`) or when it is empty, and never when it is or holds an input.
+A folder is replaced only when it is empty, or when markergraph wrote it (its ``report.json``
+carries :data:`REPORT_SCHEMA` and lists every file in it: a folder to which the user added
+anything is not replaced), and never when it is or holds an input.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from pathlib import Path
 from markergraph.estimator.types import OutputError
 
 __all__ = [
+    "MANIFEST_KEY",
     "REPORT_SCHEMA",
     "check_output_file",
     "check_output_folder",
@@ -35,6 +37,7 @@ __all__ = [
 ]
 
 REPORT_SCHEMA = "markergraph.report/1"
+MANIFEST_KEY = "files"  # report.json lists every file of the result folder under this key
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<kind>partial|old)-(?P<pid>\d+)-[0-9a-f]+$")
 
 
@@ -104,25 +107,62 @@ except OSError:  # pragma: no cover - no C library to load (not Linux or macOS)
     _LIBC = None
 
 
-def _is_result_folder(folder: Path) -> bool:
+def _foreign_entries(folder: Path) -> list[str] | None:
+    """What in a result folder markergraph did not write (its report lists every file it
+    wrote), or None if the folder is not a markergraph result folder at all."""
     try:
         report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return False
-    return isinstance(report, dict) and report.get("schema") == REPORT_SCHEMA
+        return None
+    if not isinstance(report, dict) or report.get("schema") != REPORT_SCHEMA:
+        return None
+    listed = report.get(MANIFEST_KEY)
+    if not isinstance(listed, list):
+        return None
+    ours = {str(name) for name in listed}
+    ours |= {str(parent) for name in ours for parent in Path(name).parents if str(parent) != "."}
+    return sorted(
+        str(entry.relative_to(folder))
+        for entry in folder.rglob("*")
+        if str(entry.relative_to(folder)) not in ours
+    )
 
 
 def _holds(outer: Path, inner: Path) -> bool:
     return inner == outer or outer in inner.parents
 
 
+def _absolute(path: Path) -> Path:
+    """``path`` made absolute with ``..`` resolved lexically (links are not followed, so a
+    link itself can be refused rather than what it points to)."""
+    return Path(os.path.abspath(path))
+
+
+def _check_place(out: Path, flag: str = "--out") -> None:
+    """The place to write at: not the folder we are in or one holding it, and under a folder."""
+    here = Path.cwd()
+    if _holds(_absolute(out), here):
+        raise OutputError(f"{flag} {out} is the folder you are in, or holds it; choose another")
+    ancestor = _absolute(out).parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutputError(f"cannot write {out}: {ancestor} is a file, not a folder")
+
+
+def _in_rosbag(out: Path) -> Path | None:
+    """The rosbag2 folder ``out`` would land in, if any (a folder with a metadata.yaml)."""
+    parent = _absolute(out).parent
+    return parent if (parent / "metadata.yaml").is_file() else None
+
+
 def check_output_folder(out: Path, inputs: Iterable[Path], *, force: bool) -> None:
     """Refuse, before any work, a result folder that would harm the user's files.
 
     Raises:
-        OutputError: ``out`` is or holds an input, lies inside an input folder, is a file or a
-            link, exists without ``force``, or exists with ``force`` but is neither empty nor a
-            markergraph result folder.
+        OutputError: ``out`` is or holds an input, lies inside an input folder or a rosbag2
+            folder, is the current folder, is a file or a link, exists without ``force``, or
+            exists with ``force`` but holds anything markergraph did not write.
     """
     out = Path(out)
     resolved = out.resolve()
@@ -132,22 +172,35 @@ def check_output_folder(out: Path, inputs: Iterable[Path], *, force: bool) -> No
             raise OutputError(f"--out {out} holds the input {source}; choose another folder")
         if source.is_dir() and _holds(source, resolved):
             raise OutputError(f"--out {out} is inside the input folder {source}")
+    _check_place(out)
     if not os.path.lexists(out):
         return
     if out.is_symlink() or not out.is_dir():
         raise OutputError(f"--out {out} is a file or link, not a result folder; refusing it")
     if not force:
         raise OutputError(f"{out} exists; pass --force to replace it")
-    if any(out.iterdir()) and not _is_result_folder(out):
+    if not any(out.iterdir()):
+        return
+    foreign = _foreign_entries(out)
+    if foreign is None:
         raise OutputError(
-            f"{out} is not a markergraph result folder (no report.json of ours): --force "
-            "replaces only those; choose another --out"
+            f"{out} is not a markergraph result folder (no report.json of ours listing its "
+            "files): --force replaces only those; choose another --out"
+        )
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (
+            f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+        )
+        raise OutputError(
+            f"{out} holds what markergraph did not write ({shown}); --force will not delete "
+            "it: move it out or choose another --out"
         )
 
 
 def check_output_file(out: Path, inputs: Iterable[Path], *, force: bool) -> None:
-    """Refuse, before any work, an output file that is an input, a folder or (without
-    ``force``) an existing file, or that lies in no folder.
+    """Refuse, before any work, an output file that is an input or lies inside an input folder
+    or a rosbag2 folder, a folder, an existing file without ``force``, or a place under no
+    folder.
 
     Raises:
         OutputError: naming ``out`` and why.
@@ -155,8 +208,14 @@ def check_output_file(out: Path, inputs: Iterable[Path], *, force: bool) -> None
     out = Path(out)
     resolved = out.resolve()
     for source in inputs:
-        if _holds(resolved, Path(source).resolve()):
+        source_resolved = Path(source).resolve()
+        if _holds(resolved, source_resolved):
             raise OutputError(f"--out {out} is the input {source}; choose another file")
+        if source_resolved.is_dir() and _holds(source_resolved, resolved):
+            raise OutputError(f"--out {out} is inside the input folder {source}")
+    bag = _in_rosbag(out)
+    if bag is not None:
+        raise OutputError(f"--out {out} is inside the rosbag2 folder {bag}; choose another place")
     if out.is_dir():
         raise OutputError(f"--out {out} is a folder; name a file")
     if os.path.lexists(out) and not force:
@@ -169,7 +228,7 @@ def check_output_file(out: Path, inputs: Iterable[Path], *, force: bool) -> None
 def written_whole(path: Path) -> Iterator[Path]:
     """A temporary path beside ``path`` to write one file to; renamed onto ``path`` when the
     block ends, or removed if it raises."""
-    path = Path(path)
+    path = _absolute(path)
     clean_stale(path)
     partial = _temporary_name(path, "partial")
     try:
@@ -191,8 +250,8 @@ def result_folder(out: Path, *, force: bool = False) -> Iterator[Path]:
         OutputError: ``out`` may not be replaced (checked again at the end), or another run
             wrote it meanwhile (this run's result is then discarded).
     """
-    out = Path(out)
     check_output_folder(out, (), force=force)
+    out = _absolute(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     clean_stale(out)
     partial = _temporary_name(out, "partial")

@@ -38,7 +38,7 @@ from markergraph.frontend.decode import (
     stamp_ns,
 )
 from markergraph.frontend.detect import Detector
-from markergraph.frontend.observe import observe_detections
+from markergraph.frontend.observe import Flags, observe_detections
 from markergraph.frontend.ros2 import yaw_from_quaternion
 from markergraph.frontend.sources import (
     DecodeFailures,
@@ -81,6 +81,8 @@ class Extraction:
         undecodable_frames: colour frames skipped because their image does not decode.
         unusable_depth: depth images skipped (undecodable, empty, or not the colour's size).
         ids_left_out: detections dropped by the allowed ids, by marker id.
+        depth_misses: observations in frames with depth whose marker held no valid depth
+            pixel (0, NaN, negative or beyond the depth model's range), of ``depth_tries``.
     """
 
     observations: list[Observation]
@@ -98,6 +100,8 @@ class Extraction:
     undecodable_frames: int = 0
     unusable_depth: int = 0
     ids_left_out: Counter[int] = field(default_factory=Counter)
+    depth_misses: int = 0
+    depth_tries: int = 0
 
 
 @dataclass
@@ -126,15 +130,17 @@ class _Pairing:
         return best[1] if best is not None and abs(best[0] - t_ns) <= self.tolerance else None
 
     def ready(self, latest_ns: int, flush: bool = False) -> list[_Job]:
-        """Colour frames that have their depth, or can no longer get it."""
-        out = []
-        while self.colour:
-            t_ns, image = self.colour[0]
+        """Colour frames that have their depth, or can no longer get it. Each frame is judged
+        on its own, so one with a wrong stamp (far in the future) waits alone instead of
+        holding up the frames behind it."""
+        out, waiting = [], deque[tuple[int, Message]]()
+        for t_ns, image in self.colour:
             depth = self.matched_depth(t_ns)
             if depth is None and not flush and latest_ns - t_ns <= 3 * self.tolerance:
-                break
-            self.colour.popleft()
-            out.append((t_ns, image, depth))
+                waiting.append((t_ns, image))
+            else:
+                out.append((t_ns, image, depth))
+        self.colour = waiting
         return out
 
 
@@ -218,9 +224,15 @@ class _SpanReader:
             for transform in message.decoded.transforms:
                 if transform.child_frame_id.startswith("aruco_"):
                     q, t = transform.transform.rotation, transform.transform.translation
-                    self.part.extraction.true_markers[int(transform.child_frame_id[6:])] = (
-                        gtsam.Pose2(t.x, t.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
-                    )
+                    pose = (t.x, t.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+                    if not all(math.isfinite(v) for v in pose):
+                        self.part.extraction.notes.append(
+                            f"ignored the non-finite true pose of {transform.child_frame_id} "
+                            f"on {TRUE_MARKERS}"
+                        )
+                        continue
+                    marker_id = int(transform.child_frame_id[6:])
+                    self.part.extraction.true_markers[marker_id] = gtsam.Pose2(*pose)
 
     def _take(self, message: Message, inside: bool) -> None:
         """One streamed message, by its role."""
@@ -310,14 +322,14 @@ class _SpanReader:
             result.frames_with_depth += 1
         elif choice.depth:
             result.skipped["no depth within the pairing tolerance (used without)"] += 1
-        result.observations += observe_detections(
-            self.detector.detect(image),
-            result.camera,
-            self.model,
-            depth=depth,
-            mount=result.mount,
-            t_ns=t_ns,
-        )
+        observations = observe_detections(
+            self.detector.detect(image), result.camera, self.model, depth=depth,
+            mount=result.mount, t_ns=t_ns,
+        )  # fmt: skip
+        if depth is not None:
+            result.depth_tries += len(observations)
+            result.depth_misses += sum(Flags.NO_DEPTH in o.flags for o in observations)
+        result.observations += observations
 
 
 def _read_span(
@@ -375,6 +387,8 @@ def _merge(parts: list[_Part]) -> _Part:
         result.undecodable_frames += piece.undecodable_frames
         result.unusable_depth += piece.unusable_depth
         result.ids_left_out.update(piece.ids_left_out)
+        result.depth_misses += piece.depth_misses
+        result.depth_tries += piece.depth_tries
     return merged
 
 
@@ -410,28 +424,57 @@ def _check_usable(path: Path, choice: TopicChoice, result: Extraction) -> None:
         )
 
 
-def _clean_odometry(
-    samples: list[OdometrySample], topic: str | None, notes: list[str]
+# No wheeled robot or hand-held rig moves this fast, and no floor is this far from its origin:
+# a sample that says so is a corrupted message, not motion.
+MAX_SPEED_MPS = 50.0
+MAX_COORDINATE_M = 1e7
+
+
+def _clean_path(
+    samples: list[OdometrySample], topic: str | None, what: str, notes: list[str], frame: str
 ) -> Trajectory:
-    """Odometry without non-finite samples and without stamps that repeat or go backwards (a
-    clock reset, a replayed stretch), each dropped with a note: one bad sample must not
-    poison the map."""
-    kept: list[OdometrySample] = []
-    non_finite = backwards = 0
+    """A path without its corrupted samples, each kind dropped with a note naming the topic:
+    one bad sample must not poison the map. Dropped: non-finite values (NaN, inf, a zero
+    quaternion), coordinates beyond 10,000 km, stamps that repeat or go backwards (a clock
+    reset, a replayed stretch), and single samples that jump away and back faster than
+    50 m/s."""
+    finite: list[OdometrySample] = []
+    absurd = backwards = 0
     for sample in samples:
-        if not all(math.isfinite(v) for v in (sample.x, sample.y, sample.yaw)):
-            non_finite += 1
-        elif kept and sample.t_ns <= kept[-1].t_ns:
+        values = (sample.x, sample.y, sample.yaw)
+        if not all(math.isfinite(v) for v in values) or max(abs(sample.x), abs(sample.y)) > (
+            MAX_COORDINATE_M
+        ):
+            absurd += 1
+        elif finite and sample.t_ns <= finite[-1].t_ns:
             backwards += 1
         else:
-            kept.append(sample)
-    if non_finite:
-        notes.append(f"dropped {non_finite} odometry sample(s) on {topic} with NaN or inf values")
-    if backwards:
-        notes.append(
-            f"dropped {backwards} odometry sample(s) on {topic} whose stamps repeat or go backwards"
-        )
-    return Trajectory.from_samples(kept, "odom")
+            finite.append(sample)
+    kept = [
+        sample
+        for i, sample in enumerate(finite)
+        if not (0 < i < len(finite) - 1 and _is_spike(finite[i - 1], sample, finite[i + 1]))
+    ]
+    spikes = len(finite) - len(kept)
+    for n, why in (
+        (absurd, "with NaN, infinite or absurd values"),
+        (backwards, "whose stamps repeat or go backwards"),
+        (spikes, f"that jump away and back faster than {MAX_SPEED_MPS:g} m/s"),
+    ):
+        if n:
+            notes.append(f"dropped {n} {what} sample(s) on {topic} {why}")
+    return Trajectory.from_samples(kept, frame)
+
+
+def _is_spike(before: OdometrySample, sample: OdometrySample, after: OdometrySample) -> bool:
+    def speed(a: OdometrySample, b: OdometrySample) -> float:
+        return math.hypot(b.x - a.x, b.y - a.y) / ((b.t_ns - a.t_ns) * 1e-9)
+
+    return (
+        speed(before, sample) > MAX_SPEED_MPS
+        and speed(sample, after) > MAX_SPEED_MPS
+        and speed(before, after) <= MAX_SPEED_MPS
+    )
 
 
 def extract(
@@ -489,8 +532,14 @@ def extract(
     result = part.extraction
     result.notes = notes + result.notes
     _check_usable(path, choice, result)
-    result.odometry = _clean_odometry(part.odometry, choice.odom, result.notes)
-    result.true_path = Trajectory.from_samples(part.true_poses, "map")
+    result.odometry = _clean_path(part.odometry, choice.odom, "odometry", result.notes, "odom")
+    result.true_path = _clean_path(part.true_poses, TRUE_POSE, "ground-truth", result.notes, "map")
+    if result.depth_misses:
+        result.notes.append(
+            f"{result.depth_misses} of {result.depth_tries} observations in frames with depth "
+            f"found no valid depth on their marker in {choice.depth} (0, NaN, negative or beyond"
+            " noise.depth_max_m): their range comes from the marker's size"
+        )
     if result.ids_left_out:
         ids = ", ".join(str(i) for i in sorted(result.ids_left_out))
         result.notes.append(

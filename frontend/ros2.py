@@ -109,10 +109,12 @@ def quaternion_from_yaw(yaw: float) -> dict[str, float]:
 
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     """Heading of a rotation about the vertical (roll and pitch ignored); NaN when a component
-    is not finite (atan2 would turn an infinity into a plausible angle)."""
-    if not all(math.isfinite(v) for v in (x, y, z, w)):
+    is not finite or the quaternion is zero (atan2 would turn either into a plausible angle)."""
+    if not all(math.isfinite(v) for v in (x, y, z, w)) or x * x + y * y + z * z + w * w < 1e-12:
         return math.nan
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    # w^2 + x^2 - y^2 - z^2 instead of 1 - 2(y^2 + z^2): the same for a unit quaternion, and
+    # right for one that is not normalised.
+    return math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
 
 
 def quaternion_from_matrix(R: NDArray[np.float64]) -> dict[str, float]:

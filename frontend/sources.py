@@ -77,7 +77,7 @@ def log_files(path: Path) -> list[Path]:
     if path.is_dir():
         metadata = path / "metadata.yaml"
         if metadata.is_file():
-            files = [path / name for name in _relative_file_paths(metadata)]
+            files = [_bag_file(path, name) for name in _relative_file_paths(metadata)]
         else:
             files = sorted(path.glob("*.mcap"))
         if not files:
@@ -98,6 +98,21 @@ def log_files(path: Path) -> list[Path]:
         if magic != MCAP_MAGIC:
             raise LogError(f"{file}: not an MCAP file")
     return files
+
+
+def _bag_file(folder: Path, name: str) -> Path:
+    """A file a rosbag2 ``metadata.yaml`` lists, inside the bag's folder.
+
+    Raises:
+        LogError: the name leads outside the folder (an absolute path or ``..``).
+    """
+    file = folder / name
+    parts = Path(name).parts
+    if not file.exists() and len(parts) > 1 and parts[0] == folder.name:
+        file = folder.joinpath(*parts[1:])  # Foxy wrote the names under the bag's own folder
+    if not file.resolve().is_relative_to(folder.resolve()):
+        raise LogError(f"{folder / 'metadata.yaml'}: lists {name}, outside the bag's folder")
+    return file
 
 
 def _relative_file_paths(metadata: Path) -> list[str]:

@@ -38,8 +38,14 @@ def odometry_from_tf(
     return samples
 
 
-def _rotation(q: Any) -> NDArray[np.float64]:
-    x, y, z, w = q.x, q.y, q.z, q.w
+def _rotation(q: Any) -> NDArray[np.float64] | None:
+    """The rotation matrix of a quaternion, normalised; None if it is not finite or not a
+    rotation at all (zero)."""
+    x, y, z, w = (float(v) for v in (q.x, q.y, q.z, q.w))
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if not math.isfinite(norm) or norm < 1e-6:
+        return None
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -64,15 +70,27 @@ class _TransformTree:
             t, q = moved.translation, moved.rotation
         else:
             parent, t, q = transform.parent_frame_id, transform.translation, transform.rotation
-        self.edges[transform.child_frame_id] = (parent, _rotation(q), np.array([t.x, t.y, t.z]))
+        child = transform.child_frame_id
+        R, offset = _rotation(q), np.array([t.x, t.y, t.z], dtype=np.float64)
+        if R is None or not np.all(np.isfinite(offset)):
+            raise LogError(
+                f"/tf_static: the transform {parent} -> {child} has a non-finite translation or "
+                f"a rotation that is not one (quaternion {q.x}, {q.y}, {q.z}, {q.w})"
+            )
+        self.edges[child] = (parent, R, offset)
 
     def chain(self, base: str, frame: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(R, t) of ``frame`` in ``base``, or raise if they are not joined."""
         R, t = np.eye(3), np.zeros(3)
-        current = frame
+        current, visited = frame, [frame]
         while current != base:
             if current not in self.edges:
                 raise LogError(f"/tf_static does not join {frame} to {base}")
+            if self.edges[current][0] in visited:
+                loop = " -> ".join([*visited[visited.index(self.edges[current][0]) :],
+                                    self.edges[current][0]])  # fmt: skip
+                raise LogError(f"/tf_static: frames {loop} form a loop")
+            visited.append(self.edges[current][0])
             parent, R_parent_child, t_parent_child = self.edges[current]
             R, t = R_parent_child @ R, R_parent_child @ t + t_parent_child
             current = parent

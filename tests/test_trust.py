@@ -368,7 +368,7 @@ def test_non_finite_and_backward_odometry_is_dropped_with_notes(log, tmp_path, c
     rewrite_log(log, poisoned, poison)
     code, _, err = cli(capsys, "map", poisoned, "--out", tmp_path / "r", "--method", "all")
     assert code == 0, err
-    assert "dropped 4 odometry sample(s) on /odom with NaN or inf" in err
+    assert "dropped 4 odometry sample(s) on /odom with NaN, infinite or absurd values" in err
     assert "dropped 1 odometry sample(s) on /odom whose stamps repeat or go backwards" in err
     for path in (tmp_path / "r").rglob("*.json"):
         strict_json(path)
@@ -529,3 +529,257 @@ def test_ctrl_c_exits_130_and_writes_nothing(tmp_path: Path) -> None:
     assert run.returncode == 130, err
     assert "interrupted" in err
     assert list(tmp_path.iterdir()) == []
+
+
+# --- found by a hostile review: each a case that once harmed files or stopped a run ---------
+
+
+def test_force_never_deletes_what_the_user_added_to_a_result(log, tmp_path, capsys) -> None:
+    """A result folder the user added a file or a folder to is not replaced by --force; the
+    line names what markergraph did not write; nothing changes."""
+    out = tmp_path / "result"
+    code, _, err = cli(capsys, "map", log, "--out", out, "--no-plots")
+    assert code == 0, err
+    assert "report.json" in strict_json(out / "report.json")["files"]
+    (out / "notes.txt").write_text("mine")
+    (out / "photos").mkdir()
+    before = snapshot(tmp_path)
+    code, _, err = cli(capsys, "map", log, "--out", out, "--force", "--no-plots")
+    assert code == 1
+    one_line_error(err, str(out), "notes.txt", "photos")
+    assert snapshot(tmp_path) == before and (out / "photos").is_dir()
+
+
+def test_outputs_never_land_inside_a_rosbag2_folder(log: Path, tmp_path: Path, capsys) -> None:
+    """detect --out onto a file of the input bag, or simulate into a bag folder, is refused even
+    with --force; the bag stays byte-identical."""
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    for name in ("a_0.mcap", "a_1.mcap"):
+        (bag / name).write_bytes(log.read_bytes())
+    (bag / "metadata.yaml").write_text(
+        "rosbag2_bagfile_information:\n  relative_file_paths:\n    - a_0.mcap\n    - a_1.mcap\n"
+    )
+    before = snapshot(tmp_path)
+    for arguments in (
+        ("detect", bag, "--out", bag / "a_1.mcap", "--force"),
+        ("detect", bag, "--out", bag / "metadata.yaml", "--force"),
+        ("simulate", "--scenario", "paper-room", "--out", bag / "a_0.mcap", "--force"),
+    ):
+        code, _, err = cli(capsys, *arguments)
+        assert code == 1, (arguments, err)
+        one_line_error(err, str(bag))
+    assert snapshot(tmp_path) == before
+
+
+def test_output_places_that_cannot_be_are_refused_before_work(log, tmp_path, capsys) -> None:
+    """--out . (the folder one is in) or under a file: one line, before any work."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    os.chdir(empty)
+    for out, words in ((".", "the folder you are in"), (log / "x", "is a file")):
+        code, stdout, err = cli(capsys, "map", log, "--out", out, "--force")
+        assert code == 1 and not stdout
+        one_line_error(err, words)
+    assert list(empty.iterdir()) == []
+
+
+def rewritten(log: Path, tmp_path: Path, name: str, change: Callable[[str, int, Any], Any]):
+    path = tmp_path / f"{name}.mcap"
+    rewrite_log(log, path, change)
+    return path
+
+
+def test_bad_ground_truth_and_camera_info_cost_only_themselves(log, tmp_path, capsys) -> None:
+    """One NaN true pose, one NaN true marker and one camera info with a NaN distortion: the run
+    goes on (the next camera info is used), each dropped with a note naming its topic, and the
+    map is the clean log's."""
+
+    def damage(topic: str, index: int, decoded: Any) -> Any:
+        if topic == "/ground_truth/pose" and index == 50:
+            decoded.pose.position.x = math.nan
+        if topic == "/ground_truth/markers":
+            decoded.transforms[1].transform.translation.y = math.nan
+        if topic == INFO and index == 0:
+            decoded.d = [math.nan, 0.0, 0.0, 0.0, 0.0]
+        return decoded
+
+    damaged = rewritten(log, tmp_path, "truth", damage)
+    code, _, err = cli(capsys, "map", damaged, "--out", tmp_path / "r", "--no-plots")
+    assert code == 0, err
+    assert "dropped 1 ground-truth sample(s) on /ground_truth/pose" in err
+    assert "non-finite true pose of aruco_1 on /ground_truth/markers" in err
+    assert INFO in err and "non-finite distortion" in err
+    report = strict_json(tmp_path / "r" / "report.json")
+    assert report["frames"] == 100 and sum(report["skipped_frames"].values()) == 0
+    code, _, err = cli(capsys, "map", log, "--out", tmp_path / "clean", "--no-plots")
+    clean, got = markers_of(tmp_path / "clean"), markers_of(tmp_path / "r")
+    assert max(np.linalg.norm(clean[i] - got[i]) for i in clean) < SAME_MAP_M
+
+
+def test_absurd_odometry_and_a_spike_are_dropped(log: Path, tmp_path: Path, capsys) -> None:
+    """x = 1e300, x = 1e20, a zero quaternion and a 100 m spike in /odom are each dropped with
+    a note; the map stays within 1 cm of the clean log's."""
+
+    def damage(topic: str, index: int, decoded: Any) -> Any:
+        if topic != "/odom":
+            return decoded
+        position, q = decoded.pose.pose.position, decoded.pose.pose.orientation
+        if topic == "/odom" and index == 100:
+            position.x = 1e300
+        if topic == "/odom" and index == 200:
+            position.x = 1e20
+        if topic == "/odom" and index == 300:
+            q.x = q.y = q.z = q.w = 0.0
+        if topic == "/odom" and index == 400:
+            position.x += 100.0
+        return decoded
+
+    damaged = rewritten(log, tmp_path, "odometry", damage)
+    code, _, err = cli(capsys, "map", damaged, "--out", tmp_path / "r", "--no-plots")
+    assert code == 0, err
+    assert "dropped 3 odometry sample(s) on /odom with NaN, infinite or absurd values" in err
+    assert "dropped 1 odometry sample(s) on /odom that jump away and back faster" in err
+    code, _, err = cli(capsys, "map", log, "--out", tmp_path / "clean", "--no-plots")
+    clean, got = markers_of(tmp_path / "clean"), markers_of(tmp_path / "r")
+    assert max(np.linalg.norm(clean[i] - got[i]) for i in clean) < 0.01
+
+
+def test_one_frame_with_a_wrong_stamp_costs_that_frame(log, frames_with_markers, tmp_path, capsys):
+    """A colour frame stamped seven years ahead does not hold up the frames behind it: every
+    other frame keeps its depth and the map equals the one without that frame, within 1 mm."""
+    wrong = frames_with_markers[4]
+
+    def future(topic: str, index: int, decoded: Any) -> Any:
+        if topic == COLOR and index == wrong:
+            decoded.header.stamp.sec += 7 * 365 * 86400
+        return decoded
+
+    def drop(topic: str, index: int, decoded: Any) -> Any:
+        return None if topic == COLOR and index == wrong else decoded
+
+    for name, change in (("future", future), ("dropped", drop)):
+        code, _, err = cli(capsys, "map", rewritten(log, tmp_path, name, change), "--out",
+                           tmp_path / name, "--no-plots")  # fmt: skip
+        assert code == 0, err
+    report = strict_json(tmp_path / "future" / "report.json")
+    assert report["frames_with_depth"] >= 99
+    a, b = markers_of(tmp_path / "future"), markers_of(tmp_path / "dropped")
+    assert max(np.linalg.norm(a[i] - b[i]) for i in a) < SAME_MAP_M
+
+
+def test_tf_static_damage_is_a_note_not_a_hang_or_nan(log, tmp_path, capsys) -> None:
+    """A loop in /tf_static, or a NaN in it, is named in a note and the configured mount used;
+    every output stays strict JSON."""
+
+    def loop(topic: str, index: int, decoded: Any) -> Any:
+        if topic == "/tf_static":
+            for transform in decoded.transforms:
+                if transform.child_frame_id == "camera_link":
+                    transform.header.frame_id = "camera_color_optical_frame"
+        return decoded
+
+    def nan(topic: str, index: int, decoded: Any) -> Any:
+        if topic == "/tf_static":
+            decoded.transforms[0].transform.translation.z = math.nan
+        return decoded
+
+    for name, change, words in (("loop", loop, "form a loop"), ("nan", nan, "non-finite")):
+        code, _, err = cli(capsys, "map", rewritten(log, tmp_path, name, change), "--out",
+                           tmp_path / name, "--no-plots")  # fmt: skip
+        assert code == 0, err
+        assert "/tf_static" in err and words in err and "assuming the configured" in err
+        for path in (tmp_path / name).rglob("*.json"):
+            strict_json(path)
+
+
+def test_depth_with_no_valid_pixel_is_said(log: Path, tmp_path: Path, capsys) -> None:
+    """Depth images of zeros pair with every frame but give no range: a note says so and the
+    ranges come from the markers' size."""
+
+    def zeros(topic: str, index: int, decoded: Any) -> Any:
+        if topic == DEPTH:
+            decoded.data = bytes(len(decoded.data))
+        return decoded
+
+    damaged = rewritten(log, tmp_path, "zeros", zeros)
+    code, _, err = cli(capsys, "map", damaged, "--out", tmp_path / "r", "--no-plots")
+    assert code == 0, err
+    assert "found no valid depth on their marker in " + DEPTH in err
+
+
+@pytest.mark.parametrize(
+    ("flags", "words"),
+    [
+        (("--corner-noise", "1e300"), "--corner-noise must be between"),
+        (("--odometry-noise", "1e300"), "--odometry-noise must be between"),
+        (("--camera-x", "1e300"), "--camera-x must be between"),
+        (("--marker-sizes", "0=1e-300"), "--marker-sizes must be between"),
+        (("--depth-noise-base", "0", "--depth-noise-per-m2", "0"), "are both 0"),
+    ],
+)
+def test_settings_out_of_any_robots_range_are_refused(log, tmp_path, capsys, flags, words):
+    """Values that would overflow or make the graph singular after all the work are refused
+    first, naming the flag."""
+    code, stdout, err = cli(capsys, "map", log, *flags, "--out", tmp_path / "r")
+    assert code == 1 and not stdout
+    one_line_error(err, words)
+
+
+def test_huge_numbers_in_files_are_named(tmp_path: Path, capsys) -> None:
+    """A 400-digit integer in a settings file or a map.json, a variance of 1e308, a duplicate id
+    or a dictionary name with a newline: one line naming the file and the field."""
+    settings = tmp_path / "robot.yaml"
+    settings.write_text(f"marker_size: {10**400}\n")
+    code, _, err = cli(capsys, "map", "--config", settings, "--print-config")
+    assert code == 1
+    one_line_error(err, str(settings), "marker_size")
+    good = {"id": 0, "x": 0.0, "y": 0.0, "yaw": 0.0, "n_observations": 3}
+    base = {"schema": "markergraph.map/1", "marker_size_m": 0.2, "dictionary": "DICT_4X4_50"}
+    cases = {
+        "big.json": ({**base, "markers": [{**good, "x": 10**400}]}, "markers[0].x"),
+        "variance.json": (
+            {**base, "markers": [{**good, "covariance": [[1.5e308, 0, 0], [0, 1, 0], [0, 0, 1]]}]},
+            "markers[0].covariance",
+        ),
+        "twice.json": ({**base, "markers": [good, good]}, "appears twice"),
+        "newline.json": ({**base, "dictionary": "X\ninjected: 1", "markers": [good]}, "dictionary"),
+    }
+    for name, (document, words) in cases.items():
+        path = tmp_path / name
+        path.write_text(json.dumps(document))
+        code, _, err = cli(capsys, "export", path, "--format", "fiducial-slam", "--out",
+                           tmp_path / "out.txt")  # fmt: skip
+        assert code == 1, name
+        one_line_error(err, str(path), words)
+    assert not (tmp_path / "out.txt").exists()
+
+
+def test_logs_that_cannot_be_mapped_say_why(log: Path, tmp_path: Path, capsys) -> None:
+    """Colour stamps on another clock than odometry, every /odom sample NaN, a metadata.yaml
+    listing a file outside its folder: one line that says which."""
+
+    def other_clock(topic: str, index: int, decoded: Any) -> Any:
+        if topic == COLOR:
+            decoded.header.stamp.sec += 3600
+        return decoded
+
+    def all_nan(topic: str, index: int, decoded: Any) -> Any:
+        if topic == "/odom":
+            decoded.pose.pose.position.x = math.nan
+        return decoded
+
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text(
+        f"rosbag2_bagfile_information:\n  relative_file_paths:\n    - ../{log.name}\n"
+    )
+    (tmp_path / log.name).write_bytes(log.read_bytes())
+    for source, words in (
+        (rewritten(log, tmp_path, "clock", other_clock), "different clocks"),
+        (rewritten(log, tmp_path, "nan", all_nan), "no usable odometry on /odom (dropped"),
+        (bag, "outside the bag's folder"),
+    ):
+        code, _, err = cli(capsys, "map", source, "--out", tmp_path / "r")
+        assert code == 1, err
+        one_line_error(err, words)
