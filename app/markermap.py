@@ -19,7 +19,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.paper import Edge, edge_from_pose2
+from markergraph.estimator.paper import Edge, Form, edge_from_pose2, heading
 from markergraph.estimator.types import Estimate, MarkerGraphError
 from markergraph.frontend.files import written_whole
 
@@ -169,6 +169,25 @@ class MarkerMap:
             estimate.converged,
             dict(sorted(estimate.unplaced.items())),
         )
+
+    def heading(
+        self, source: int, d: float, theta: float, target: int, form: Form = Form.EXACT
+    ) -> tuple[float, float]:
+        """The paper's target heading: from a robot localised on marker ``source`` at its
+        centred observation (distance ``d`` [m], theta [rad]), the distance to drive and the
+        turn from facing ``source`` toward marker ``target`` (counter-clockwise positive).
+
+        Raises:
+            MarkerMapError: a marker not in the map, or ``source`` equal to ``target``.
+        """
+        for marker_id in (source, target):
+            if marker_id not in self.markers:
+                known = ", ".join(map(str, self.markers))
+                raise MarkerMapError(f"no marker {marker_id} in the map (it has {known})")
+        if source == target:
+            raise MarkerMapError(f"the start and the target are both marker {target}")
+        T_a_c = self.markers[source].T_map_marker.between(self.markers[target].T_map_marker)
+        return heading(edge_from_pose2(T_a_c), d, theta, form)
 
     # --- map.json ---------------------------------------------------------------------------
 

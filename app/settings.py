@@ -164,6 +164,12 @@ SETTINGS: tuple[Setting, ...] = (
                 f"{role.replace('_', ' ')} topic (default: chosen from the log)")
         for role in ("color", "depth", "camera_info", "odom")
     ),
+    Setting("rig.cameras", None, _optional_text,
+            "a Kalibr cameras.yaml: intrinsics of the cameras whose detections the log holds"),
+    Setting("rig.camera_poses", None, _optional_text,
+            "a TagSLAM camera_poses.yaml: each camera's pose on the rig (without /tf_static)"),
+    Setting("rig.tagslam", None, _optional_text,
+            "a TagSLAM tagslam.yaml: tag sizes, and the odometry's body on the rig"),
     Setting("camera.base_frame", "base_link", _text,
             "the robot's base frame, to read the camera mount from /tf_static"),
     Setting("camera.x", 0.1, _number(-100.0, 100.0),
@@ -256,6 +262,9 @@ class MapConfig:
                 v["noise.depth_base_m"], v["noise.depth_per_m2"], v["noise.depth_max_m"]
             ),
             corner_sigma_px=v["noise.corner_px"],
+            kalibr_cameras=_path(v["rig.cameras"]),
+            camera_poses=_path(v["rig.camera_poses"]),
+            tagslam=_path(v["rig.tagslam"]),
         )
 
     @property
@@ -288,6 +297,14 @@ class MapConfig:
     def robust(self) -> Robust:
         """The kernel on observation factors."""
         return Robust(self.values["noise.robust"])
+
+
+def _path(value: str | None) -> Path | None:
+    return None if value is None else Path(value)
+
+
+# Settings that name files: relative to the settings file they are written in.
+PATH_KEYS = ("rig.cameras", "rig.camera_poses", "rig.tagslam")
 
 
 def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -343,6 +360,8 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
             values[key] = setting.check(value)
         except ValueError as error:
             raise SettingsError(f"{path}: {key} {error}") from None
+        if key in PATH_KEYS and values[key] is not None:
+            values[key] = str(path.parent / Path(values[key]).expanduser())
     return values
 
 

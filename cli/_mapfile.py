@@ -6,11 +6,11 @@ import argparse
 import math
 from pathlib import Path
 
-from markergraph.estimator.paper import Form, edge_from_pose2, heading
+from markergraph.estimator.paper import Form
 from markergraph.estimator.types import SettingsError
 from markergraph.formats import ExportFormat, export_map
 from markergraph.frontend.files import check_output_file
-from markergraph.markermap import MarkerMap
+from markergraph.markermap import MarkerMap, MarkerMapError
 
 EXPORT = "write a map.json in another tool's format"
 HEADING = "the paper's target heading from a localisation on one marker to another"
@@ -56,13 +56,7 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_heading(args: argparse.Namespace) -> int:
-    poses = {i: m.T_map_marker for i, m in MarkerMap.load(args.map).markers.items()}
-    for marker_id in (args.source, args.to):
-        if marker_id not in poses:
-            raise SettingsError(
-                f"{args.map}: no marker {marker_id} in the map "
-                f"(it has {', '.join(map(str, sorted(poses)))})"
-            )
+    marker_map = MarkerMap.load(args.map)
     try:
         d_text, theta_text = args.at.split(",")
         d, theta = float(d_text), math.radians(float(theta_text))
@@ -70,11 +64,11 @@ def run_heading(args: argparse.Namespace) -> int:
         raise SettingsError(f"--at takes D,THETA (metres, degrees), got {args.at!r}") from None
     if not (math.isfinite(d) and d > 0 and math.isfinite(theta)):
         raise SettingsError(f"--at takes a positive distance and a finite angle, got {args.at!r}")
-    if args.source == args.to:
-        raise SettingsError(f"--from and --to are both marker {args.to}: nothing to head for")
-    e_ac = edge_from_pose2(poses[args.source].between(poses[args.to]))
-    distance, turn = heading(e_ac, d, theta, Form.EXACT)
-    printed = heading(e_ac, d, theta, Form.PAPER)
+    try:
+        distance, turn = marker_map.heading(args.source, d, theta, args.to)
+        printed = marker_map.heading(args.source, d, theta, args.to, Form.PAPER)
+    except MarkerMapError as error:
+        raise MarkerMapError(f"{args.map}: {error}") from None
     side = "counter-clockwise" if turn >= 0 else "clockwise"
     print(
         f"turn {abs(math.degrees(turn)):.1f} deg {side} from facing marker {args.source}, "

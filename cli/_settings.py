@@ -41,6 +41,9 @@ FLAGS: dict[str, Flag] = {
     "topics.depth": Flag("--depth-topic", "TOPIC"),
     "topics.camera_info": Flag("--camera-info-topic", "TOPIC"),
     "topics.odom": Flag("--odom-topic", "TOPIC"),
+    "rig.cameras": Flag("--cameras", "FILE"),
+    "rig.camera_poses": Flag("--camera-poses", "FILE"),
+    "rig.tagslam": Flag("--tagslam", "FILE"),
     "camera.base_frame": Flag("--base-frame", "FRAME"),
     "camera.x": Flag("--camera-x", "M", type=float),
     "camera.y": Flag("--camera-y", "M", type=float),
@@ -63,6 +66,7 @@ FLAGS: dict[str, Flag] = {
 _GROUPS = {
     "": "settings (a flag overrides --config; (file: key) names it in the file)",
     "topics": "topics",
+    "rig": "a rig's cameras (logs of marker detections)",
     "camera": "camera mount",
     "noise": "noise model",
 }

@@ -12,22 +12,50 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Camera", "CameraMount"]
+__all__ = ["EQUIDISTANT", "PLUMB_BOB", "Camera", "CameraMount", "distortion_model"]
 
 # Optical frame (x right, y down, z forward) axes expressed in a level, forward-looking base frame
 # (x forward, y left, z up): the columns are the optical x, y and z axes.
 _R_LEVEL_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
+# Distortion models, by the names CameraInfo and Kalibr give them.
+PLUMB_BOB, EQUIDISTANT = "plumb_bob", "equidistant"
+_MODELS = {
+    "plumb_bob": PLUMB_BOB,
+    "rational_polynomial": PLUMB_BOB,  # OpenCV's 8 coefficients: the same undistortion call
+    "radtan": PLUMB_BOB,  # Kalibr's name
+    "": PLUMB_BOB,
+    "equidistant": EQUIDISTANT,  # fisheye (cv2.fisheye); Kalibr and CameraInfo agree
+    "fisheye": EQUIDISTANT,
+}
+
+
+def distortion_model(name: str) -> str:
+    """The model of a CameraInfo or Kalibr distortion name.
+
+    Raises:
+        ValueError: a model this reader does not undistort.
+    """
+    key = str(name).strip().lower()
+    if key not in _MODELS:
+        known = ", ".join(sorted(k for k in _MODELS if k))
+        raise ValueError(f"distortion model {name!r} is not read (only {known})")
+    return _MODELS[key]
+
+
 @dataclass(frozen=True, slots=True)
 class Camera:
-    """Pinhole intrinsics, with OpenCV's (plumb_bob) distortion coefficients if any.
+    """Pinhole intrinsics, with their lens distortion.
 
     Attributes:
         fx, fy: focal lengths [px].
         cx, cy: principal point [px].
         width, height: image size [px].
-        distortion: (k1, k2, p1, p2[, k3...]) as OpenCV orders them; empty for none.
+        distortion: coefficients as OpenCV orders them for ``model``: (k1, k2, p1, p2[, k3,
+            k4, k5, k6]) for plumb_bob and rational_polynomial, (k1, k2, k3, k4) for
+            equidistant; empty for none.
+        model: ``"plumb_bob"`` or ``"equidistant"`` (fisheye, ``cv2.fisheye``).
     """
 
     fx: float = 615.0
@@ -37,6 +65,7 @@ class Camera:
     width: int = 640
     height: int = 480
     distortion: tuple[float, ...] = ()
+    model: str = PLUMB_BOB
 
     @classmethod
     def from_camera_info(cls, info: Any) -> Camera:
@@ -48,6 +77,7 @@ class Camera:
             raise ValueError(f"camera info has no usable intrinsic matrix K: {k}")
         if not all(math.isfinite(v) for v in d):
             raise ValueError(f"camera info has a non-finite distortion coefficient D: {d}")
+        model = distortion_model(getattr(info, "distortion_model", "") or "")
         distortion = tuple(float(v) for v in d) if any(v != 0.0 for v in d) else ()
         return cls(
             float(k[0]),
@@ -57,7 +87,28 @@ class Camera:
             int(info.width),
             int(info.height),
             distortion,
+            model,
         )
+
+    @classmethod
+    def from_kalibr(cls, entry: Any, source: str = "cameras.yaml") -> Camera:
+        """From one camera of a Kalibr ``cameras.yaml`` (``intrinsics: [fx, fy, cx, cy]``,
+        ``distortion_model``, ``distortion_coeffs``, ``resolution: [width, height]``).
+
+        Raises:
+            ValueError: a field is missing or not usable; the message names ``source``.
+        """
+        try:
+            fx, fy, cx, cy = (float(v) for v in entry["intrinsics"])
+            width, height = (int(v) for v in entry["resolution"])
+            coefficients = tuple(float(v) for v in entry.get("distortion_coeffs") or ())
+            model = distortion_model(entry.get("distortion_model", "") or "")
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"{source}: not a Kalibr camera ({error})") from None
+        if not all(math.isfinite(v) for v in (fx, fy, cx, cy, *coefficients)) or min(fx, fy) <= 0:
+            raise ValueError(f"{source}: unusable intrinsics {entry['intrinsics']}")
+        distortion = coefficients if any(v != 0.0 for v in coefficients) else ()
+        return cls(fx, fy, cx, cy, width, height, distortion, model)
 
     @classmethod
     def from_opencv_yaml(
@@ -93,7 +144,11 @@ class Camera:
         if not self.distortion:
             return np.asarray(pixels, dtype=np.float64)
         points = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
-        undistorted = cv2.undistortPoints(points, self.K, np.array(self.distortion), P=self.K)
+        coefficients = np.array(self.distortion)
+        if self.model == EQUIDISTANT:
+            undistorted = cv2.fisheye.undistortPoints(points, self.K, coefficients, P=self.K)
+        else:
+            undistorted = cv2.undistortPoints(points, self.K, coefficients, P=self.K)
         return np.asarray(undistorted, dtype=np.float64).reshape(-1, 2)
 
     @property

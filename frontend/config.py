@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.observe import DepthModel, ObservationModel
@@ -30,6 +31,9 @@ class FrontendConfig:
         pair_tolerance_ns: largest stamp difference between a colour frame and its depth.
         depth_model: the depth camera's error model.
         corner_sigma_px: the corners' noise after sub-pixel refinement [px].
+        kalibr_cameras: a Kalibr ``cameras.yaml`` giving intrinsics by detection topic.
+        camera_poses: a TagSLAM ``camera_poses.yaml`` giving each camera's pose on the rig.
+        tagslam: a TagSLAM ``tagslam.yaml`` giving tag sizes and the odometry's body on the rig.
     """
 
     dictionary: str = "DICT_4X4_50"
@@ -48,6 +52,9 @@ class FrontendConfig:
     pair_tolerance_ns: int = 20_000_000
     depth_model: DepthModel = DepthModel()
     corner_sigma_px: float = 0.3
+    kalibr_cameras: Path | None = None
+    camera_poses: Path | None = None
+    tagslam: Path | None = None
 
     @property
     def observation_model(self) -> ObservationModel:

@@ -48,6 +48,7 @@ from markergraph.frontend.sources import (
     log_topics,
     messages,
 )
+from markergraph.frontend.tagged import DetectionLog, read_detection_log
 from markergraph.frontend.tf import mount_from_transforms, odometry_from_tf, transforms_of
 from markergraph.frontend.topics import (
     COLOR_TOPICS,
@@ -332,6 +333,25 @@ class _SpanReader:
         result.observations += observations
 
 
+def _from_detections(log: DetectionLog, choice: TopicChoice) -> _Part:
+    """A detection log's reading as one stretch: observations made from the body origin, so
+    the estimators' camera mount is the identity."""
+    level = CameraMount(0.0, 0.0, 0.0, 0.0, 0.0)
+    extraction = Extraction(
+        log.observations,
+        Trajectory.from_samples([]),
+        log.camera,
+        level,
+        choice,
+        frames=log.frames,
+        skipped=log.skipped,
+        notes=log.notes,
+        warnings=log.warnings,
+        ids_left_out=log.ids_left_out,
+    )
+    return _Part(extraction, log.odometry)
+
+
 def _read_span(
     arguments: tuple[Path, FrontendConfig, TopicChoice, dict[str, int], _Span],
 ) -> _Part:
@@ -499,7 +519,7 @@ def extract(
     path = Path(path)
     topics = log_topics(path)
     choice = choose_topics(path, topics, config)
-    if choice.color is None:
+    if choice.color is None and not choice.detections:
         raise LogError(
             f"{path}: no camera image topic (looked for {', '.join(COLOR_TOPICS)} "
             "and any image message)"
@@ -510,7 +530,9 @@ def extract(
     if workers > available_cores():
         notes.append(f"--workers {workers} capped at the {available_cores()} cores available")
         workers = available_cores()
-    if workers <= 1:
+    if choice.detections:
+        part = _from_detections(read_detection_log(path, config, choice, topics), choice)
+    elif workers <= 1:
         part = _SpanReader(path, config, choice, counts).read(_Span(), progress)
     else:
         first, last = log_time_range(path)

@@ -1,5 +1,7 @@
-"""Reading MCAP logs without ROS: a single ``.mcap`` or a rosbag2 folder, its topics, and its
-messages decoded, chunk by chunk, so that damage costs only the damaged stretch."""
+"""Reading logs without ROS: a single ``.mcap`` or a rosbag2 folder of them (read here, chunk by
+chunk, so that damage costs only the damaged stretch), a ROS 1 ``.bag`` or a rosbag2 SQLite
+folder (read through ``rosbags``, in :mod:`markergraph.frontend.bags`); their topics and their
+messages, decoded."""
 
 from __future__ import annotations
 
@@ -134,8 +136,23 @@ def _relative_file_paths(metadata: Path) -> list[str]:
     return names
 
 
+def _bags() -> Any:
+    """The ROS 1 / SQLite reader, imported where a log needs it (it loads rosbags)."""
+    from markergraph.frontend import bags
+
+    return bags
+
+
+def _is_bag(path: Path) -> bool:
+    from markergraph.frontend.bags import is_bag
+
+    return is_bag(path)
+
+
 def log_topics(path: Path) -> list[LogTopic]:
     """Every topic with its type and message count, over all the log's files."""
+    if _is_bag(path):
+        return list(_bags().log_topics(path))
     counts: dict[str, LogTopic] = {}
     for file in log_files(path):
         with open(file, "rb") as stream:
@@ -204,6 +221,9 @@ def messages(
         LogError: an unreadable file, a channel whose encoding or schema cannot be decoded, or
             (without ``failures``) an undecodable message or a damaged chunk.
     """
+    if _is_bag(path):
+        yield from _bags().messages(path, topics, failures, start_ns, end_ns)
+        return
     factory = DecoderFactory()
     for file in log_files(path):
         with open(file, "rb") as stream:
@@ -345,6 +365,9 @@ def _decoder_for(
 
 def log_time_range(path: Path) -> tuple[int, int]:
     """The first and last message log times over all the log's files [ns]."""
+    if _is_bag(path):
+        first, last = _bags().log_time_range(path)
+        return int(first), int(last)
     first, last = None, None
     for file in log_files(path):
         with open(file, "rb") as stream:

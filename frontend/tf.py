@@ -15,7 +15,7 @@ from markergraph.frontend.decode import stamp_ns
 from markergraph.frontend.ros2 import yaw_from_quaternion
 from markergraph.frontend.sources import LogError
 
-__all__ = ["mount_from_transforms", "odometry_from_tf", "transforms_of"]
+__all__ = ["mount_from_transforms", "odometry_from_tf", "transform_between", "transforms_of"]
 
 
 def odometry_from_tf(
@@ -97,16 +97,28 @@ class _TransformTree:
         return R, t
 
 
+def transform_between(
+    transforms: list[Any], base: str, frame: str
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(R, t) of ``frame`` in ``base`` through a chain of static transforms, any depth.
+
+    Raises:
+        LogError: the transforms do not join the two frames, form a loop, or hold a value
+            that is not a transform.
+    """
+    tree = _TransformTree()
+    for transform in transforms:
+        tree.add(transform)
+    return tree.chain(base, frame)
+
+
 def mount_from_transforms(transforms: list[Any], base: str, optical_frame: str) -> CameraMount:
     """The camera's mount from ``/tf_static``: the chain from ``base`` to the optical frame.
 
     The optical frame is x right, y down, z forward; its z axis gives the heading and pitch
     (roll is assumed zero, as on a wheeled robot).
     """
-    tree = _TransformTree()
-    for transform in transforms:
-        tree.add(transform)
-    R, t = tree.chain(base, optical_frame)
+    R, t = transform_between(transforms, base, optical_frame)
     forward = R[:, 2]
     return CameraMount(
         x_m=float(t[0]),

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from markergraph.frontend.config import FrontendConfig
+from markergraph.frontend.detections import DETECTION_SCHEMAS
 from markergraph.frontend.sources import LogError, LogTopic
 
 __all__ = [
@@ -45,6 +46,7 @@ IMAGE_SCHEMAS = (
 )
 CALIBRATION_SCHEMAS = ("sensor_msgs/msg/CameraInfo", "foxglove.CameraCalibration")
 ODOMETRY_SCHEMAS = ("nav_msgs/msg/Odometry", "foxglove.PoseInFrame")
+TF_SCHEMAS = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 TRANSFORM_SCHEMAS = ("foxglove.FrameTransforms", "foxglove.FrameTransform")
 
 
@@ -57,6 +59,9 @@ class TopicChoice:
     camera_info: str | None
     odom: str | None
     tf_static: str | None
+    detections: tuple[str, ...] = ()
+    """Topics of marker detections (AprilTag messages): read instead of images when present
+    and no colour topic is set."""
 
 
 def _camera_info_for(color: str) -> str:
@@ -75,7 +80,7 @@ def choose_topics(path: Path, topics: list[LogTopic], config: FrontendConfig) ->
         ("--color-topic", config.color_topic, IMAGE_SCHEMAS),
         ("--depth-topic", config.depth_topic, IMAGE_SCHEMAS),
         ("--camera-info-topic", config.camera_info_topic, CALIBRATION_SCHEMAS),
-        ("--odom-topic", config.odom_topic, (*ODOMETRY_SCHEMAS, "tf2_msgs/msg/TFMessage")),
+        ("--odom-topic", config.odom_topic, (*ODOMETRY_SCHEMAS, *TF_SCHEMAS)),
     ):
         if name is None:
             continue
@@ -113,6 +118,9 @@ def choose_topics(path: Path, topics: list[LogTopic], config: FrontendConfig) ->
         if "/tf_static" in by_name
         else next((t.topic for t in topics if t.schema in TRANSFORM_SCHEMAS), None)
     )
+    detections = tuple(sorted(t.topic for t in topics if t.schema in DETECTION_SCHEMAS))
+    if config.color_topic is not None:
+        detections = ()
     if depth is not None and depth == color:
         raise LogError(f"{path}: the depth topic {depth} is the colour topic; pass --depth-topic")
-    return TopicChoice(color, depth, info, odom, static)
+    return TopicChoice(color, depth, info, odom, static, detections)

@@ -1,0 +1,157 @@
+"""ROS 1 bags (``.bag``) and ROS 2 SQLite bags (a rosbag2 folder of ``.db3`` files), read with the
+``rosbags`` library: the same topics and decoded messages as the MCAP reader gives.
+
+Messages decode to rosbags' dataclasses, whose fields carry the ROS names (``header.stamp.sec``,
+``nanosec``; ROS 1's ``CameraInfo`` has ``K`` and ``D``), and types are named ROS 2 style
+(``nav_msgs/msg/Odometry``, ROS 1's ``tf/msg/tfMessage``). A type the library does not know,
+such as TagSLAM's ``apriltag_msgs/ApriltagArrayStamped``, is registered from the definition the
+bag carries with its connection.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, Message
+
+__all__ = ["ROS1_MAGIC", "is_bag", "log_time_range", "log_topics", "messages"]
+
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+
+
+def is_bag(path: Path) -> bool:
+    """A ROS 1 bag file, or a rosbag2 folder stored in SQLite."""
+    path = Path(path)
+    if path.is_file():
+        try:
+            with open(path, "rb") as stream:
+                return stream.read(len(ROS1_MAGIC)) == ROS1_MAGIC
+        except OSError:
+            return False
+    metadata = path / "metadata.yaml"
+    if path.is_dir() and metadata.is_file():
+        try:
+            return "storage_identifier: sqlite3" in metadata.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError):
+            return False
+    return False
+
+
+class _Bag:
+    """An open bag: its reader, and the type store its messages decode with."""
+
+    def __init__(self, path: Path) -> None:
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        self.path = Path(path)
+        self.ros1 = self.path.is_file()
+        try:
+            if self.ros1:
+                from rosbags.rosbag1 import Reader as Ros1Reader
+
+                self.reader: Any = Ros1Reader(self.path)
+            else:
+                from rosbags.rosbag2 import Reader as Ros2Reader
+
+                self.reader = Ros2Reader(self.path)
+            self.reader.open()
+        except Exception as error:  # rosbags raises ReaderError and friends
+            raise LogError(
+                f"{self.path}: not a readable bag ({type(error).__name__}: {error})"
+            ) from error
+        store = Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE
+        self.types = get_typestore(store)
+        for connection in self.reader.connections:
+            definition = getattr(connection, "msgdef", None)
+            if connection.msgtype in self.types.fielddefs or definition is None:
+                continue
+            if getattr(definition, "data", ""):
+                try:
+                    self.types.register(get_types_from_msg(definition.data, connection.msgtype))
+                except Exception as error:  # a definition rosbags cannot parse
+                    raise LogError(
+                        f"{self.path}: topic {connection.topic} has a type definition that "
+                        f"cannot be parsed ({type(error).__name__}: {error})"
+                    ) from error
+
+    def close(self) -> None:
+        self.reader.close()
+
+    def decode(self, connection: Any, raw: bytes) -> Any:
+        if connection.msgtype not in self.types.fielddefs:
+            raise LogError(
+                f"{self.path}: no definition of {connection.msgtype} (topic {connection.topic}) "
+                "in the bag or in rosbags' type store"
+            )
+        if self.ros1:
+            return self.types.deserialize_ros1(raw, connection.msgtype)
+        return self.types.deserialize_cdr(raw, connection.msgtype)
+
+
+def log_topics(path: Path) -> list[LogTopic]:
+    """Every topic with its type and message count."""
+    bag = _Bag(path)
+    try:
+        counts: dict[str, LogTopic] = {}
+        for connection in bag.reader.connections:
+            previous = counts.get(connection.topic)
+            counts[connection.topic] = LogTopic(
+                connection.topic,
+                connection.msgtype,
+                connection.msgcount + (previous.count if previous else 0),
+            )
+        return sorted(counts.values(), key=lambda t: t.topic)
+    finally:
+        bag.close()
+
+
+def log_time_range(path: Path) -> tuple[int, int]:
+    """The first and last message times [ns]."""
+    bag = _Bag(path)
+    try:
+        if not bag.reader.message_count:
+            raise LogError(f"{path}: no messages")
+        return int(bag.reader.start_time), int(bag.reader.end_time) - 1
+    finally:
+        bag.close()
+
+
+def messages(
+    path: Path,
+    topics: list[str],
+    failures: DecodeFailures | None = None,
+    start_ns: int | None = None,
+    end_ns: int | None = None,
+) -> Iterator[Message]:
+    """Decoded messages of the given topics in time order; see
+    :func:`markergraph.frontend.sources.messages`."""
+    bag = _Bag(path)
+    try:
+        connections = [c for c in bag.reader.connections if c.topic in topics]
+        if not connections:
+            return
+        try:
+            for connection, t_ns, raw in bag.reader.messages(
+                connections=connections, start=start_ns, stop=end_ns
+            ):
+                try:
+                    decoded = bag.decode(connection, raw)
+                except LogError:
+                    raise
+                except Exception as error:  # rosbags' deserialisers raise their own types
+                    if failures is None:
+                        raise LogError(
+                            f"{path}: cannot decode a message on {connection.topic} "
+                            f"({type(error).__name__}: {error})"
+                        ) from error
+                    failures.add(path, connection.topic, f"{type(error).__name__}: {error}")
+                    continue
+                yield Message(connection.topic, connection.msgtype, int(t_ns), decoded)
+        except LogError:
+            raise
+        except Exception as error:  # a damaged chunk: rosbags cannot go on past it
+            raise LogError(f"{path}: damaged ({type(error).__name__}: {error})") from error
+    finally:
+        bag.close()

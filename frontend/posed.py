@@ -1,0 +1,181 @@
+"""Observations from a marker's full pose: PnP on its corners, turned into the robot's level frame.
+
+For cameras that are tilted, on a tilting body (a hand-held rig, visual-inertial odometry), or
+several on one rig. The marker's pose in the optical frame comes from ``solvePnP`` (IPPE for
+squares) on the undistorted corners; the camera's pose in the *level frame* (at the body's
+origin, z up, x along the robot's heading) carries it into the plane. Observations are then
+made by a virtual camera at the body origin looking along the heading, so the estimators take
+them with the identity mount whatever camera saw them:
+
+- bearing and range: the marker centre's direction and horizontal distance from the body origin;
+- theta: from the marker's normal (its z axis, out of the marker), turned into the plane;
+- sigmas: the corners' noise carried through PnP by a numerical Jacobian (correlations
+  dropped), and widened to cover IPPE's second solution when the two are alike;
+- markers whose normal is more than 45 degrees from horizontal (ceiling, floor) are not on a
+  wall: they are left out, and said so.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.estimator.types import Observation
+from markergraph.frontend.camera import Camera
+from markergraph.frontend.detect import Detection
+from markergraph.frontend.observe import (
+    EDGE_MARGIN_PX,
+    GRAZING_RAD,
+    GRAZING_SIGMA_RAD,
+    SMALL_EDGE_PX,
+    Flags,
+    ObservationModel,
+)
+
+__all__ = ["WALL_TILT_RAD", "LevelledCamera", "observe_levelled"]
+
+WALL_TILT_RAD = math.radians(45.0)
+# IPPE's two solutions explain the corners almost equally well when this close (ratio of their
+# reprojection errors): the marker is seen nearly face-on and its yaw is ambiguous.
+AMBIGUITY_RATIO = 2.0
+JACOBIAN_STEP_PX = 0.05
+
+
+@dataclass(frozen=True)
+class LevelledCamera:
+    """A camera's intrinsics and its pose in the level frame at one instant.
+
+    Attributes:
+        camera: intrinsics and distortion.
+        R_level_optical: (3, 3) rotation of the optical frame (x right, y down, z forward) in the
+            level frame (x along the heading, y left, z up).
+        t_level_optical: (3,) the optical centre in the level frame [m], from the body origin.
+    """
+
+    camera: Camera
+    R_level_optical: NDArray[np.float64]
+    t_level_optical: NDArray[np.float64]
+
+
+def _square(side_m: float) -> NDArray[np.float64]:
+    """A marker's corners in its own frame, OpenCV's order: x right, y up, z out."""
+    h = side_m / 2.0
+    return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
+
+
+def _solutions(
+    corners_px: NDArray[np.float64], view: LevelledCamera, side_m: float
+) -> list[tuple[float, NDArray[np.float64], NDArray[np.float64]]]:
+    """IPPE's solutions (reprojection error [px], R_optical_marker, t_optical_marker), best
+    first."""
+    undistorted = view.camera.undistort(corners_px)
+    count, rvecs, tvecs, errors = cv2.solvePnPGeneric(
+        _square(side_m), undistorted, view.camera.K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
+    )
+    found = []
+    for i in range(count):
+        R, _ = cv2.Rodrigues(rvecs[i])
+        t = np.asarray(tvecs[i], dtype=np.float64).ravel()
+        found.append((float(np.ravel(errors)[i]), np.asarray(R, dtype=np.float64), t))
+    return sorted(found, key=lambda s: s[0])
+
+
+def _polar(
+    R_optical_marker: NDArray[np.float64],
+    t_optical_marker: NDArray[np.float64],
+    view: LevelledCamera,
+) -> tuple[float, float, float, float]:
+    """(bearing, theta, range, normal's elevation) of a marker pose, seen from the body origin
+    along the heading."""
+    p = view.R_level_optical @ t_optical_marker + view.t_level_optical
+    n = view.R_level_optical @ R_optical_marker[:, 2]
+    bearing = math.atan2(p[1], p[0])
+    yaw = math.atan2(n[1], n[0])
+    theta = math.remainder(bearing + math.pi - yaw, math.tau)
+    return bearing, theta, math.hypot(p[0], p[1]), math.asin(max(-1.0, min(1.0, n[2])))
+
+
+def _jacobian(
+    corners_px: NDArray[np.float64], view: LevelledCamera, side_m: float, at: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """d(bearing, theta, range)/d(corner pixels), (3, 8), by central differences; each step
+    keeps the IPPE solution nearest the one it starts from."""
+    J = np.zeros((3, 8))
+    for k in range(8):
+        values = []
+        for sign in (1.0, -1.0):
+            moved = corners_px.copy().reshape(-1)
+            moved[k] += sign * JACOBIAN_STEP_PX
+            candidates = [
+                np.array(_polar(R, t, view)[:3])
+                for _, R, t in _solutions(moved.reshape(4, 2), view, side_m)
+            ]
+            nearest = min(candidates, key=lambda c: abs(math.remainder(c[1] - at[1], math.tau)))
+            values.append(nearest)
+        step = values[0] - values[1]
+        step[:2] = [math.remainder(v, math.tau) for v in step[:2]]
+        J[:, k] = step / (2.0 * JACOBIAN_STEP_PX)
+    return J
+
+
+def observe_levelled(
+    detections: list[Detection], view: LevelledCamera, model: ObservationModel, t_ns: int
+) -> tuple[list[Observation], dict[int, str]]:
+    """Observations of detected markers from their full pose, in the level frame.
+
+    Returns:
+        (observations, marker id -> why it was left out).
+    """
+    observations, left_out = [], {}
+    camera = view.camera
+    for detection in detections:
+        side = model.length_of(detection.marker_id)
+        solutions = _solutions(detection.corners, view, side)
+        if not solutions:
+            left_out[detection.marker_id] = "PnP found no pose"
+            continue
+        error, R, t = solutions[0]
+        bearing, theta, range_m, elevation = _polar(R, t, view)
+        if abs(elevation) > WALL_TILT_RAD:
+            left_out[detection.marker_id] = (
+                f"not on a wall: its normal is {math.degrees(elevation):+.0f} deg from horizontal"
+            )
+            continue
+        J = _jacobian(detection.corners, view, side, np.array([bearing, theta, range_m]))
+        covariance = model.corner_sigma_px**2 * (J @ J.T)
+        sigma_bearing, sigma_theta, sigma_range = np.sqrt(np.maximum(np.diag(covariance), 1e-12))
+        flags = {Flags.NO_DEPTH}
+        if len(solutions) > 1 and solutions[1][0] < AMBIGUITY_RATIO * max(error, 1e-3):
+            other = _polar(solutions[1][1], solutions[1][2], view)[1]
+            sigma_theta = max(sigma_theta, abs(math.remainder(other - theta, math.tau)) / 2.0)
+            flags.add(Flags.AMBIGUOUS)
+        if abs(theta) > GRAZING_RAD:
+            flags.add(Flags.GRAZING)
+            sigma_theta = max(sigma_theta, GRAZING_SIGMA_RAD)
+        corners = detection.corners
+        if np.any(corners < EDGE_MARGIN_PX) or np.any(
+            corners > [camera.width - EDGE_MARGIN_PX, camera.height - EDGE_MARGIN_PX]
+        ):
+            flags.add(Flags.NEAR_EDGE)
+        edges = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)
+        if edges.min() < SMALL_EDGE_PX:
+            flags.add(Flags.SMALL)
+        observations.append(
+            Observation(
+                t_ns,
+                detection.marker_id,
+                float(bearing),
+                float(theta),
+                float(range_m),
+                float(sigma_bearing),
+                float(min(sigma_theta, GRAZING_SIGMA_RAD)),
+                float(sigma_range),
+                tuple((float(u), float(v)) for u, v in corners),
+                frozenset(flags),
+            )
+        )
+    return observations, left_out

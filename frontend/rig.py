@@ -1,0 +1,161 @@
+"""The cameras of a rig as calibration tools write them: Kalibr's ``cameras.yaml`` (intrinsics
+and the topics each camera publishes), TagSLAM's ``camera_poses.yaml`` (each camera's pose on
+the rig) and TagSLAM's ``tagslam.yaml`` (tag sizes, and where the odometry's body sits on the
+rig).
+
+Poses are ``T_parent_child`` as (R (3, 3), t (3,)); TagSLAM writes a rotation as a rotation
+vector (axis times angle, radians) and a position in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from markergraph.estimator.types import SettingsError
+from markergraph.frontend.camera import Camera
+
+__all__ = [
+    "Pose3",
+    "RigCamera",
+    "TagslamConfig",
+    "read_camera_poses",
+    "read_kalibr_cameras",
+    "read_tagslam",
+]
+
+
+@dataclass(frozen=True)
+class Pose3:
+    """A rigid transform ``T_parent_child``: x_parent = R x_child + t."""
+
+    R: NDArray[np.float64]
+    t: NDArray[np.float64]
+
+    @classmethod
+    def identity(cls) -> Pose3:
+        return cls(np.eye(3), np.zeros(3))
+
+    def compose(self, other: Pose3) -> Pose3:
+        return Pose3(self.R @ other.R, self.R @ other.t + self.t)
+
+    def inverse(self) -> Pose3:
+        return Pose3(self.R.T, -self.R.T @ self.t)
+
+
+@dataclass(frozen=True)
+class RigCamera:
+    """One camera of a Kalibr file: its name (``cam0``), intrinsics and topics."""
+
+    name: str
+    camera: Camera
+    image_topic: str | None
+    tag_topic: str | None
+
+
+def _load(path: Path, what: str) -> Any:
+    try:
+        return yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise SettingsError(f"{path}: not a readable {what} ({reason})") from None
+
+
+def read_kalibr_cameras(path: Path) -> list[RigCamera]:
+    """The cameras of a Kalibr ``cameras.yaml`` (``cam0``, ``cam1``, ...).
+
+    Raises:
+        SettingsError: unreadable, or a camera without usable intrinsics; naming the file.
+    """
+    document = _load(path, "Kalibr cameras.yaml")
+    if not isinstance(document, dict) or not document:
+        raise SettingsError(f"{path}: not a Kalibr cameras.yaml (no cam0, cam1, ...)")
+    cameras = []
+    for name, entry in document.items():
+        if not isinstance(entry, dict):
+            raise SettingsError(f"{path}: {name} is not a camera")
+        try:
+            camera = Camera.from_kalibr(entry, f"{path}: {name}")
+        except ValueError as error:
+            raise SettingsError(str(error)) from None
+        cameras.append(RigCamera(str(name), camera, entry.get("rostopic"), entry.get("tagtopic")))
+    return cameras
+
+
+def _pose(entry: Any, where: str) -> Pose3:
+    try:
+        position = [float(entry["position"][k]) for k in "xyz"]
+        rotation = [float(entry["rotation"][k]) for k in "xyz"]
+    except (KeyError, TypeError, ValueError) as error:
+        raise SettingsError(f"{where}: not a pose with position and rotation ({error})") from None
+    if not np.all(np.isfinite([*position, *rotation])):
+        raise SettingsError(f"{where}: a pose with a non-finite value")
+    R, _ = cv2.Rodrigues(np.array(rotation))
+    return Pose3(np.asarray(R, dtype=np.float64), np.array(position))
+
+
+def read_camera_poses(path: Path) -> dict[str, Pose3]:
+    """TagSLAM's ``camera_poses.yaml``: camera name -> ``T_rig_camera`` (the camera's optical
+    frame on the rig).
+
+    Raises:
+        SettingsError: unreadable, or a camera without a pose; naming the file.
+    """
+    document = _load(path, "TagSLAM camera_poses.yaml")
+    if not isinstance(document, dict):
+        raise SettingsError(f"{path}: not a TagSLAM camera_poses.yaml")
+    return {
+        str(name): _pose(entry.get("pose") if isinstance(entry, dict) else None, f"{path}: {name}")
+        for name, entry in document.items()
+    }
+
+
+@dataclass(frozen=True)
+class TagslamConfig:
+    """What markergraph takes from a ``tagslam.yaml``.
+
+    Attributes:
+        default_tag_size_m: the static body's default tag size [m], if given.
+        tag_sizes_m: tag id -> size [m] where the file gives one.
+        T_rig_odom: the odometry's body on the rig (TagSLAM's ``T_body_odom`` of the rig body
+            that names the odometry topic), if given.
+        odom_topic: that odometry topic.
+    """
+
+    default_tag_size_m: float | None
+    tag_sizes_m: dict[int, float]
+    T_rig_odom: Pose3 | None
+    odom_topic: str | None
+
+
+def read_tagslam(path: Path) -> TagslamConfig:
+    """Tag sizes and the rig's odometry body from a TagSLAM ``tagslam.yaml``.
+
+    Raises:
+        SettingsError: unreadable, or a malformed body; naming the file.
+    """
+    document = _load(path, "TagSLAM tagslam.yaml")
+    bodies = document.get("bodies") if isinstance(document, dict) else None
+    if not isinstance(bodies, list):
+        raise SettingsError(f"{path}: not a tagslam.yaml (no bodies list)")
+    default_size, sizes, T_rig_odom, odom_topic = None, {}, None, None
+    for item in bodies:
+        for name, body in (item or {}).items():
+            if not isinstance(body, dict):
+                raise SettingsError(f"{path}: body {name} is not a table")
+            if body.get("is_static") and body.get("default_tag_size") is not None:
+                default_size = default_size or float(body["default_tag_size"])
+            for tag in body.get("tags") or []:
+                if isinstance(tag, dict) and "id" in tag and tag.get("size") is not None:
+                    sizes[int(tag["id"])] = float(tag["size"])
+            if body.get("odom_topic"):
+                odom_topic = str(body["odom_topic"])
+                if body.get("T_body_odom") is not None:
+                    T_rig_odom = _pose(body["T_body_odom"], f"{path}: {name}.T_body_odom")
+    return TagslamConfig(default_size, sizes, T_rig_odom, odom_topic)
