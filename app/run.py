@@ -153,11 +153,20 @@ def map_log(
             f"only marker {seen.pop()} was seen: the map is that marker alone, with the robot's "
             "path in its frame; there is nothing to link"
         )
+    jumps = extraction.odometry.jumps()
+    for t_ns, size_m in jumps:
+        after_s = (t_ns - int(extraction.odometry.t_ns[0])) * 1e-9
+        extraction.notes.append(
+            f"odometry on {extraction.topics.odom} jumped {size_m:.2f} m at {after_s:.2f} s into "
+            "the log (a visual-inertial reset or relocalisation): that step is left to the "
+            "observations"
+        )
     frames = build_frames(
         extraction.observations,
         extraction.odometry,
         config.home_id,
         odometry_noise=config.odometry_noise,
+        odometry_breaks=[t for t, _ in jumps],
     )
     # Ground truth, when logged, re-expressed in the frame of the estimate's home marker.
     truth, true_path = {}, None

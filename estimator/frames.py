@@ -20,7 +20,11 @@ from markergraph.estimator.types import (
     RejectedObservationError,
 )
 
-__all__ = ["Frame", "Frames", "build_frames"]
+__all__ = ["RELEASED_MOTION_COVARIANCE", "Frame", "Frames", "build_frames"]
+
+# The motion across an odometry jump: metres and radians of doubt, next to which the jump
+# itself weighs nothing.
+RELEASED_MOTION_COVARIANCE = np.diag([100.0, 100.0, 10.0])
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,7 @@ def build_frames(
     home_id: int | None = None,
     marker_ids: Collection[int] | None = None,
     odometry_noise: OdometryNoise = OdometryNoise(),
+    odometry_breaks: Collection[int] = (),
 ) -> Frames:
     """Validate observations, group them by stamp and attach the odometry pose at each stamp.
 
@@ -82,6 +87,9 @@ def build_frames(
         home_id: the map's home marker (default: the first marker observed).
         marker_ids: if given, the only ids allowed; others are rejected.
         odometry_noise: the noise model of one odometry increment.
+        odometry_breaks: stamps where the odometry jumped (``Trajectory.jumps``): the motion
+            between the two frames around each is released (a switched-off factor, in effect),
+            so the jump cannot bend the map; observations carry it across.
 
     Raises:
         RejectedObservationError: an observation is unusable (the message names it).
@@ -104,7 +112,7 @@ def build_frames(
     if not by_stamp:
         raise MarkerGraphError("no marker observations: nothing to map")
     frames: list[Frame] = []
-    skipped = 0
+    skipped = released = 0
     for t_ns in sorted(by_stamp):
         T_odom_base = path.at(t_ns)
         if T_odom_base is None:
@@ -122,6 +130,9 @@ def build_frames(
             covariance = _motion_covariance(
                 [previous.T_odom_base, *inside, T_odom_base], odometry_noise
             )
+            if any(previous.t_ns < t <= t_ns for t in odometry_breaks):
+                covariance = covariance + RELEASED_MOTION_COVARIANCE
+                released += 1
         else:
             covariance = np.zeros((3, 3))
         frames.append(Frame(t_ns, T_odom_base, tuple(by_stamp[t_ns].values()), covariance))
@@ -133,6 +144,11 @@ def build_frames(
             "do the camera and odometry stamps come from different clocks?"
         )
     notes = []
+    if released:
+        notes.append(
+            f"odometry released across {released} jump(s): those steps' odometry factors carry "
+            "no weight"
+        )
     if skipped:
         notes.append(f"{skipped} frame(s) outside the odometry's time span were skipped")
     first_seen = next((obs.marker_id for f in frames for obs in f.observations), None)

@@ -12,10 +12,13 @@ from numpy.typing import NDArray
 from markergraph.estimator.models import interpolate_pose
 from markergraph.estimator.types import OdometrySample
 
-__all__ = ["MAX_EXTRAPOLATION_NS", "Trajectory"]
+__all__ = ["MAX_EXTRAPOLATION_NS", "MAX_ODOMETRY_SPEED_MPS", "Trajectory"]
 
 # Stamps this far outside a trajectory's time span still take its first or last pose.
 MAX_EXTRAPOLATION_NS = 100_000_000
+# Faster than a wheeled robot drives or a person walks with a rig: a step this fast between two
+# odometry poses is a jump of the odometry itself.
+MAX_ODOMETRY_SPEED_MPS = 5.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,6 +104,17 @@ class Trajectory:
         """The same path expressed in another frame: ``T_new_base = T_new_frame * T_frame_base``."""
         moved = [T_new_frame.compose(self.pose(i)) for i in range(len(self))]
         return Trajectory(self.t_ns, np.array([[p.x(), p.y(), p.theta()] for p in moved]), frame)
+
+    def jumps(self, max_speed_mps: float = MAX_ODOMETRY_SPEED_MPS) -> list[tuple[int, float]]:
+        """Steps faster than ``max_speed_mps`` between consecutive poses, as (stamp of the pose
+        after the step [ns], the step's length [m]): a visual-inertial reset or relocalisation,
+        not motion."""
+        if len(self) < 2:
+            return []
+        steps = np.hypot(*np.diff(self.poses[:, :2], axis=0).T)
+        seconds = np.diff(self.t_ns) * 1e-9
+        fast = np.flatnonzero(steps > max_speed_mps * seconds)
+        return [(int(self.t_ns[i + 1]), float(steps[i])) for i in fast]
 
     def T_self_other(self, other: Trajectory, t_ns: int) -> gtsam.Pose2 | None:
         """The transform from ``other``'s frame into this one's at a stamp both reach: for an

@@ -121,9 +121,9 @@ def log_time_range(path: Path) -> tuple[int, int]:
 def messages(
     path: Path,
     topics: list[str],
-    failures: DecodeFailures | None = None,
-    start_ns: int | None = None,
-    end_ns: int | None = None,
+    failures: DecodeFailures | None,
+    start_ns: int | None,
+    end_ns: int | None,
 ) -> Iterator[Message]:
     """Decoded messages of the given topics in time order; see
     :func:`markergraph.frontend.sources.messages`."""

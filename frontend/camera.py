@@ -71,8 +71,11 @@ class Camera:
     def from_camera_info(cls, info: Any) -> Camera:
         """From a decoded ``sensor_msgs/msg/CameraInfo`` (or Foxglove ``CameraCalibration``,
         whose fields are ``K``, ``D``)."""
-        k = list(getattr(info, "k", None) or getattr(info, "K", None) or [])
-        d = list(getattr(info, "d", None) or getattr(info, "D", None) or [])
+        # ROS 2 names them k and d, ROS 1 and Foxglove K and D; rosbags gives numpy arrays, so
+        # no truth tests on them.
+        fields = [getattr(info, n, None) for n in ("k", "K", "d", "D")]
+        k: list[float] = [float(v) for v in next((f for f in fields[:2] if f is not None), [])]
+        d: list[float] = [float(v) for v in next((f for f in fields[2:] if f is not None), [])]
         if len(k) != 9 or not all(math.isfinite(v) for v in k) or not (k[0] > 0 and k[4] > 0):
             raise ValueError(f"camera info has no usable intrinsic matrix K: {k}")
         if not all(math.isfinite(v) for v in d):

@@ -156,6 +156,17 @@ def _in_rosbag(out: Path) -> Path | None:
     return parent if (parent / "metadata.yaml").is_file() else None
 
 
+def _check_inputs(out: Path, inputs: Iterable[Path], relation: str, kind: str) -> None:
+    """Refuse an output that is or holds an input, or lies inside an input folder."""
+    resolved = out.resolve()
+    for source in inputs:
+        source = Path(source).resolve()
+        if _holds(resolved, source):
+            raise OutputError(f"--out {out} {relation} {source}; choose another {kind}")
+        if source.is_dir() and _holds(source, resolved):
+            raise OutputError(f"--out {out} is inside the input folder {source}")
+
+
 def check_output_folder(out: Path, inputs: Iterable[Path], *, force: bool) -> None:
     """Refuse, before any work, a result folder that would harm the user's files.
 
@@ -165,13 +176,7 @@ def check_output_folder(out: Path, inputs: Iterable[Path], *, force: bool) -> No
             exists with ``force`` but holds anything markergraph did not write.
     """
     out = Path(out)
-    resolved = out.resolve()
-    for source in inputs:
-        source = Path(source).resolve()
-        if _holds(resolved, source):
-            raise OutputError(f"--out {out} holds the input {source}; choose another folder")
-        if source.is_dir() and _holds(source, resolved):
-            raise OutputError(f"--out {out} is inside the input folder {source}")
+    _check_inputs(out, inputs, "holds the input", "folder")
     _check_place(out)
     if not os.path.lexists(out):
         return
@@ -206,13 +211,7 @@ def check_output_file(out: Path, inputs: Iterable[Path], *, force: bool) -> None
         OutputError: naming ``out`` and why.
     """
     out = Path(out)
-    resolved = out.resolve()
-    for source in inputs:
-        source_resolved = Path(source).resolve()
-        if _holds(resolved, source_resolved):
-            raise OutputError(f"--out {out} is the input {source}; choose another file")
-        if source_resolved.is_dir() and _holds(source_resolved, resolved):
-            raise OutputError(f"--out {out} is inside the input folder {source}")
+    _check_inputs(out, inputs, "is the input", "file")
     bag = _in_rosbag(out)
     if bag is not None:
         raise OutputError(f"--out {out} is inside the rosbag2 folder {bag}; choose another place")

@@ -76,6 +76,19 @@ class ObservationModel:
         return self.marker_lengths_m.get(marker_id, self.marker_length_m)
 
 
+def corner_flags(corners: NDArray[np.float64], camera: Camera) -> set[str]:
+    """``near-edge`` (a corner within EDGE_MARGIN_PX of the image border) and ``small`` (an
+    edge shorter than SMALL_EDGE_PX) for detected corners (4, 2) in pixels."""
+    flags = set()
+    if np.any(corners < EDGE_MARGIN_PX) or np.any(
+        corners > [camera.width - EDGE_MARGIN_PX, camera.height - EDGE_MARGIN_PX]
+    ):
+        flags.add(Flags.NEAR_EDGE)
+    if np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).min() < SMALL_EDGE_PX:
+        flags.add(Flags.SMALL)
+    return flags
+
+
 def _marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthModel) -> float | None:
     """Median depth [m] of valid pixels inside the marker, shrunk by a fifth toward its centre
     to stay clear of the edge where depth mixes with the wall; None without a valid pixel."""
@@ -140,12 +153,7 @@ def observe_detections(
             # the detector's corners cannot tell them apart and theta may be mirrored. Keep
             # bearing and range, which stay accurate, and let theta weigh next to nothing.
             sigma_theta = max(sigma_theta, GRAZING_SIGMA_RAD)
-        if np.any(detection.corners < EDGE_MARGIN_PX) or np.any(
-            detection.corners > [camera.width - EDGE_MARGIN_PX, camera.height - EDGE_MARGIN_PX]
-        ):
-            flags.add(Flags.NEAR_EDGE)
-        if min(left, right) < SMALL_EDGE_PX:
-            flags.add(Flags.SMALL)
+        flags |= corner_flags(detection.corners, camera)
         if abs(theta) > GRAZING_RAD:
             flags.add(Flags.GRAZING)
         if abs(theta) < AMBIGUOUS_RAD:

@@ -28,12 +28,11 @@ from markergraph.estimator.types import Observation
 from markergraph.frontend.camera import Camera
 from markergraph.frontend.detect import Detection
 from markergraph.frontend.observe import (
-    EDGE_MARGIN_PX,
     GRAZING_RAD,
     GRAZING_SIGMA_RAD,
-    SMALL_EDGE_PX,
     Flags,
     ObservationModel,
+    corner_flags,
 )
 
 __all__ = ["WALL_TILT_RAD", "LevelledCamera", "observe_levelled"]
@@ -157,25 +156,19 @@ def observe_levelled(
             flags.add(Flags.GRAZING)
             sigma_theta = max(sigma_theta, GRAZING_SIGMA_RAD)
         corners = detection.corners
-        if np.any(corners < EDGE_MARGIN_PX) or np.any(
-            corners > [camera.width - EDGE_MARGIN_PX, camera.height - EDGE_MARGIN_PX]
-        ):
-            flags.add(Flags.NEAR_EDGE)
-        edges = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)
-        if edges.min() < SMALL_EDGE_PX:
-            flags.add(Flags.SMALL)
+        flags |= corner_flags(corners, camera)
         observations.append(
             Observation(
-                t_ns,
-                detection.marker_id,
-                float(bearing),
-                float(theta),
-                float(range_m),
-                float(sigma_bearing),
-                float(min(sigma_theta, GRAZING_SIGMA_RAD)),
-                float(sigma_range),
-                tuple((float(u), float(v)) for u, v in corners),
-                frozenset(flags),
+                t_ns=t_ns,
+                marker_id=detection.marker_id,
+                bearing=float(bearing),
+                theta=float(theta),
+                range_m=float(range_m),
+                sigma_bearing=float(sigma_bearing),
+                sigma_theta=float(min(sigma_theta, GRAZING_SIGMA_RAD)),
+                sigma_range=float(sigma_range),
+                corners=tuple((float(u), float(v)) for u, v in corners),
+                flags=frozenset(flags),
             )
         )
     return observations, left_out

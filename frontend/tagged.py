@@ -30,7 +30,7 @@ from markergraph.frontend.detections import detections_of
 from markergraph.frontend.posed import LevelledCamera, observe_levelled
 from markergraph.frontend.rig import Pose3, read_camera_poses, read_kalibr_cameras, read_tagslam
 from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, messages
-from markergraph.frontend.tf import transform_between, transforms_of
+from markergraph.frontend.tf import rotation_of, transform_between, transforms_of
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
 
 __all__ = ["DetectionLog", "read_detection_log"]
@@ -58,21 +58,6 @@ class _Frame:
     t_ns: int
     frame_id: str
     detections: list[Any]
-
-
-def _quaternion_matrix(q: Any) -> NDArray[np.float64] | None:
-    x, y, z, w = (float(v) for v in (q.x, q.y, q.z, q.w))
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
-    if not math.isfinite(norm) or norm < 1e-6:
-        return None
-    x, y, z, w = x / norm, y / norm, z / norm, w / norm
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def _rot_z(angle: float) -> NDArray[np.float64]:
@@ -120,7 +105,7 @@ class _Reader:
             if not hasattr(decoded, "pose"):
                 return  # odometry from /tf has no attitude to level with
             pose = decoded.pose.pose if hasattr(decoded.pose, "pose") else decoded.pose
-            R = _quaternion_matrix(pose.orientation)
+            R = rotation_of(pose.orientation)
             p = np.array([pose.position.x, pose.position.y, pose.position.z], dtype=np.float64)
             if R is None or not np.all(np.isfinite(p)):  # dropped with a note, as NaN
                 self.poses.append((stamp_ns(decoded), p * np.nan, np.eye(3)))

@@ -15,7 +15,13 @@ from markergraph.frontend.decode import stamp_ns
 from markergraph.frontend.ros2 import yaw_from_quaternion
 from markergraph.frontend.sources import LogError
 
-__all__ = ["mount_from_transforms", "odometry_from_tf", "transform_between", "transforms_of"]
+__all__ = [
+    "mount_from_transforms",
+    "odometry_from_tf",
+    "rotation_of",
+    "transform_between",
+    "transforms_of",
+]
 
 
 def odometry_from_tf(
@@ -38,7 +44,7 @@ def odometry_from_tf(
     return samples
 
 
-def _rotation(q: Any) -> NDArray[np.float64] | None:
+def rotation_of(q: Any) -> NDArray[np.float64] | None:
     """The rotation matrix of a quaternion, normalised; None if it is not finite or not a
     rotation at all (zero)."""
     x, y, z, w = (float(v) for v in (q.x, q.y, q.z, q.w))
@@ -71,7 +77,7 @@ class _TransformTree:
         else:
             parent, t, q = transform.parent_frame_id, transform.translation, transform.rotation
         child = transform.child_frame_id
-        R, offset = _rotation(q), np.array([t.x, t.y, t.z], dtype=np.float64)
+        R, offset = rotation_of(q), np.array([t.x, t.y, t.z], dtype=np.float64)
         if R is None or not np.all(np.isfinite(offset)):
             raise LogError(
                 f"/tf_static: the transform {parent} -> {child} has a non-finite translation or "

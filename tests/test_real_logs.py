@@ -5,8 +5,6 @@ chain, mapped with no settings beyond the marker sizes and the dictionary."""
 
 from __future__ import annotations
 
-import bz2
-import math
 import subprocess
 import sys
 from pathlib import Path
@@ -18,6 +16,7 @@ import pytest
 from mcap_ros2.writer import Writer
 
 import markergraph as mg
+from markergraph.datasets import tagslam
 from markergraph.estimator import map_error
 from markergraph.frontend import messages
 from markergraph.frontend.rig import read_camera_poses, read_kalibr_cameras, read_tagslam
@@ -34,11 +33,7 @@ TWO_TAGS_RMSE_22_M = 0.01  # 0.3 cm
 
 
 def unpacked(test: str, name: str, folder: Path) -> Path:
-    """A test's bag, decompressed from its .bz2 (rosbags reads plain bags)."""
-    target = folder / f"{test}-{name}.bag"
-    if not target.exists():
-        target.write_bytes(bz2.decompress((DATA / test / f"{name}.bag.bz2").read_bytes()))
-    return target
+    return tagslam.unpacked(DATA / test, name, folder)
 
 
 @pytest.fixture(scope="module")
@@ -47,36 +42,11 @@ def bags(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def reference_wall_tags(bag: Path) -> dict[int, gtsam.Pose2]:
-    """TagSLAM's optimised tags (``tag_<id>`` on /tf, in its gravity-aligned map) whose normal
-    is within 45 degrees of horizontal, as 2-D poses (x along the normal)."""
-    last = {}
-    for message in messages(bag, ["/tf"]):
-        for transform in message.decoded.transforms:
-            last[transform.child_frame_id] = transform.transform
-    tags = {}
-    for name, transform in last.items():
-        if not name.startswith("tag_"):
-            continue
-        q = transform.rotation
-        normal = gtsam.Rot3.Quaternion(q.w, q.x, q.y, q.z).matrix()[:, 2]
-        if abs(normal[2]) < math.sin(math.radians(45.0)):
-            t = transform.translation
-            tags[int(name[4:])] = gtsam.Pose2(t.x, t.y, math.atan2(normal[1], normal[0]))
-    return tags
+    return tagslam.reference_wall_tags(bag)
 
 
 def settings(test: str, **extra: Any) -> mg.MapConfig:
-    folder = DATA / test
-    return mg.MapConfig.from_values(
-        {
-            "dictionary": "DICT_APRILTAG_36h11",
-            "method": "all",
-            "rig.cameras": str(folder / "cameras.yaml"),
-            "rig.camera_poses": str(folder / "camera_poses.yaml"),
-            "rig.tagslam": str(folder / "tagslam.yaml"),
-            **extra,
-        }
-    )
+    return mg.MapConfig.from_values(tagslam.settings_for(DATA / test, **extra))
 
 
 def errors(run: mg.MapRun, reference: dict[int, gtsam.Pose2]) -> dict[str, float]:

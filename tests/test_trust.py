@@ -590,6 +590,15 @@ def rewritten(log: Path, tmp_path: Path, name: str, change: Callable[[str, int, 
     return path
 
 
+def moved_from_clean(log: Path, tmp_path: Path, capsys, result: Path) -> float:
+    """How far [m] the markers of a result lie from those of the clean log's map."""
+    code, _, err = cli(capsys, "map", log, "--out", tmp_path / "clean", "--no-plots")
+    assert code == 0, err
+    clean, got = markers_of(tmp_path / "clean"), markers_of(result)
+    assert clean.keys() == got.keys()
+    return max(float(np.linalg.norm(clean[i] - got[i])) for i in clean)
+
+
 def test_bad_ground_truth_and_camera_info_cost_only_themselves(log, tmp_path, capsys) -> None:
     """One NaN true pose, one NaN true marker and one camera info with a NaN distortion: the run
     goes on (the next camera info is used), each dropped with a note naming its topic, and the
@@ -612,9 +621,7 @@ def test_bad_ground_truth_and_camera_info_cost_only_themselves(log, tmp_path, ca
     assert INFO in err and "non-finite distortion" in err
     report = strict_json(tmp_path / "r" / "report.json")
     assert report["frames"] == 100 and sum(report["skipped_frames"].values()) == 0
-    code, _, err = cli(capsys, "map", log, "--out", tmp_path / "clean", "--no-plots")
-    clean, got = markers_of(tmp_path / "clean"), markers_of(tmp_path / "r")
-    assert max(np.linalg.norm(clean[i] - got[i]) for i in clean) < SAME_MAP_M
+    assert moved_from_clean(log, tmp_path, capsys, tmp_path / "r") < SAME_MAP_M
 
 
 def test_absurd_odometry_and_a_spike_are_dropped(log: Path, tmp_path: Path, capsys) -> None:
@@ -622,17 +629,14 @@ def test_absurd_odometry_and_a_spike_are_dropped(log: Path, tmp_path: Path, caps
     a note; the map stays within 1 cm of the clean log's."""
 
     def damage(topic: str, index: int, decoded: Any) -> Any:
-        if topic != "/odom":
-            return decoded
-        position, q = decoded.pose.pose.position, decoded.pose.pose.orientation
-        if topic == "/odom" and index == 100:
-            position.x = 1e300
-        if topic == "/odom" and index == 200:
-            position.x = 1e20
-        if topic == "/odom" and index == 300:
-            q.x = q.y = q.z = q.w = 0.0
-        if topic == "/odom" and index == 400:
-            position.x += 100.0
+        if topic == "/odom":
+            position, q = decoded.pose.pose.position, decoded.pose.pose.orientation
+            if index in (100, 200):
+                position.x = {100: 1e300, 200: 1e20}[index]
+            elif index == 300:
+                q.x = q.y = q.z = q.w = 0.0
+            elif index == 400:
+                position.x += 100.0
         return decoded
 
     damaged = rewritten(log, tmp_path, "odometry", damage)
@@ -640,9 +644,7 @@ def test_absurd_odometry_and_a_spike_are_dropped(log: Path, tmp_path: Path, caps
     assert code == 0, err
     assert "dropped 3 odometry sample(s) on /odom with NaN, infinite or absurd values" in err
     assert "dropped 1 odometry sample(s) on /odom that jump away and back faster" in err
-    code, _, err = cli(capsys, "map", log, "--out", tmp_path / "clean", "--no-plots")
-    clean, got = markers_of(tmp_path / "clean"), markers_of(tmp_path / "r")
-    assert max(np.linalg.norm(clean[i] - got[i]) for i in clean) < 0.01
+    assert moved_from_clean(log, tmp_path, capsys, tmp_path / "r") < 0.01
 
 
 def test_one_frame_with_a_wrong_stamp_costs_that_frame(log, frames_with_markers, tmp_path, capsys):
@@ -783,3 +785,19 @@ def test_logs_that_cannot_be_mapped_say_why(log: Path, tmp_path: Path, capsys) -
         code, _, err = cli(capsys, "map", source, "--out", tmp_path / "r")
         assert code == 1, err
         one_line_error(err, words)
+
+
+def test_an_odometry_reset_is_named_and_released(log: Path, tmp_path: Path, capsys) -> None:
+    """Every /odom pose after the 500th moved 0.3 m (a VIO reset): the run names the jump with
+    its size and time, and the map stays within 1 cm of the clean log's."""
+
+    def reset(topic: str, index: int, decoded: Any) -> Any:
+        if topic == "/odom" and index >= 500:
+            decoded.pose.pose.position.x += 0.3
+        return decoded
+
+    damaged = rewritten(log, tmp_path, "reset", reset)
+    code, _, err = cli(capsys, "map", damaged, "--out", tmp_path / "r", "--no-plots")
+    assert code == 0, err
+    assert "odometry on /odom jumped 0.30 m at 10.00 s into the log" in err
+    assert moved_from_clean(log, tmp_path, capsys, tmp_path / "r") < 0.01
