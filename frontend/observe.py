@@ -13,7 +13,13 @@ from numpy.typing import NDArray
 from markergraph.estimator.types import Observation
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import Detection, Detector
-from markergraph.frontend.yaw import YawMethod, marker_centre, yaw_from_corners, yaw_sigma
+from markergraph.frontend.yaw import (
+    YawMethod,
+    marker_centre,
+    pnp_pose,
+    yaw_from_corners,
+    yaw_sigma,
+)
 
 __all__ = ["DepthModel", "Flags", "ObservationModel", "observe", "observe_detections"]
 
@@ -25,7 +31,7 @@ class Flags:
     SMALL = "small"  # a vertical edge shorter than SMALL_EDGE_PX
     GRAZING = "grazing"  # |theta| beyond GRAZING_RAD: corners foreshortened, yaw poor
     AMBIGUOUS = "ambiguous"  # |theta| under AMBIGUOUS_RAD: the yaw's sign is unreliable
-    NO_DEPTH = "no-depth"  # range from the marker's size, not the depth image
+    NO_DEPTH = "no-depth"  # range from the marker's pose (PnP), not the depth image
 
 
 EDGE_MARGIN_PX = 10.0
@@ -136,9 +142,18 @@ def observe_detections(
         flags = set()
         z = None if depth is None else _marker_depth(depth, corners, depth_model)
         if z is None:
-            # Without depth: the mean vertical edge images f * L / Z for a level camera.
-            z = camera.fy * length_m / ((left + right) / 2.0)
+            # Without depth: the marker's full pose from its corners and size (PnP); a pitched
+            # camera or an oblique marker foreshortens the edges, which a size-only range would
+            # read as distance. Its sigma: the mean vertical edge images f * L / Z.
             flags.add(Flags.NO_DEPTH)
+            pose = pnp_pose(corners, camera, length_m)
+            z = (
+                float(pose[1][2])
+                if pose is not None
+                else camera.fy * length_m / ((left + right) / 2.0)
+            )
+            if pose is not None:
+                ray = pose[1] / pose[1][2]
             sigma_z = z * corner_sigma_px * math.sqrt(2.0) / ((left + right) / 2.0)
         else:
             sigma_z = depth_model.sigma(z)
@@ -199,7 +214,8 @@ def observe(
         marker_lengths_m: the sides of markers whose size differs, by id.
         dictionary: the markers' dictionary (ignored when ``detector`` is given).
         depth: aligned depth, uint16 millimetres or float32 metres, 0 or NaN for no return;
-            without it, range comes from the marker's size and is flagged ``no-depth``.
+            without it, range comes from the marker's pose (PnP on its corners and size) and
+            is flagged ``no-depth``.
         method: how theta is computed from the corners.
         mount: the camera's height, pitch and offset on the base, for the horizontal range.
         t_ns: the frame's stamp, copied into each observation.

@@ -560,7 +560,7 @@ def extract(
         result.notes.append(
             f"{result.depth_misses} of {result.depth_tries} observations in frames with depth "
             f"found no valid depth on their marker in {choice.depth} (0, NaN, negative or beyond"
-            " noise.depth_max_m): their range comes from the marker's size"
+            " noise.depth_max_m): their range comes from the marker's pose (PnP)"
         )
     if result.ids_left_out:
         ids = ", ".join(str(i) for i in sorted(result.ids_left_out))

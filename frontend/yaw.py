@@ -105,6 +105,20 @@ def yaw_from_corners(
         )
     if marker_length_m is None:
         raise ValueError("yaw method pnp needs the marker's side length")
+    pose = pnp_pose(corners, camera, marker_length_m)
+    if pose is None:
+        return math.nan
+    R, t = pose
+    camera_in_marker = -R.T @ t
+    # Our marker frame (top view): +x = OpenCV z (the normal), +y = OpenCV x (viewer's right).
+    return math.atan2(camera_in_marker[0], camera_in_marker[2])
+
+
+def pnp_pose(
+    corners: NDArray[np.float64], camera: Camera, marker_length_m: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The marker's pose in the optical frame, (R (3, 3), t (3,) [m]), from its undistorted
+    corners (OpenCV's order) by ``solvePnP`` with IPPE for squares; None if it finds none."""
     half = marker_length_m / 2.0
     # OpenCV's marker frame: x to the viewer's right, y up, z out of the marker toward the viewer.
     object_points = np.array(
@@ -114,11 +128,9 @@ def yaw_from_corners(
         object_points, corners, camera.K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
     )
     if not ok:
-        return math.nan
+        return None
     R, _ = cv2.Rodrigues(rvec)
-    camera_in_marker = -R.T @ tvec.ravel()
-    # Our marker frame (top view): +x = OpenCV z (the normal), +y = OpenCV x (viewer's right).
-    return math.atan2(camera_in_marker[0], camera_in_marker[2])
+    return np.asarray(R, dtype=np.float64), np.asarray(tvec, dtype=np.float64).ravel()
 
 
 def yaw_sigma(

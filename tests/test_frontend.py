@@ -612,3 +612,31 @@ def test_range_is_the_papers_corrected_distance() -> None:
     frame = renderer.render(gtsam.Pose2(0.0, horizontal, -math.pi / 2), np.random.default_rng(1))
     (obs,) = observe(frame.rgb, renderer.camera, 0.2, depth=frame.depth_mm, mount=mount)
     assert obs.range_m == pytest.approx(horizontal, abs=0.01)
+
+
+def test_range_without_depth_comes_from_the_full_pose() -> None:
+    """Without depth, the range is PnP's: on rendered frames of the paper room (camera pitched
+    10 deg) its median error is under 3 cm (1.7 cm measured), where the marker's edge length
+    alone gave 5.3 cm."""
+    from markergraph.datasets.render import Renderer
+    from markergraph.datasets.route import drive
+    from markergraph.frontend.observe import ObservationModel, observe_detections
+
+    world, route = scenario("paper-room")
+    renderer = Renderer(world)
+    rng = np.random.default_rng(0)
+    detector = Detector(allowed_ids=[m.id for m in world.markers])
+    errors = []
+    for pose in drive(world, route, rng, frame_hz=2.0).frame_poses[:120]:
+        T_world_base = gtsam.Pose2(*pose)
+        camera = T_world_base.compose(renderer.mount.T_base_camera).translation()
+        for obs in observe_detections(
+            detector.detect(renderer.render(T_world_base, rng).rgb),
+            renderer.camera,
+            ObservationModel(0.2),
+            mount=renderer.mount,
+        ):
+            truth = np.linalg.norm(world.T_world_marker(obs.marker_id).translation() - camera)
+            errors.append(abs(obs.range_m - truth))
+    assert len(errors) > 50
+    assert np.median(errors) < 0.03
