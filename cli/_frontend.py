@@ -65,6 +65,7 @@ def run_info(args: argparse.Namespace) -> int:
         ("camera info", choice.camera_info),
         ("odometry", choice.odom),
         ("camera mount", choice.tf_static),
+        ("detections", ", ".join(choice.detections) or None),
     ):
         print(f"  {role:<12} {name or '(none)'}")
     return 0

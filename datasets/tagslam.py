@@ -15,12 +15,9 @@ from typing import Any
 import gtsam
 
 from markergraph.frontend import messages
+from markergraph.frontend.posed import WALL_TILT_RAD
 
-__all__ = ["WALL_TILT_DEG", "reference_wall_tags", "settings_for", "unpacked"]
-
-WALL_TILT_DEG = (
-    45.0  # as the front end: a tag whose normal is further from horizontal is not on a wall
-)
+__all__ = ["reference_wall_tags", "settings_for", "unpacked"]
 
 
 def unpacked(folder: Path, name: str, into: Path) -> Path:
@@ -58,7 +55,7 @@ def reference_wall_tags(bag: Path) -> dict[int, gtsam.Pose2]:
             continue
         q = transform.rotation
         normal = gtsam.Rot3.Quaternion(q.w, q.x, q.y, q.z).matrix()[:, 2]
-        if abs(normal[2]) < math.sin(math.radians(WALL_TILT_DEG)):
+        if abs(normal[2]) < math.sin(WALL_TILT_RAD):  # as the front end decides
             t = transform.translation
             tags[int(name[4:])] = gtsam.Pose2(t.x, t.y, math.atan2(normal[1], normal[0]))
     return tags

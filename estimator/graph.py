@@ -94,16 +94,16 @@ class GraphBuilder:
         self.T_base_camera, self.robust = T_base_camera, robust
         self.graph, self.values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         self.kinds: list[str] = []
-        self._new_graph, self._new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        # Where take_new's last increment ended: batch use pays nothing for iSAM2's increments.
+        self._taken_factors, self._new_keys = 0, list[int]()
 
     def _add(self, factor: gtsam.NonlinearFactor, kind: str) -> None:
         self.graph.add(factor)
-        self._new_graph.add(factor)
         self.kinds.append(kind)
 
     def _initial(self, key: int, pose: gtsam.Pose2) -> None:
         self.values.insert(key, pose)
-        self._new_values.insert(key, pose)
+        self._new_keys.append(key)
 
     def add_home_prior(self, home_id: int) -> None:
         """Fix the home marker at the map origin."""
@@ -148,9 +148,13 @@ class GraphBuilder:
 
     def take_new(self) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
         """The factors and initial values added since the last call."""
-        new = self._new_graph, self._new_values
-        self._new_graph, self._new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        return new
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for index in range(self._taken_factors, self.graph.size()):
+            graph.add(self.graph.at(index))
+        for key in self._new_keys:
+            values.insert(key, self.values.atPose2(key))
+        self._taken_factors, self._new_keys = self.graph.size(), []
+        return graph, values
 
 
 def key_name(key: int) -> str:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import gtsam
@@ -68,11 +68,6 @@ class Trajectory:
 
     __hash__ = None  # type: ignore[assignment]  # mutable-looking arrays: not hashable
 
-    def samples(self) -> Iterator[OdometrySample]:
-        """The poses as :class:`OdometrySample` records."""
-        for t, (x, y, yaw) in zip(self.t_ns, self.poses, strict=True):
-            yield OdometrySample(int(t), float(x), float(y), float(yaw))
-
     def pose(self, i: int) -> gtsam.Pose2:
         """The i-th pose."""
         return gtsam.Pose2(*self.poses[i])
@@ -90,7 +85,7 @@ class Trajectory:
         t0, t1 = self.t_ns[i - 1], self.t_ns[i]
         return interpolate_pose(self.pose(i - 1), self.pose(i), (t_ns - t0) / (t1 - t0))
 
-    def at_stamps(self, stamps_ns: Iterable[int], frame: str | None = None) -> Trajectory:
+    def at_stamps(self, stamps_ns: Iterable[int]) -> Trajectory:
         """This trajectory at the given stamps (those it does not reach are left out)."""
         kept_t, kept = [], []
         for t in stamps_ns:
@@ -98,7 +93,7 @@ class Trajectory:
             if pose is not None:
                 kept_t.append(int(t))
                 kept.append([pose.x(), pose.y(), pose.theta()])
-        return Trajectory(np.array(kept_t, dtype=np.int64), np.array(kept), frame or self.frame)
+        return Trajectory(np.array(kept_t, dtype=np.int64), np.array(kept), self.frame)
 
     def in_frame(self, T_new_frame: gtsam.Pose2, frame: str) -> Trajectory:
         """The same path expressed in another frame: ``T_new_base = T_new_frame * T_frame_base``."""

@@ -14,6 +14,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, Message
 
 __all__ = ["ROS1_MAGIC", "is_bag", "log_time_range", "log_topics", "messages"]
@@ -33,9 +35,11 @@ def is_bag(path: Path) -> bool:
     metadata = path / "metadata.yaml"
     if path.is_dir() and metadata.is_file():
         try:
-            return "storage_identifier: sqlite3" in metadata.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError):
-            return False
+            document = yaml.safe_load(metadata.read_text(encoding="utf-8"))
+            storage = document["rosbag2_bagfile_information"]["storage_identifier"]
+        except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError):
+            return False  # the MCAP reader names what is wrong with it
+        return bool(storage == "sqlite3")
     return False
 
 

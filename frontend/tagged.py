@@ -78,6 +78,10 @@ class _Reader:
         self.poses: list[tuple[int, NDArray[np.float64], NDArray[np.float64]]] = []
         self.body_frame: str | None = None
         self.static: list[Any] = []
+        # The rig files, read once (errors name the file before the log is read).
+        self.kalibr = read_kalibr_cameras(config.kalibr_cameras) if config.kalibr_cameras else []
+        self.camera_poses = read_camera_poses(config.camera_poses) if config.camera_poses else {}
+        self.tagslam = read_tagslam(config.tagslam) if config.tagslam else None
 
     def read(self) -> DetectionLog:
         infos = [t for t, schema in self.schemas.items() if schema in CALIBRATION_SCHEMAS]
@@ -119,10 +123,9 @@ class _Reader:
 
     def _camera_for(self, topic: str, frame: str) -> tuple[str | None, Camera | None]:
         """(Kalibr camera name, intrinsics) of a detection topic."""
-        if self.config.kalibr_cameras is not None:
-            for entry in read_kalibr_cameras(self.config.kalibr_cameras):
-                if entry.tag_topic == topic:
-                    return entry.name, entry.camera
+        for entry in self.kalibr:
+            if entry.tag_topic == topic:
+                return entry.name, entry.camera
         namespace = topic.rsplit("/", 1)[0]
         by_namespace = [t for t in self.infos if t.rsplit("/", 1)[0] == namespace]
         by_frame = [t for t, info in self.infos.items() if frame_id(info) == frame]
@@ -146,14 +149,9 @@ class _Reader:
                 except LogError as error:
                     reason = str(error)
             self.log.notes.append(f"{reason}; looking for the camera's pose in the settings")
-        if name is not None and self.config.camera_poses is not None:
-            poses = read_camera_poses(self.config.camera_poses)
-            if name in poses:
-                T_rig_camera = poses[name]
-                T_rig_odom = Pose3.identity()
-                if self.config.tagslam is not None:
-                    T_rig_odom = read_tagslam(self.config.tagslam).T_rig_odom or T_rig_odom
-                return T_rig_odom.inverse().compose(T_rig_camera)
+        if name is not None and name in self.camera_poses:
+            T_rig_odom = (self.tagslam and self.tagslam.T_rig_odom) or Pose3.identity()
+            return T_rig_odom.inverse().compose(self.camera_poses[name])
         return None
 
     def _views(self) -> dict[str, tuple[Camera, Pose3]]:
@@ -188,9 +186,8 @@ class _Reader:
 
     def _observe(self, views: dict[str, tuple[Camera, Pose3]]) -> None:
         model = self.config.observation_model
-        if self.config.tagslam is not None:
-            tagslam = read_tagslam(self.config.tagslam)
-            sizes = {**tagslam.tag_sizes_m, **dict(model.marker_lengths_m)}
+        if self.tagslam is not None:
+            sizes = {**self.tagslam.tag_sizes_m, **dict(model.marker_lengths_m)}
             model = replace(model, marker_lengths_m=sizes)
         forward = next(iter(views.values()))[1].R[:, 2]  # the heading's axis on the body
         stamps = np.array([t for t, _, _ in self.poses], dtype=np.int64)
