@@ -3,6 +3,7 @@ ground truth."""
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -161,11 +162,22 @@ def map_log(
             "the log (a visual-inertial reset or relocalisation): that step is left to the "
             "observations"
         )
+    source, odometry_noise = config.odometry_noise(extraction.topics.odom)
+    extraction.notes.append(
+        f"odometry noise: the {source} model ({100 * odometry_noise.per_m:.1f} cm and "
+        f"{math.degrees(odometry_noise.yaw_per_m):.2f} deg per sqrt(m), "
+        f"{math.degrees(odometry_noise.yaw_per_rad):.2f} deg per sqrt(rad) turned)"
+        + (
+            f", chosen by the name {extraction.topics.odom}"
+            if config.values["odometry.source"] == "auto"
+            else ""
+        )
+    )
     frames = build_frames(
         extraction.observations,
         extraction.odometry,
         config.home_id,
-        odometry_noise=config.odometry_noise,
+        odometry_noise=odometry_noise,
         odometry_breaks=[t for t, _ in jumps],
     )
     # Ground truth, when logged, re-expressed in the frame of the estimate's home marker.

@@ -12,6 +12,7 @@ Later sources win: defaults, then the file, then flags.
 from __future__ import annotations
 
 import math
+import re
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -19,7 +20,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any, cast
 
-from markergraph.estimator import Method, OdometryNoise, Robust, SettingsError
+from markergraph.estimator import ODOMETRY_NOISE, Method, OdometryNoise, Robust, SettingsError
 from markergraph.frontend.camera import CameraMount
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.observe import DepthModel
@@ -34,6 +35,13 @@ __all__ = [
     "map_config",
     "read_config_file",
 ]
+
+# Odometry sources by topic name: a RealSense T265's (/camera/odom/sample), then other
+# visual-inertial systems (basalt's /vio_node/odom, VINS, OpenVINS, OKVIS, ROVIO, Kimera, ZED).
+_SOURCE_BY_TOPIC = (
+    ("t265", re.compile(r"t265|odom/sample", re.I)),
+    ("vio", re.compile(r"vio|vins|basalt|okvis|msckf|rovio|kimera|zed", re.I)),
+)
 
 # With "all", SLAM comes first: the result folder's top-level files are its.
 ALL_METHODS = (Method.SLAM, Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.ISAM2, Method.EKF)
@@ -148,6 +156,13 @@ class Setting:
         return value
 
 
+def _optional(parse: Callable[[Any], float]) -> Callable[[Any], float | None]:
+    def optional(value: Any) -> float | None:
+        return None if value is None else parse(value)
+
+    return optional
+
+
 _NOISE_M = _number(0.0, 10.0)
 _ODOMETRY_NOISE = _number(1e-6, 10.0)
 
@@ -178,7 +193,7 @@ SETTINGS: tuple[Setting, ...] = (
             "without /tf_static: camera left of the base origin [m]"),
     Setting("camera.height", 0.6, _number(0.0, 100.0),
             "without /tf_static: optical centre above the floor [m]"),
-    Setting("camera.pitch_deg", 10.0, _number(-90.0, 90.0),
+    Setting("camera.pitch_deg", 0.0, _number(-90.0, 90.0),
             "without /tf_static: optical axis tilted up from level [deg]"),
     Setting("camera.yaw_deg", 0.0, _number(-360.0, 360.0),
             "without /tf_static: optical axis turned left of the base's x axis [deg]"),
@@ -190,12 +205,15 @@ SETTINGS: tuple[Setting, ...] = (
             "depth sigma's quadratic term [1/m]"),
     Setting("noise.depth_max_m", DepthModel().max_range_m, _number(0.1, 1000.0),
             "depths beyond this are treated as no return [m]"),
-    Setting("noise.odometry_per_m", OdometryNoise().per_m, _ODOMETRY_NOISE,
-            "odometry position sigma after 1 m travelled [m/sqrt(m)]"),
-    Setting("noise.odometry_yaw_per_m", OdometryNoise().yaw_per_m, _ODOMETRY_NOISE,
-            "odometry heading sigma after 1 m travelled [rad/sqrt(m)]"),
-    Setting("noise.odometry_yaw_per_rad", OdometryNoise().yaw_per_rad, _ODOMETRY_NOISE,
-            "odometry heading sigma after 1 rad turned [rad/sqrt(rad)]"),
+    Setting("odometry.source", "auto", _text,
+            "the odometry's noise preset; auto: t265 or vio by the topic's name, else wheel",
+            choices=["auto", *ODOMETRY_NOISE]),
+    Setting("noise.odometry_per_m", None, _optional(_ODOMETRY_NOISE),
+            "odometry position sigma after 1 m travelled [m/sqrt(m)] (default: the source's)"),
+    Setting("noise.odometry_yaw_per_m", None, _optional(_ODOMETRY_NOISE),
+            "odometry heading sigma after 1 m travelled [rad/sqrt(m)] (default: the source's)"),
+    Setting("noise.odometry_yaw_per_rad", None, _optional(_ODOMETRY_NOISE),
+            "odometry heading sigma after 1 rad turned [rad/sqrt(rad)] (default: the source's)"),
     # Huber by default: real detections have outliers (near-frontal pose flips); on the
     # rendered paper-room log it cut SLAM's marker error 4x, and cost nothing elsewhere.
     Setting("noise.robust", Robust.HUBER.value, _text,
@@ -283,14 +301,24 @@ class MapConfig:
         """Processes that decode and detect."""
         return cast(int, self.values["workers"])
 
-    @property
-    def odometry_noise(self) -> OdometryNoise:
-        """The odometry noise model the estimators assume."""
+    def odometry_noise(self, topic: str | None = None) -> tuple[str, OdometryNoise]:
+        """The odometry source (``odometry.source``, or guessed from the odometry ``topic``) and
+        the noise model the estimators assume: its preset, with any ``noise.odometry_*`` given."""
         v = self.values
-        return OdometryNoise(
-            v["noise.odometry_per_m"],
-            v["noise.odometry_yaw_per_m"],
-            v["noise.odometry_yaw_per_rad"],
+        source = v["odometry.source"]
+        if source == "auto":
+            found = (name for name, pattern in _SOURCE_BY_TOPIC if pattern.search(topic or ""))
+            source = next(found, "wheel")
+        preset = ODOMETRY_NOISE[source]
+        return source, OdometryNoise(
+            *(
+                preset_value if v[key] is None else v[key]
+                for key, preset_value in (
+                    ("noise.odometry_per_m", preset.per_m),
+                    ("noise.odometry_yaw_per_m", preset.yaw_per_m),
+                    ("noise.odometry_yaw_per_rad", preset.yaw_per_rad),
+                )
+            )
         )
 
     @property

@@ -54,6 +54,7 @@ FLAGS: dict[str, Flag] = {
     "noise.depth_base_m": Flag("--depth-noise-base", "M", type=float),
     "noise.depth_per_m2": Flag("--depth-noise-per-m2", "K", type=float),
     "noise.depth_max_m": Flag("--depth-max", "M", type=float),
+    "odometry.source": Flag("--odometry-source", commands=_MAP),
     "noise.odometry_per_m": Flag("--odometry-noise", "M", type=float, commands=_MAP),
     "noise.odometry_yaw_per_m": Flag("--odometry-yaw-noise", "RAD", type=float, commands=_MAP),
     "noise.odometry_yaw_per_rad": Flag("--odometry-turn-noise", "RAD", type=float, commands=_MAP),
@@ -68,6 +69,7 @@ _GROUPS = {
     "topics": "topics",
     "rig": "a rig's cameras (logs of marker detections)",
     "camera": "camera mount",
+    "odometry": "odometry",
     "noise": "noise model",
 }
 

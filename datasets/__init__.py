@@ -6,6 +6,7 @@ The random convex rooms of the closed-form property tests live in
 from markergraph.datasets.route import GoTo, Look, Route, RoutePlan, WheelErrors, plan
 from markergraph.datasets.scenarios import SCENARIOS, scenario
 from markergraph.datasets.simulate import (
+    SIMULATED_MOUNT,
     ObservationNoise,
     SimulatedRun,
     Visibility,
@@ -17,6 +18,7 @@ from markergraph.datasets.write import write_log
 
 __all__ = [
     "SCENARIOS",
+    "SIMULATED_MOUNT",
     "GoTo",
     "Look",
     "Marker",

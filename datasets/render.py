@@ -21,7 +21,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.datasets.simulate import MarkerGeometry
+from markergraph.datasets.simulate import SIMULATED_MOUNT, MarkerGeometry
 from markergraph.datasets.world import World
 from markergraph.frontend.camera import Camera, CameraMount
 
@@ -106,7 +106,7 @@ class Renderer:
         self,
         world: World,
         camera: Camera = Camera(),
-        mount: CameraMount = CameraMount(),
+        mount: CameraMount = SIMULATED_MOUNT,
         *,
         ceiling_m: float = 2.6,
         depth_noise: DepthNoise = DepthNoise(),

@@ -21,7 +21,11 @@ from markergraph.estimator.angles import wrap_array
 from markergraph.estimator.types import Observation, OdometryNoise, OdometrySample
 from markergraph.frontend.camera import Camera, CameraMount
 
+# The simulated robot's camera: 0.6 m high, pitched up 10 degrees towards 1 m-high markers.
+SIMULATED_MOUNT = CameraMount(x_m=0.1, height_m=0.6, pitch_rad=math.radians(10.0))
+
 __all__ = [
+    "SIMULATED_MOUNT",
     "MarkerGeometry",
     "ObservationNoise",
     "SimulatedRun",
@@ -206,7 +210,7 @@ def simulate_fast(
     seed: int,
     *,
     camera: Camera = Camera(),
-    mount: CameraMount = CameraMount(),
+    mount: CameraMount = SIMULATED_MOUNT,
     noise: ObservationNoise = ObservationNoise(),
     wheel: WheelErrors = WheelErrors(),
     visibility: Visibility = Visibility(),

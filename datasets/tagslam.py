@@ -13,11 +13,23 @@ from pathlib import Path
 from typing import Any
 
 import gtsam
+import numpy as np
+from numpy.typing import NDArray
 
+from markergraph.estimator import Observation, OdometrySample, Trajectory
 from markergraph.frontend import messages
+from markergraph.frontend.decode import stamp_ns
 from markergraph.frontend.posed import WALL_TILT_RAD
+from markergraph.frontend.rig import Pose3, read_camera_poses, read_tagslam
+from markergraph.frontend.tf import planar_pose, rotation_of
 
-__all__ = ["reference_wall_tags", "settings_for", "unpacked"]
+__all__ = [
+    "observation_errors",
+    "odometry_and_reference",
+    "reference_wall_tags",
+    "settings_for",
+    "unpacked",
+]
 
 
 def unpacked(folder: Path, name: str, into: Path) -> Path:
@@ -59,3 +71,61 @@ def reference_wall_tags(bag: Path) -> dict[int, gtsam.Pose2]:
             t = transform.translation
             tags[int(name[4:])] = gtsam.Pose2(t.x, t.y, math.atan2(normal[1], normal[0]))
     return tags
+
+
+def odometry_and_reference(folder: Path, into: Path) -> tuple[Trajectory, Trajectory]:
+    """A test's odometry and TagSLAM's optimised path of the same body, both on the floor with
+    the heading of the first camera's optical axis (as the front end levels them), in their own
+    frames: what an odometry noise model is measured against."""
+    folder = Path(folder)
+    tagslam = read_tagslam(folder / "tagslam.yaml")
+    if tagslam.odom_topic is None:
+        raise ValueError(f"{folder}: tagslam.yaml names no odometry topic")
+    T_rig_odom = tagslam.T_rig_odom or Pose3.identity()
+    T_rig_camera = next(iter(read_camera_poses(folder / "camera_poses.yaml").values()))
+    forward = T_rig_odom.inverse().compose(T_rig_camera).R[:, 2]
+
+    def path(bag: Path, topic: str, T_pose_body: Pose3, frame: str) -> Trajectory:
+        samples = []
+        for message in messages(bag, [topic]):
+            pose = message.decoded.pose.pose
+            R = rotation_of(pose.orientation)
+            if R is None:
+                continue
+            p = pose.position
+            T = Pose3(R, np.array([p.x, p.y, p.z])).compose(T_pose_body)
+            samples.append(
+                OdometrySample(stamp_ns(message.decoded), *planar_pose(T.t, T.R, forward))
+            )
+        return Trajectory.from_samples(samples, frame)
+
+    odometry = path(
+        unpacked(folder, "tag_detections", into), tagslam.odom_topic, Pose3.identity(), "odom"
+    )
+    reference = path(
+        unpacked(folder, "reference", into), "/tagslam/odom/body_rig", T_rig_odom, "map"
+    )
+    return odometry, reference
+
+
+def observation_errors(
+    observations: list[Observation], reference: Trajectory, tags: dict[int, gtsam.Pose2]
+) -> NDArray[np.float64]:
+    """Each observation of a reference tag against what TagSLAM's path and map predict, as rows
+    (range error [m], theta error [rad], sigma_range, sigma_theta, predicted range [m]).
+
+    Range (horizontal, body origin to tag centre) and theta (the line of sight against the tag's
+    normal) do not depend on how a heading is defined, so they compare across conventions.
+    """
+    rows = []
+    for o in observations:
+        tag = tags.get(o.marker_id)
+        body = reference.at(o.t_ns, max_extrapolation_ns=50_000_000)
+        if tag is None or body is None:
+            continue
+        dx, dy = tag.x() - body.x(), tag.y() - body.y()
+        theta = math.remainder(math.atan2(dy, dx) + math.pi - tag.theta(), math.tau)
+        range_m = math.hypot(dx, dy)
+        rows.append((o.range_m - range_m, math.remainder(o.theta - theta, math.tau),
+                     o.sigma_range, o.sigma_theta, range_m))  # fmt: skip
+    return np.array(rows, dtype=np.float64).reshape(-1, 5)

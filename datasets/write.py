@@ -33,6 +33,7 @@ from mcap_ros2.writer import Writer
 
 from markergraph.datasets.render import Renderer
 from markergraph.datasets.route import Drive, Route, WheelErrors, drive
+from markergraph.datasets.simulate import SIMULATED_MOUNT
 from markergraph.datasets.world import World
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.files import written_whole
@@ -143,7 +144,7 @@ def write_log(
     frame_hz: float = 15.0,
     odometry_hz: float = 50.0,
     camera: Camera = Camera(),
-    mount: CameraMount = CameraMount(),
+    mount: CameraMount = SIMULATED_MOUNT,
     wheel: WheelErrors = WheelErrors(),
     topics: Topics = Topics(),
     progress: Callable[[int, int], None] | None = None,

@@ -1,6 +1,12 @@
 """markergraph.estimator: the paper's closed forms and the estimators (numpy, gtsam, filterpy)."""
 
 from markergraph.estimator.angles import angle_diff, wrap, wrap_array
+from markergraph.estimator.consistency import (
+    OdometryStretch,
+    fit_odometry_noise,
+    odometry_nees,
+    odometry_stretches,
+)
 from markergraph.estimator.frames import Frame, Frames, build_frames
 from markergraph.estimator.graph import Robust
 from markergraph.estimator.metrics import (
@@ -26,6 +32,7 @@ from markergraph.estimator.paper import (
 from markergraph.estimator.run import estimate, estimate_frames
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
+    ODOMETRY_NOISE,
     Estimate,
     EstimationError,
     FactorResidual,
@@ -42,6 +49,7 @@ from markergraph.estimator.types import (
 )
 
 __all__ = [
+    "ODOMETRY_NOISE",
     "Edge",
     "Estimate",
     "EstimationError",
@@ -58,6 +66,7 @@ __all__ = [
     "Observation",
     "OdometryNoise",
     "OdometrySample",
+    "OdometryStretch",
     "OutputError",
     "PolarPose",
     "RejectedObservationError",
@@ -74,10 +83,13 @@ __all__ = [
     "edge_to_pose2",
     "estimate",
     "estimate_frames",
+    "fit_odometry_noise",
     "heading",
     "map_error",
     "nees",
     "odometry",
+    "odometry_nees",
+    "odometry_stretches",
     "trajectory_error",
     "wrap",
     "wrap_array",

@@ -5,7 +5,8 @@ Messages decode to rosbags' dataclasses, whose fields carry the ROS names (``hea
 ``nanosec``; ROS 1's ``CameraInfo`` has ``K`` and ``D``), and types are named ROS 2 style
 (``nav_msgs/msg/Odometry``, ROS 1's ``tf/msg/tfMessage``). A type the library does not know,
 such as TagSLAM's ``apriltag_msgs/ApriltagArrayStamped``, is registered from the definition the
-bag carries with its connection.
+bag carries with its connection; a Humble SQLite bag carries none, and the detection types are
+then registered from :data:`~markergraph.frontend.detections.DETECTION_DEFINITIONS`.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Any
 
 import yaml
 
+from markergraph.frontend.detections import DETECTION_DEFINITIONS
 from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, Message
 
 __all__ = ["ROS1_MAGIC", "is_bag", "log_time_range", "log_topics", "messages"]
@@ -68,12 +70,13 @@ class _Bag:
         store = Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE
         self.types = get_typestore(store)
         for connection in self.reader.connections:
-            definition = getattr(connection, "msgdef", None)
-            if connection.msgtype in self.types.fielddefs or definition is None:
+            if connection.msgtype in self.types.fielddefs:
                 continue
-            if getattr(definition, "data", ""):
+            definition = getattr(getattr(connection, "msgdef", None), "data", "")
+            definition = definition or DETECTION_DEFINITIONS.get(connection.msgtype)
+            if definition:
                 try:
-                    self.types.register(get_types_from_msg(definition.data, connection.msgtype))
+                    self.types.register(get_types_from_msg(definition, connection.msgtype))
                 except Exception as error:  # a definition rosbags cannot parse
                     raise LogError(
                         f"{self.path}: topic {connection.topic} has a type definition that "

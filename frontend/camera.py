@@ -176,13 +176,16 @@ class CameraMount:
         height_m: optical centre's height above the floor [m].
         yaw_rad: optical axis' heading relative to the base's x axis [rad].
         pitch_rad: optical axis' elevation above the horizontal [rad], positive tilted up.
+        roll_rad: the camera's roll about the base's forward axis after yaw and pitch
+            (right-handed: positive lifts its left side) [rad]; zero on most robots.
     """
 
     x_m: float = 0.1
     y_m: float = 0.0
     height_m: float = 0.6
     yaw_rad: float = 0.0
-    pitch_rad: float = math.radians(10.0)
+    pitch_rad: float = 0.0
+    roll_rad: float = 0.0
 
     @property
     def T_base_camera(self) -> gtsam.Pose2:
@@ -197,7 +200,29 @@ class CameraMount:
         R_yaw = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
         # Positive pitch lifts the forward axis: a rotation of -pitch about the base's y (left).
         R_pitch = np.array([[cp, 0.0, -sp], [0.0, 1.0, 0.0], [sp, 0.0, cp]])
-        return R_yaw @ R_pitch @ _R_LEVEL_OPTICAL
+        cr, sr = math.cos(self.roll_rad), math.sin(self.roll_rad)
+        R_roll = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+        return R_yaw @ R_pitch @ R_roll @ _R_LEVEL_OPTICAL
+
+    @property
+    def t_base_optical(self) -> NDArray[np.float64]:
+        """The optical centre in the base frame [m]."""
+        return np.array([self.x_m, self.y_m, self.height_m])
+
+    @classmethod
+    def from_pose(
+        cls, R_base_optical: NDArray[np.float64], t_base_optical: NDArray[np.float64]
+    ) -> CameraMount:
+        """The mount of a camera whose optical frame sits at ``(R, t)`` on the base."""
+        M = R_base_optical @ _R_LEVEL_OPTICAL.T  # yaw, then pitch (about -y), then roll (x)
+        return cls(
+            x_m=float(t_base_optical[0]),
+            y_m=float(t_base_optical[1]),
+            height_m=float(t_base_optical[2]),
+            yaw_rad=math.atan2(M[1, 0], M[0, 0]),
+            pitch_rad=math.asin(max(-1.0, min(1.0, float(M[2, 0])))),
+            roll_rad=math.atan2(M[2, 1], M[2, 2]),
+        )
 
     def world_to_optical(
         self, T_world_base: gtsam.Pose2, p_world: NDArray[np.float64]

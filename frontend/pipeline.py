@@ -39,6 +39,12 @@ from markergraph.frontend.decode import (
 )
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import Flags, observe_detections
+from markergraph.frontend.posed import (
+    LEVEL_TOLERANCE_RAD,
+    LevelledCamera,
+    levelled_view,
+    observe_levelled,
+)
 from markergraph.frontend.ros2 import yaw_from_quaternion
 from markergraph.frontend.sources import (
     DecodeFailures,
@@ -49,7 +55,12 @@ from markergraph.frontend.sources import (
     messages,
 )
 from markergraph.frontend.tagged import DetectionLog, read_detection_log
-from markergraph.frontend.tf import mount_from_transforms, odometry_from_tf, transforms_of
+from markergraph.frontend.tf import (
+    mount_from_transforms,
+    odometry_from_tf,
+    rotation_of,
+    transforms_of,
+)
 from markergraph.frontend.topics import (
     COLOR_TOPICS,
     TRUE_MARKERS,
@@ -61,6 +72,8 @@ from markergraph.frontend.topics import (
 __all__ = ["Extraction", "available_cores", "extract"]
 
 MAX_WAITING_FRAMES = 30
+MAX_ATTITUDES = 64  # the latest odometry attitudes kept to level frames with
+MAX_ATTITUDE_GAP_NS = 100_000_000  # the nearest attitude within this levels a frame
 SPANS_PER_WORKER = 4  # stretches of the log per worker: balances load, moves the progress bar
 
 
@@ -84,6 +97,8 @@ class Extraction:
         ids_left_out: detections dropped by the allowed ids, by marker id.
         depth_misses: observations in frames with depth whose marker held no valid depth
             pixel (0, NaN, negative or beyond the depth model's range), of ``depth_tries``.
+        levelled_frames: frames observed through the odometry's attitude (a tilted base or a
+            rolled camera) rather than as level.
     """
 
     observations: list[Observation]
@@ -103,6 +118,7 @@ class Extraction:
     ids_left_out: Counter[int] = field(default_factory=Counter)
     depth_misses: int = 0
     depth_tries: int = 0
+    levelled_frames: int = 0
 
 
 @dataclass
@@ -186,6 +202,7 @@ class _SpanReader:
         self.pairing = _Pairing(config.pair_tolerance_ns)
         self.detector = _detector(config)
         self.model = config.observation_model
+        self.attitudes: deque[tuple[int, NDArray[np.float64]]] = deque(maxlen=MAX_ATTITUDES)
 
     def read(self, span: _Span, progress: Callable[[int, int], None] | None) -> _Part:
         left_out_before = Counter(self.detector.left_out)
@@ -258,11 +275,17 @@ class _SpanReader:
                 self.failures.add(self.path, topic, str(error))
                 return
             self._drain(stamp_ns(decoded))
-        elif topic == choice.odom and inside:
+        elif topic == choice.odom:
             if message.schema.endswith("TFMessage"):
-                self.part.odometry += odometry_from_tf(decoded, self.config.base_frame)
-            else:
+                if inside:
+                    self.part.odometry += odometry_from_tf(decoded, self.config.base_frame)
+                return
+            if inside:
                 self.part.odometry.append(odometry_sample(message))
+            pose = decoded.pose.pose if hasattr(decoded.pose, "pose") else decoded.pose
+            R = rotation_of(pose.orientation)
+            if R is not None:  # its attitude levels the frames about it
+                self.attitudes.append((stamp_ns(decoded), R))
         elif topic == TRUE_POSE and inside:
             q, p = decoded.pose.orientation, decoded.pose.position
             self.part.true_poses.append(
@@ -302,6 +325,15 @@ class _SpanReader:
                 f"no /tf_static: assuming the configured camera mount ({result.mount})"
             )
 
+    def _levelled_view(self, t_ns: int) -> LevelledCamera | None:
+        """The camera levelled with the odometry's attitude nearest ``t_ns``; None when level."""
+        result = self.part.extraction
+        assert result.camera is not None
+        nearest = min(self.attitudes, key=lambda a: abs(a[0] - t_ns), default=None)
+        if nearest is None or abs(nearest[0] - t_ns) > MAX_ATTITUDE_GAP_NS:
+            nearest = (t_ns, np.eye(3))  # no attitude: a level base
+        return levelled_view(result.camera, result.mount, nearest[1])
+
     def _observe(self, t_ns: int, message: Message, depth: NDArray | None) -> None:
         """One colour frame with its depth (if any) to observations; a bad frame costs itself."""
         result, choice = self.part.extraction, self.choice
@@ -323,10 +355,22 @@ class _SpanReader:
             result.frames_with_depth += 1
         elif choice.depth:
             result.skipped["no depth within the pairing tolerance (used without)"] += 1
+        detections = self.detector.detect(image)
+        view = self._levelled_view(t_ns)
+        if view is not None:
+            # A tilted base (a ramp, a hand-held rig) or a rolled camera: each marker's full
+            # pose from its corners, turned into the level frame.
+            observations, left_out = observe_levelled(detections, view, self.model, t_ns)
+            result.levelled_frames += 1
+            for marker_id, reason in left_out.items():
+                note = f"marker {marker_id} left out of the 2-D map: {reason}"
+                if note not in result.notes:
+                    result.notes.append(note)
+            result.observations += observations
+            return
         observations = observe_detections(
-            self.detector.detect(image), result.camera, self.model, depth=depth,
-            mount=result.mount, t_ns=t_ns,
-        )  # fmt: skip
+            detections, result.camera, self.model, depth=depth, mount=result.mount, t_ns=t_ns
+        )
         if depth is not None:
             result.depth_tries += len(observations)
             result.depth_misses += sum(Flags.NO_DEPTH in o.flags for o in observations)
@@ -409,6 +453,7 @@ def _merge(parts: list[_Part]) -> _Part:
         result.ids_left_out.update(piece.ids_left_out)
         result.depth_misses += piece.depth_misses
         result.depth_tries += piece.depth_tries
+        result.levelled_frames += piece.levelled_frames
     return merged
 
 
@@ -561,6 +606,13 @@ def extract(
             f"{result.depth_misses} of {result.depth_tries} observations in frames with depth "
             f"found no valid depth on their marker in {choice.depth} (0, NaN, negative or beyond"
             " noise.depth_max_m): their range comes from the marker's pose (PnP)"
+        )
+    if result.levelled_frames:
+        result.notes.append(
+            f"{result.levelled_frames} of {result.frames} frames were taken with the base tilted "
+            f"or the camera rolled by more than {math.degrees(LEVEL_TOLERANCE_RAD):.1f} deg: "
+            f"levelled with {choice.odom}'s attitude, their markers' range and theta from each "
+            "marker's full pose (PnP), without depth"
         )
     if result.ids_left_out:
         ids = ", ".join(str(i) for i in sorted(result.ids_left_out))

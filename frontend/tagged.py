@@ -30,7 +30,7 @@ from markergraph.frontend.detections import detections_of
 from markergraph.frontend.posed import LevelledCamera, observe_levelled
 from markergraph.frontend.rig import Pose3, read_camera_poses, read_kalibr_cameras, read_tagslam
 from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, messages
-from markergraph.frontend.tf import rotation_of, transform_between, transforms_of
+from markergraph.frontend.tf import planar_pose, rotation_of, transform_between, transforms_of
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
 
 __all__ = ["DetectionLog", "read_detection_log"]
@@ -192,9 +192,7 @@ class _Reader:
         forward = next(iter(views.values()))[1].R[:, 2]  # the heading's axis on the body
         stamps = np.array([t for t, _, _ in self.poses], dtype=np.int64)
         for t_ns, p, R_world_body in self.poses:
-            f = R_world_body @ forward
-            heading = math.atan2(f[1], f[0])
-            self.log.odometry.append(OdometrySample(t_ns, float(p[0]), float(p[1]), heading))
+            self.log.odometry.append(OdometrySample(t_ns, *planar_pose(p, R_world_body, forward)))
         allowed = self.config.allowed_ids
         left_out: dict[int, str] = {}
         for frame in self.frames:

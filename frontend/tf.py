@@ -18,6 +18,7 @@ from markergraph.frontend.sources import LogError
 __all__ = [
     "mount_from_transforms",
     "odometry_from_tf",
+    "planar_pose",
     "rotation_of",
     "transform_between",
     "transforms_of",
@@ -103,6 +104,14 @@ class _TransformTree:
         return R, t
 
 
+def planar_pose(
+    t: NDArray[np.float64], R: NDArray[np.float64], forward: NDArray[np.float64]
+) -> tuple[float, float, float]:
+    """A 3-D pose on the floor: (x, y, heading of the body's ``forward`` axis projected on it)."""
+    f = R @ forward
+    return float(t[0]), float(t[1]), math.atan2(f[1], f[0])
+
+
 def transform_between(
     transforms: list[Any], base: str, frame: str
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -119,20 +128,10 @@ def transform_between(
 
 
 def mount_from_transforms(transforms: list[Any], base: str, optical_frame: str) -> CameraMount:
-    """The camera's mount from ``/tf_static``: the chain from ``base`` to the optical frame.
-
-    The optical frame is x right, y down, z forward; its z axis gives the heading and pitch
-    (roll is assumed zero, as on a wheeled robot).
-    """
+    """The camera's mount from ``/tf_static``: the chain from ``base`` to the optical frame
+    (x right, y down, z forward), its yaw, pitch and roll."""
     R, t = transform_between(transforms, base, optical_frame)
-    forward = R[:, 2]
-    return CameraMount(
-        x_m=float(t[0]),
-        y_m=float(t[1]),
-        height_m=float(t[2]),
-        yaw_rad=math.atan2(forward[1], forward[0]),
-        pitch_rad=math.atan2(forward[2], math.hypot(forward[0], forward[1])),
-    )
+    return CameraMount.from_pose(R, t)
 
 
 def transforms_of(decoded: Any) -> list[Any]:

@@ -73,7 +73,8 @@ def test_defaults_are_the_librarys_defaults() -> None:
     config = map_config()
     assert config.frontend == FrontendConfig()
     assert config.frontend.default_mount == CameraMount()
-    assert config.odometry_noise == OdometryNoise()
+    assert config.odometry_noise() == ("wheel", OdometryNoise())
+    assert config.odometry_noise("/vio_node/odom")[0] == "vio"
     assert config.methods == (Method.SLAM,) and config.robust is Robust.HUBER
     assert config.home_id is None and config.workers == 1
 
@@ -93,7 +94,7 @@ def test_a_file_sets_every_section(tmp_path: Path, name: str, text: str) -> None
     assert frontend.default_mount.x_m == CameraMount().x_m  # untouched keys keep defaults
     assert frontend.method is YawMethod.PNP and frontend.depth_model == DepthModel()
     assert config.methods == ALL_METHODS and config.home_id == 2
-    assert config.odometry_noise == OdometryNoise(per_m=0.02)
+    assert config.odometry_noise() == ("wheel", OdometryNoise(per_m=0.02))
     assert config.robust is Robust.CAUCHY
 
 
