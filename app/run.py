@@ -20,12 +20,17 @@ from markergraph.estimator import (
     MapError,
     MarkerGraphError,
     Method,
+    Observation,
+    OdometryNoise,
     Trajectory,
     TrajectoryError,
     build_frames,
+    camera_delay_by_residuals,
     estimate_frames,
     map_error,
+    retimed,
     trajectory_error,
+    widened_for_motion,
 )
 from markergraph.frontend import Extraction, extract
 from markergraph.markermap import MarkerMap
@@ -106,6 +111,38 @@ def _score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory
         )
 
 
+def _timed(
+    extraction: Extraction, config: MapConfig, noise: OdometryNoise, breaks: list[int]
+) -> list[Observation]:
+    """The observations at their capture times (the camera's delay, chosen by the residuals
+    unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked,
+    for the shutter instead."""
+    v = config.values
+    observations = extraction.observations
+    readout_ns = round(v["camera.readout_ms"] * 1e6)
+    height = extraction.camera.height if extraction.camera is not None else 0
+    window_s = v["camera.exposure_ms"] * 1e-3
+    if v["camera.shutter"] == "widen":
+        window_s += readout_ns * 1e-9
+        readout_ns = 0
+    if window_s > 0:
+        observations = widened_for_motion(observations, extraction.odometry, window_s)
+    if v["camera.delay_ms"] is None:
+        chosen = camera_delay_by_residuals(
+            observations, extraction.odometry, config.home_id, extraction.mount.T_base_camera,
+            odometry_noise=noise, odometry_breaks=breaks, robust=config.robust,
+            readout_ns=readout_ns, image_height=height,
+        )  # fmt: skip
+        delay_ns = chosen.delay_ns
+        extraction.notes.append(
+            f"camera stamps {delay_ns / 1e6:+.1f} ms against {extraction.topics.odom} (chosen by "
+            "SLAM's residuals over -50..+100 ms; --camera-delay sets it)"
+        )
+    else:
+        delay_ns = round(v["camera.delay_ms"] * 1e6)
+    return retimed(observations, delay_ns, readout_ns, height)
+
+
 def map_log(
     log: Path,
     config: MapConfig | None = None,
@@ -173,12 +210,14 @@ def map_log(
             else ""
         )
     )
+    breaks = [t for t, _ in jumps]
+    observations = _timed(extraction, config, odometry_noise, breaks)
     frames = build_frames(
-        extraction.observations,
+        observations,
         extraction.odometry,
         config.home_id,
         odometry_noise=odometry_noise,
-        odometry_breaks=[t for t, _ in jumps],
+        odometry_breaks=breaks,
     )
     # Ground truth, when logged, re-expressed in the frame of the estimate's home marker.
     truth, true_path = {}, None

@@ -197,6 +197,19 @@ SETTINGS: tuple[Setting, ...] = (
             "without /tf_static: optical axis tilted up from level [deg]"),
     Setting("camera.yaw_deg", 0.0, _number(-360.0, 360.0),
             "without /tf_static: optical axis turned left of the base's x axis [deg]"),
+    Setting("camera.delay_ms", None, _optional(_number(-500.0, 500.0)),
+            "how late the camera's stamps are against odometry [ms] (default: chosen by "
+            "SLAM's residuals over -50..100 ms)"),
+    Setting("camera.readout_ms", 0.0, _number(0.0, 200.0),
+            "rolling shutter: time to read the rows out, top to bottom [ms] (0: global shutter)"),
+    Setting("camera.shutter", "model", _text,
+            "a rolling shutter's row delay: model (each marker at its row's time) or widen "
+            "(sigmas grow with the turn rate)", choices=["model", "widen"]),
+    Setting("camera.exposure_ms", 0.0, _number(0.0, 200.0),
+            "exposure time: sigmas grow with what a turn smears during it [ms]"),
+    Setting("noise.depth_scale", None, _optional(_number(0.5, 2.0)),
+            "what depth reads per true metre (default: measured against the markers' size; "
+            "1 trusts the depth camera)"),
     Setting("noise.corner_px", 0.3, _number(0.01, 100.0),
             "corner noise after sub-pixel refinement, propagated into theta [px]"),
     Setting("noise.depth_base_m", DepthModel().base_m, _NOISE_M,
@@ -276,6 +289,7 @@ class MapConfig:
             odom_topic=v["topics.odom"],
             base_frame=v["camera.base_frame"],
             default_mount=mount,
+            depth_scale=v["noise.depth_scale"],
             depth_model=DepthModel(
                 v["noise.depth_base_m"], v["noise.depth_per_m2"], v["noise.depth_max_m"]
             ),

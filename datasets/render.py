@@ -91,6 +91,14 @@ def _marker_sheet(dictionary: str, marker_id: int, side_px: int) -> tuple[NDArra
     return np.asarray(sheet, dtype=np.uint8), border
 
 
+def _distortion_maps(camera: Camera) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """For each pixel of the distorted image, where it lies in the ideal pinhole image."""
+    u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
+    pixels = np.stack([u, v], axis=-1).reshape(-1, 2).astype(np.float64)
+    ideal = camera.undistort(pixels).reshape(camera.height, camera.width, 2).astype(np.float32)
+    return ideal[..., 0], ideal[..., 1]
+
+
 class Renderer:
     """Renders a world through one camera on one mount.
 
@@ -148,6 +156,7 @@ class Renderer:
         }
         self._marker_walls = {m.id: m.wall for m in world.markers}
         self._geometry = MarkerGeometry.of(world)
+        self._distortion_maps = _distortion_maps(camera) if any(camera.distortion) else None
         noise_rng = np.random.default_rng(texture_seed + 1)
         self._image_noise = (
             noise_rng.standard_normal((_NOISE_FIELDS, camera.height, camera.width))
@@ -239,8 +248,18 @@ class Renderer:
             gray = cv2.GaussianBlur(gray, (0, 0), self.effects.blur_sigma_px)
         gray += self._image_noise[rng.integers(_NOISE_FIELDS)]
         image = np.clip(gray, 0, 255).astype(np.uint8)
+        depth_mm = self._noisy_depth(z.reshape(shape), rng)
+        if self._distortion_maps is not None:
+            # Drawn through the ideal pinhole; the lens then bends both images alike.
+            map_x, map_y = self._distortion_maps
+            image = cv2.remap(
+                image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+            )
+            depth_mm = np.asarray(
+                cv2.remap(depth_mm, map_x, map_y, cv2.INTER_NEAREST), dtype=np.uint16
+            )
         rgb = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
-        return RenderedFrame(rgb, self._noisy_depth(z.reshape(shape), rng), drawn)
+        return RenderedFrame(rgb, depth_mm, drawn)
 
     def _draw_markers(
         self,

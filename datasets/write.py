@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import BinaryIO
 
@@ -31,10 +31,17 @@ from mcap.records import Schema
 from mcap.writer import CompressionType
 from mcap_ros2.writer import Writer
 
-from markergraph.datasets.render import Renderer
+from markergraph.datasets.render import RenderedFrame, Renderer
 from markergraph.datasets.route import Drive, Route, WheelErrors, drive
+from markergraph.datasets.sensors import (
+    SensorEffects,
+    black_cells_without_depth,
+    motion_smear,
+    shutter_bands,
+)
 from markergraph.datasets.simulate import SIMULATED_MOUNT
 from markergraph.datasets.world import World
+from markergraph.estimator.trajectory import Trajectory
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.files import written_whole
 from markergraph.frontend.ros2 import (
@@ -46,7 +53,7 @@ from markergraph.frontend.ros2 import (
 )
 from markergraph.frontend.topics import TRUE_MARKERS, TRUE_POSE, TRUE_WORLD
 
-__all__ = ["LogSummary", "Topics", "write_log"]
+__all__ = ["LogSummary", "Topics", "capture", "write_log"]
 
 IMAGE_LATENCY_NS = 30_000_000  # capture to recording, for the MCAP log time
 ODOMETRY_LATENCY_NS = 2_000_000
@@ -70,6 +77,9 @@ class Topics:
 
 
 OPTICAL_FRAME = "camera_color_optical_frame"
+BASE_FOOTPRINT = "base_footprint"
+BASE_LINK_HEIGHT_M = 0.1  # base_link above base_footprint, with the realsense TF tree
+COLOR_OFFSET_M = 0.015  # the colour imager left of camera_link's origin
 
 
 @dataclass
@@ -96,7 +106,7 @@ def _camera_info(t_ns: int, camera: Camera) -> dict[str, object]:
         "height": camera.height,
         "width": camera.width,
         "distortion_model": "plumb_bob",
-        "d": [0.0] * 5,
+        "d": list(camera.distortion) or [0.0] * 5,
         "k": [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
         "r": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
         "p": [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
@@ -147,6 +157,7 @@ def write_log(
     mount: CameraMount = SIMULATED_MOUNT,
     wheel: WheelErrors = WheelErrors(),
     topics: Topics = Topics(),
+    sensors: SensorEffects = SensorEffects(),
     progress: Callable[[int, int], None] | None = None,
 ) -> LogSummary:
     """Drive a route, render every frame, and write the run as a ROS 2 MCAP bag.
@@ -156,6 +167,7 @@ def write_log(
 
     Args:
         compressed: JPEG colour on ``.../compressed`` instead of raw rgb8 (depth stays raw).
+        sensors: the camera's and base's departures from ideal (see :mod:`.sensors`).
         progress: called with (frames done, frames in all).
     """
     rng = np.random.default_rng(seed)
@@ -168,6 +180,8 @@ def write_log(
         odometry_hz=odometry_hz,
         duration_s=duration_s,
     )
+    if sensors.distortion:
+        camera = replace(camera, distortion=tuple(sensors.distortion))
     renderer = Renderer(world, camera, mount, texture_seed=seed)
     out = Path(out)
     T_map_world = world.T_world_marker(world.home_id).inverse()
@@ -175,44 +189,56 @@ def write_log(
         # zstd shrinks raw depth 4x (JPEG not at all) for a fifth of the writing speed.
         bag = _Bag(stream, CompressionType.ZSTD)
         start = int(min(motion.odometry_t_ns[0], motion.frame_t_ns[0]))
-        _write_static(bag, world, mount, topics, start, T_map_world)
+        _write_static(bag, world, mount, topics, start, T_map_world, sensors)
         _write_stream(
-            bag, motion, renderer, world, camera, topics, T_map_world, compressed, rng, progress
+            bag, motion, renderer, camera, topics, T_map_world, compressed, sensors, rng, progress
         )
         bag.writer.finish()
     return LogSummary(out, len(motion.frame_t_ns), dict(bag.counts), out.stat().st_size)
 
 
 def _write_static(
-    bag: _Bag, world: World, mount: CameraMount, topics: Topics, t_ns: int, T_map_world: gtsam.Pose2
+    bag: _Bag,
+    world: World,
+    mount: CameraMount,
+    topics: Topics,
+    t_ns: int,
+    T_map_world: gtsam.Pose2,
+    sensors: SensorEffects,
 ) -> None:
     """The camera mount, the true marker poses and the world, once at the start."""
-    pitch_yaw = quaternion_from_matrix(
-        mount.R_base_optical @ np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
-    )  # camera_link: x fwd, z up
+    R_base_link = mount.R_base_optical @ np.array(
+        [[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]
+    )  # camera_link: x forward, z up
+    pitch_yaw = quaternion_from_matrix(R_base_link)
     optical_in_link = quaternion_from_matrix(
         np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
     )
-    bag.write(
-        topics.tf_static,
-        "tf2_msgs/msg/TFMessage",
-        {
-            "transforms": [
-                transform_stamped(
-                    t_ns,
-                    "base_link",
-                    "camera_link",
-                    (mount.x_m, mount.y_m, mount.height_m),
-                    pitch_yaw,
-                ),
-                transform_stamped(
-                    t_ns, "camera_link", OPTICAL_FRAME, (0.0, 0.0, 0.0), optical_in_link
-                ),
-            ]
-        },
-        t_ns,
-        t_ns,
-    )
+    level = quaternion_from_yaw(0.0)
+    position = (mount.x_m, mount.y_m, mount.height_m)
+    if sensors.realsense_tf_tree:
+        link_m = (
+            np.array(position)
+            - R_base_link @ np.array([0.0, COLOR_OFFSET_M, 0.0])
+            - np.array([0.0, 0.0, BASE_LINK_HEIGHT_M])
+        )
+        # realsense-ros and a diff-drive base: the camera's centre on camera_link, the colour
+        # imager 15 mm to its left, base_link above the footprint.
+        chain = [
+            transform_stamped(t_ns, BASE_FOOTPRINT, "base_link", (0.0, 0.0, BASE_LINK_HEIGHT_M),
+                              level),
+            transform_stamped(t_ns, "base_link", "camera_link", tuple(link_m), pitch_yaw),
+            transform_stamped(t_ns, "camera_link", "camera_color_frame", (0.0, COLOR_OFFSET_M, 0.0),
+                              level),
+            transform_stamped(t_ns, "camera_color_frame", OPTICAL_FRAME, (0.0, 0.0, 0.0),
+                              optical_in_link),
+        ]  # fmt: skip
+    else:
+        chain = [
+            transform_stamped(t_ns, "base_link", "camera_link", position, pitch_yaw),
+            transform_stamped(t_ns, "camera_link", OPTICAL_FRAME, (0.0, 0.0, 0.0), optical_in_link),
+        ]
+    bag.write(topics.tf_static, "tf2_msgs/msg/TFMessage", {"transforms": chain}, t_ns, t_ns)
     markers = []
     for marker in world.markers:
         T = T_map_world.compose(world.T_world_marker(marker.id))
@@ -229,34 +255,90 @@ def _write_static(
     bag.write(topics.world, "std_msgs/msg/String", {"data": world.to_json()}, t_ns, t_ns)
 
 
+def capture(
+    renderer: Renderer,
+    truth: Trajectory,
+    t_ns: int,
+    sensors: SensorEffects,
+    rng: np.random.Generator,
+    exposure: float = 1.0,
+) -> RenderedFrame:
+    """One frame whose top row is captured at ``t_ns``, as the sensors take it: each band of rows
+    at its readout time, smeared by the turn during the exposure, depth scaled and holed."""
+    rgb = depth = None
+    drawn: set[int] = set()
+    for first, end, after_s in shutter_bands(renderer.camera.height, sensors.rolling_shutter_s):
+        t_band = t_ns + round(after_s * 1e9)
+        pose = truth.at(t_band)
+        if pose is None:
+            raise ValueError(f"no true pose at {t_band} ns to render")
+        band = renderer.render(pose, rng, exposure)
+        if sensors.exposure_s > 0:
+            # The turn's smear (a translation's is left out: it is a fraction of it here).
+            rate = _yaw_rate(truth, t_band + round(sensors.exposure_s * 5e8))
+            length_px = abs(rate) * sensors.exposure_s * renderer.camera.fx
+            band = RenderedFrame(motion_smear(band.rgb, length_px), band.depth_mm, band.drawn_ids)
+        if rgb is None or depth is None:
+            rgb, depth = band.rgb.copy(), band.depth_mm.copy()
+        rgb[first:end], depth[first:end] = band.rgb[first:end], band.depth_mm[first:end]
+        drawn.update(band.drawn_ids)
+    assert rgb is not None and depth is not None
+    if sensors.depth_scale != 1.0:
+        scaled = np.rint(depth.astype(np.float64) * sensors.depth_scale)
+        depth = np.clip(scaled, 0, 65535).astype(np.uint16)
+    if sensors.black_cells_without_depth:
+        depth = black_cells_without_depth(rgb, depth)
+    return RenderedFrame(rgb, depth, tuple(sorted(drawn)))
+
+
+def _yaw_rate(truth: Trajectory, t_ns: int, half_window_ns: int = 10_000_000) -> float:
+    """The true turn rate about ``t_ns`` [rad/s]."""
+    before, after = truth.at(t_ns - half_window_ns), truth.at(t_ns + half_window_ns)
+    if before is None or after is None:
+        return 0.0
+    return before.between(after).theta() / (2 * half_window_ns * 1e-9)
+
+
 def _write_stream(
     bag: _Bag,
     motion: Drive,
     renderer: Renderer,
-    world: World,
     camera: Camera,
     topics: Topics,
     T_map_world: gtsam.Pose2,
     compressed: bool,
+    sensors: SensorEffects,
     rng: np.random.Generator,
     progress: Callable[[int, int], None] | None,
 ) -> None:
     """Odometry, tf, ground truth and camera frames, in the order they would be recorded."""
     odometry_t, frame_t = motion.odometry_t_ns, motion.frame_t_ns
+    # The sensors' own draws come from a stream of their own, so ideal logs stay as they were.
+    sensor_rng = np.random.default_rng([int(rng.integers(2**31)), 7])
+    odometry_stamps = odometry_t + np.rint(
+        sensor_rng.normal(0.0, sensors.odometry_jitter_s * 1e9, len(odometry_t))
+    ).astype(np.int64)
+    frame_stamps = frame_t + np.rint(
+        (sensors.camera_latency_s + sensor_rng.normal(0.0, sensors.stamp_jitter_s, len(frame_t)))
+        * 1e9
+    ).astype(np.int64)
+    dropped = sensor_rng.random(len(frame_t)) < sensors.dropped_frames
+    truth = Trajectory(odometry_t, motion.odometry_truth, "world")
+    base = BASE_FOOTPRINT if sensors.realsense_tf_tree else "base_link"
     i = j = 0
     exposure = 1.0
     while i < len(odometry_t) or j < len(frame_t):
         next_odometry = odometry_t[i] + ODOMETRY_LATENCY_NS if i < len(odometry_t) else math.inf
-        next_frame = frame_t[j] + IMAGE_LATENCY_NS if j < len(frame_t) else math.inf
+        next_frame = frame_stamps[j] + IMAGE_LATENCY_NS if j < len(frame_t) else math.inf
         if next_odometry <= next_frame:
-            t_ns = int(odometry_t[i])
+            t_ns = int(odometry_stamps[i])
             x, y, yaw = motion.odometry[i]
             bag.write(
                 topics.odom,
                 "nav_msgs/msg/Odometry",
                 {
                     "header": header(t_ns, "odom"),
-                    "child_frame_id": "base_link",
+                    "child_frame_id": base,
                     "pose": {"pose": _pose(x, y, yaw), "covariance": [0.0] * 36},
                     "twist": {
                         "twist": {
@@ -274,14 +356,13 @@ def _write_stream(
                 "tf2_msgs/msg/TFMessage",
                 {
                     "transforms": [
-                        transform_stamped(
-                            t_ns, "odom", "base_link", (x, y, 0.0), quaternion_from_yaw(yaw)
-                        )
+                        transform_stamped(t_ns, "odom", base, (x, y, 0.0), quaternion_from_yaw(yaw))
                     ]
                 },
                 t_ns,
                 int(next_odometry),
             )
+            t_ns = int(odometry_t[i])  # the truth at its true time
             T_map_base = T_map_world.compose(gtsam.Pose2(*motion.odometry_truth[i]))
             bag.write(
                 topics.true_pose,
@@ -295,11 +376,14 @@ def _write_stream(
             )
             i += 1
             continue
-        t_ns = int(frame_t[j])
         exposure = float(
             np.clip(exposure + rng.normal(0.0, renderer.effects.exposure_sigma), 0.8, 1.2)
         )
-        frame = renderer.render(gtsam.Pose2(*motion.frame_poses[j]), rng, exposure)
+        if dropped[j]:
+            j += 1
+            continue
+        t_ns = int(frame_stamps[j])
+        frame = capture(renderer, truth, int(frame_t[j]), sensors, rng, exposure)
         log_time = int(next_frame)
         if compressed:
             ok, jpeg = cv2.imencode(

@@ -30,6 +30,12 @@ from markergraph.estimator.paper import (
     odometry,
 )
 from markergraph.estimator.run import estimate, estimate_frames
+from markergraph.estimator.timing import (
+    CameraDelay,
+    camera_delay_by_residuals,
+    retimed,
+    widened_for_motion,
+)
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     ODOMETRY_NOISE,
@@ -50,6 +56,7 @@ from markergraph.estimator.types import (
 
 __all__ = [
     "ODOMETRY_NOISE",
+    "CameraDelay",
     "Edge",
     "Estimate",
     "EstimationError",
@@ -76,6 +83,7 @@ __all__ = [
     "TrajectoryError",
     "angle_diff",
     "build_frames",
+    "camera_delay_by_residuals",
     "chi2_interval",
     "compose",
     "edge_from_observation",
@@ -90,7 +98,9 @@ __all__ = [
     "odometry",
     "odometry_nees",
     "odometry_stretches",
+    "retimed",
     "trajectory_error",
+    "widened_for_motion",
     "wrap",
     "wrap_array",
 ]

@@ -34,6 +34,8 @@ class FrontendConfig:
         kalibr_cameras: a Kalibr ``cameras.yaml`` giving intrinsics by detection topic.
         camera_poses: a TagSLAM ``camera_poses.yaml`` giving each camera's pose on the rig.
         tagslam: a TagSLAM ``tagslam.yaml`` giving tag sizes and the odometry's body on the rig.
+        depth_scale: what depth reads per true metre; None estimates it from the markers'
+            known size (see :func:`~markergraph.frontend.pipeline.extract`), 1.0 trusts depth.
     """
 
     dictionary: str = "DICT_4X4_50"
@@ -55,6 +57,7 @@ class FrontendConfig:
     kalibr_cameras: Path | None = None
     camera_poses: Path | None = None
     tagslam: Path | None = None
+    depth_scale: float | None = None
 
     @property
     def observation_model(self) -> ObservationModel:

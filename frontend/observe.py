@@ -122,8 +122,15 @@ def observe_detections(
     depth: NDArray | None = None,
     mount: CameraMount = CameraMount(),
     t_ns: int = 0,
+    depth_ratios: list[tuple[int, float, float]] | None = None,
 ) -> list[Observation]:
-    """Observations of already detected markers; see :func:`observe`."""
+    """Observations of already detected markers; see :func:`observe`.
+
+    ``depth_ratios``, when given, receives for each marker seen with depth and well placed for
+    PnP (not grazing, not small, not at the image's edge) the stamp, its depth and its PnP
+    distance: their ratio is what the depth camera reads per true metre, if the marker's size
+    is right.
+    """
     observations = []
     R_base_optical = mount.R_base_optical
     method, corner_sigma_px, depth_model = model.method, model.corner_sigma_px, model.depth_model
@@ -157,6 +164,11 @@ def observe_detections(
             sigma_z = z * corner_sigma_px * math.sqrt(2.0) / ((left + right) / 2.0)
         else:
             sigma_z = depth_model.sigma(z)
+            if depth_ratios is not None and abs(theta) < GRAZING_RAD:
+                well_placed = not corner_flags(detection.corners, camera)
+                pose = pnp_pose(corners, camera, length_m) if well_placed else None
+                if pose is not None and pose[1][2] > 0:
+                    depth_ratios.append((t_ns, z, float(pose[1][2])))
         # The centre in the base frame, then horizontal range and bearing from the camera.
         p_base = R_base_optical @ (z * ray)
         range_m = math.hypot(p_base[0], p_base[1])

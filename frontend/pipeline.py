@@ -17,7 +17,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +26,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.estimator.timing import turn_rate
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Observation, OdometrySample
 from markergraph.frontend.camera import Camera, CameraMount
@@ -99,6 +100,9 @@ class Extraction:
             pixel (0, NaN, negative or beyond the depth model's range), of ``depth_tries``.
         levelled_frames: frames observed through the odometry's attitude (a tilted base or a
             rolled camera) rather than as level.
+        depth_ratios: each well-placed marker's stamp, depth and PnP distance.
+        depth_scale: what depth read per true metre, as set or estimated; the ranges from
+            depth are divided by it.
     """
 
     observations: list[Observation]
@@ -119,6 +123,8 @@ class Extraction:
     depth_misses: int = 0
     depth_tries: int = 0
     levelled_frames: int = 0
+    depth_ratios: list[tuple[int, float, float]] = field(default_factory=list)
+    depth_scale: float = 1.0
 
 
 @dataclass
@@ -198,6 +204,7 @@ class _SpanReader:
         self.failures = DecodeFailures()
         self.static: list[Any] = []
         self.image_frame: str | None = None
+        self.odometry_frame: str | None = None
         self.mount_known = config.mount is not None
         self.pairing = _Pairing(config.pair_tolerance_ns)
         self.detector = _detector(config)
@@ -282,6 +289,7 @@ class _SpanReader:
                 return
             if inside:
                 self.part.odometry.append(odometry_sample(message))
+            self.odometry_frame = self.odometry_frame or getattr(decoded, "child_frame_id", None)
             pose = decoded.pose.pose if hasattr(decoded.pose, "pose") else decoded.pose
             R = rotation_of(pose.orientation)
             if R is not None:  # its attitude levels the frames about it
@@ -314,12 +322,18 @@ class _SpanReader:
         self.mount_known = True
         result = self.part.extraction
         if self.static and self.image_frame:
-            try:
-                result.mount = mount_from_transforms(
-                    self.static, self.config.base_frame, self.image_frame
-                )
-            except LogError as error:
-                result.notes.append(f"{error}; assuming the configured camera mount")
+            # The odometry's own body first (base_footprint on most diff-drive bases), so the
+            # camera's height is above the floor the odometry moves on.
+            bases = dict.fromkeys(b for b in (self.odometry_frame, self.config.base_frame) if b)
+            errors = []
+            for base in bases:
+                try:
+                    result.mount = mount_from_transforms(self.static, base, self.image_frame)
+                    break
+                except LogError as error:
+                    errors.append(str(error))
+            else:
+                result.notes.append(f"{'; '.join(errors)}; assuming the configured camera mount")
         else:
             result.notes.append(
                 f"no /tf_static: assuming the configured camera mount ({result.mount})"
@@ -369,8 +383,9 @@ class _SpanReader:
             result.observations += observations
             return
         observations = observe_detections(
-            detections, result.camera, self.model, depth=depth, mount=result.mount, t_ns=t_ns
-        )
+            detections, result.camera, self.model, depth=depth, mount=result.mount, t_ns=t_ns,
+            depth_ratios=result.depth_ratios,
+        )  # fmt: skip
         if depth is not None:
             result.depth_tries += len(observations)
             result.depth_misses += sum(Flags.NO_DEPTH in o.flags for o in observations)
@@ -454,7 +469,71 @@ def _merge(parts: list[_Part]) -> _Part:
         result.depth_misses += piece.depth_misses
         result.depth_tries += piece.depth_tries
         result.levelled_frames += piece.levelled_frames
+        result.depth_ratios += piece.depth_ratios
     return merged
+
+
+MIN_DEPTH_RATIOS = 20  # markers seen with depth before a depth scale is estimated
+MAX_DEPTH_SCALE_ERROR = 0.05  # beyond, the markers' size is more likely wrong than the depth
+
+
+def depth_scale_from_markers(
+    pairs: list[tuple[int, float, float]], odometry: Trajectory
+) -> tuple[float, float, int]:
+    """What depth reads per true metre, from markers seen with both depth and PnP while the
+    robot turned slower than 0.2 rad/s (blur and a rolling shutter bend PnP), as (scale, its
+    standard error, markers used).
+
+    PnP's distance rests on the marker's known size, but detected corners sit a fraction of a
+    pixel inside the true ones (blur), so PnP reads long by a share that grows with distance
+    (0.4 % per metre on rendered frames). The ratio depth / PnP is therefore a line in the depth,
+    and its value at zero distance is the depth's scale: a line fitted by least squares, points
+    beyond three robust sigmas of it dropped, twice.
+    """
+    steady = [(z, z_pnp) for t_ns, z, z_pnp in pairs if abs(turn_rate(odometry, t_ns)) < 0.2]
+    if len(steady) < MIN_DEPTH_RATIOS:
+        steady = [(z, z_pnp) for _, z, z_pnp in pairs]
+    z, z_pnp = np.array(steady, dtype=np.float64).T
+    ratio = z / z_pnp
+    A = np.column_stack([np.ones_like(z), z])
+    kept = np.ones(len(z), dtype=bool)
+    for _ in range(3):
+        coefficients, *_ = np.linalg.lstsq(A[kept], ratio[kept], rcond=None)
+        residual = ratio - A @ coefficients
+        sigma = 1.4826 * float(np.median(np.abs(residual[kept])))
+        kept = np.abs(residual) <= 3.0 * max(sigma, 1e-9)
+    covariance = sigma**2 * np.linalg.inv(A[kept].T @ A[kept])
+    return float(coefficients[0]), math.sqrt(float(covariance[0, 0])), len(steady)
+
+
+def _correct_depth_scale(result: Extraction, configured: float | None, topic: str | None) -> None:
+    """Divide the ranges from depth by the depth's scale: as configured, or as the markers'
+    known size measures it (:func:`depth_scale_from_markers`)."""
+    if configured is None:
+        if len(result.depth_ratios) < MIN_DEPTH_RATIOS:
+            return
+        scale, error, used = depth_scale_from_markers(result.depth_ratios, result.odometry)
+        if abs(scale - 1.0) > MAX_DEPTH_SCALE_ERROR:
+            result.notes.append(
+                f"depth on {topic} reads {100 * (scale - 1):+.1f} % against the markers' size: "
+                "too far off for a depth camera, so the marker size is more likely wrong; depth "
+                "left as it reads (set noise.depth_scale to apply a scale)"
+            )
+            return
+        result.notes.append(
+            f"depth on {topic} reads {100 * (scale - 1):+.2f} % +- {100 * error:.2f} against the "
+            f"markers' size ({used} markers): ranges from depth corrected"
+        )
+    else:
+        scale = configured
+    if scale == 1.0:
+        return
+    result.depth_scale = scale
+    result.observations = [
+        o if Flags.NO_DEPTH in o.flags
+        else replace(o, range_m=o.range_m / scale, sigma_range=o.sigma_range / scale)
+        for o in result.observations
+    ]  # fmt: skip
 
 
 def _check_usable(path: Path, choice: TopicChoice, result: Extraction) -> None:
@@ -601,6 +680,7 @@ def extract(
     _check_usable(path, choice, result)
     result.odometry = _clean_path(part.odometry, choice.odom, "odometry", result.notes, "odom")
     result.true_path = _clean_path(part.true_poses, TRUE_POSE, "ground-truth", result.notes, "map")
+    _correct_depth_scale(result, config.depth_scale, choice.depth)
     if result.depth_misses:
         result.notes.append(
             f"{result.depth_misses} of {result.depth_tries} observations in frames with depth "

@@ -1,0 +1,169 @@
+"""Real sensors in the simulator: each effect moves the rendered pixels or the recorded stamps as
+its definition says, against the simulator's own truth; and the remedies find what the effects
+did (the camera's delay, the depth's scale)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import gtsam
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+import markergraph as mg
+from markergraph.datasets import Marker, Wall, World, scenario, write_log
+from markergraph.datasets.render import Renderer
+from markergraph.datasets.sensors import D435_DISTORTION, D435I_ON_DIFF_DRIVE, SensorEffects
+from markergraph.datasets.write import capture
+from markergraph.estimator import Trajectory
+from markergraph.frontend import FrontendConfig, extract
+from markergraph.frontend.detect import Detector
+
+RATE = 1.0  # turn rate in the capture tests [rad/s]
+
+
+@pytest.fixture(scope="module")
+def wall_marker() -> tuple[Renderer, Trajectory]:
+    """One marker 2 m ahead, and a robot turning in place at RATE, facing it at t = 0.1 s."""
+    world = World("wall", (Wall((0.0, 0.0), (6.0, 0.0)),), (Marker(0, 0, 3.0, size_m=0.3),), 0)
+    t_ns = np.arange(0, 400_000_000, 5_000_000)
+    yaw = -math.pi / 2 + RATE * (t_ns - 100_000_000) * 1e-9
+    poses = np.column_stack([np.full(len(t_ns), 3.0), np.full(len(t_ns), 2.1), yaw])
+    return Renderer(world, texture_seed=1), Trajectory(t_ns, poses, "world")
+
+
+def corners_of(rgb: np.ndarray) -> np.ndarray:
+    found = Detector().detect(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
+    assert len(found) == 1
+    return found[0].corners
+
+
+def test_rolling_shutter_skews_a_marker_by_the_turn_in_the_readout(wall_marker) -> None:
+    """Each row is read readout * row / height later: while turning, a marker's bottom corners
+    shift sideways against its top corners by rate * fx * readout * (rows between) / height."""
+    renderer, truth = wall_marker
+    rng = np.random.default_rng(0)
+    readout = 0.025
+    still = corners_of(capture(renderer, truth, 100_000_000, SensorEffects(), rng).rgb)
+    rolled = corners_of(
+        capture(renderer, truth, 100_000_000, SensorEffects(rolling_shutter_s=readout), rng).rgb
+    )
+    shift = rolled[:, 0] - still[:, 0]  # corners: top-left, top-right, bottom-right, bottom-left
+    rows = (still[2, 1] + still[3, 1] - still[0, 1] - still[1, 1]) / 2.0
+    skew = (shift[2] + shift[3] - shift[0] - shift[1]) / 2.0
+    expected = RATE * renderer.camera.fx * readout * rows / renderer.camera.height
+    assert skew == pytest.approx(expected, rel=0.2)
+    assert abs(expected) > 2.0  # a skew worth measuring: corners are good to 0.05 px
+
+
+def test_exposure_smears_edges_by_the_turn_during_it(wall_marker) -> None:
+    """A 15 ms exposure at 1 rad/s sweeps fx * 0.015 = 9 px: the marker's left edge (the white
+    sheet to its black border) spreads by that much (its 10-90 % rise by 80 % of the sweep)."""
+    renderer, truth = wall_marker
+    still = capture(renderer, truth, 100_000_000, SensorEffects(), np.random.default_rng(1))
+    corners = corners_of(still.rgb)
+    row = round(corners[:, 1].mean())
+    edge = round((corners[0, 0] + corners[3, 0]) / 2.0)
+
+    def rise(rgb: np.ndarray) -> int:
+        profile = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)[row, edge - 20 : edge + 12].astype(float)
+        level = (profile - profile.min()) / (profile.max() - profile.min())
+        return int(np.count_nonzero((level > 0.1) & (level < 0.9)))
+
+    smeared = capture(
+        renderer, truth, 100_000_000, SensorEffects(exposure_s=0.015), np.random.default_rng(1)
+    )
+    sweep = RATE * 0.015 * renderer.camera.fx
+    assert rise(smeared.rgb) - rise(still.rgb) == pytest.approx(0.8 * sweep, abs=2.0)
+
+
+def test_depth_scale_and_black_cells(wall_marker) -> None:
+    """Depth reads depth_scale times the truth; laminated black cells return nothing."""
+    renderer, truth = wall_marker
+    plain = capture(renderer, truth, 100_000_000, SensorEffects(), np.random.default_rng(2))
+    scaled = capture(
+        renderer, truth, 100_000_000,
+        SensorEffects(depth_scale=1.012, black_cells_without_depth=True), np.random.default_rng(2),
+    )  # fmt: skip
+    both = (plain.depth_mm > 0) & (scaled.depth_mm > 0)
+    ratio = scaled.depth_mm[both] / plain.depth_mm[both]
+    assert np.median(ratio) == pytest.approx(1.012, abs=0.001)
+    ink = cv2.cvtColor(plain.rgb, cv2.COLOR_RGB2GRAY) < 45
+    assert ink.sum() > 500 and np.all(scaled.depth_mm[ink] == 0)
+    assert np.all(scaled.depth_mm[~ink & both] > 0)
+
+
+def test_distortion_is_what_camera_info_says(wall_marker) -> None:
+    """With D435-like plumb_bob coefficients, detected corners sit several pixels from the
+    pinhole's, and undistorting them with the same coefficients puts them back within 0.3 px."""
+    renderer, _ = wall_marker
+    camera = replace(renderer.camera, distortion=D435_DISTORTION)
+    distorted = Renderer(renderer.world, camera, renderer.mount, texture_seed=1)
+    pose = gtsam.Pose2(3.0, 2.1, -math.pi / 2 + 0.35)  # the marker near the image's edge
+    ideal = corners_of(renderer.render(pose, np.random.default_rng(3)).rgb)
+    bent = corners_of(distorted.render(pose, np.random.default_rng(3)).rgb)
+    assert np.max(np.abs(bent - ideal)) > 1.0
+    assert np.max(np.abs(camera.undistort(bent) - ideal)) < 0.3
+
+
+@pytest.fixture(scope="module")
+def realistic_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The paper room for 20 s, ideal and with the D435i preset."""
+    folder = tmp_path_factory.mktemp("sensors")
+    world, route = scenario("paper-room")
+    logs = folder / "ideal.mcap", folder / "d435i.mcap"
+    for log, sensors in zip(logs, (SensorEffects(), D435I_ON_DIFF_DRIVE), strict=True):
+        write_log(world, route, log, seed=3, duration_s=20.0, compressed=True, frame_hz=5.0,
+                  sensors=sensors)  # fmt: skip
+    return logs
+
+
+def stamps(log: Path, topic: str) -> np.ndarray:
+    with open(log, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        return np.array(
+            [
+                m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+                for _, _, _, m in reader.iter_decoded_messages(topics=[topic])
+            ]
+        )
+
+
+def test_stamps_drops_jitter_and_tf_tree(realistic_log) -> None:
+    """Colour stamps 35 ms late (2 ms jitter) against the ideal log's capture times, 2 % of
+    frames missing, odometry stamps off their 50 Hz grid by 2 ms, and the realsense TF tree,
+    through which the front end still finds the camera 0.6 m above the floor."""
+    ideal, real = realistic_log
+    topic = "/camera/camera/color/image_raw/compressed"
+    captured, stamped = stamps(ideal, topic), stamps(real, topic)
+    assert 0 < len(captured) - len(stamped) <= 8  # 2 % of 100
+    late = stamped[:, None] - captured[None, :]
+    nearest = late[np.arange(len(stamped)), np.argmin(np.abs(late - 35e6), axis=1)]
+    assert np.median(nearest) == pytest.approx(35e6, abs=1e6)
+    assert np.std(nearest) == pytest.approx(2e6, rel=0.4)
+    odometry = stamps(real, "/odom")
+    off_grid = odometry - stamps(ideal, "/odom")
+    assert np.std(off_grid) == pytest.approx(2e6, rel=0.3)
+    extraction = extract(real, FrontendConfig())
+    assert extraction.mount.height_m == pytest.approx(0.6, abs=1e-6)
+    assert extraction.mount.x_m == pytest.approx(0.1, abs=1e-6)
+    assert extraction.camera is not None and extraction.camera.distortion == D435_DISTORTION
+
+
+def test_remedies_find_the_delay_and_the_depth_scale(realistic_log) -> None:
+    """Chosen by SLAM's residuals, the camera's delay comes out near 35 ms once the shutter's
+    row delay is modelled (and near 0 on the ideal log); the depth's scale, measured against
+    the markers' size, near 1.012 (and 1)."""
+    for log, delay_ms, scale in zip(realistic_log, (0.0, 35.0), (1.0, 1.012), strict=True):
+        run = mg.map_log(
+            log, mg.MapConfig.from_values({"camera.readout_ms": 25.0 * bool(delay_ms)})
+        )
+        chosen = next(n for n in run.extraction.notes if n.startswith("camera stamps"))
+        found_ms = float(chosen.split()[2])
+        assert found_ms == pytest.approx(delay_ms, abs=6.0)
+        assert run.extraction.depth_scale == pytest.approx(scale, abs=0.008)  # 1.0185 measured
