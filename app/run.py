@@ -133,11 +133,18 @@ def _timed(
             odometry_noise=noise, odometry_breaks=breaks, robust=config.robust,
             readout_ns=readout_ns, image_height=height,
         )  # fmt: skip
-        delay_ns = chosen.delay_ns
-        extraction.notes.append(
-            f"camera stamps {delay_ns / 1e6:+.1f} ms against {extraction.topics.odom} (chosen by "
-            "SLAM's residuals over -50..+100 ms; --camera-delay sets it)"
-        )
+        if chosen.delay_ns is None:
+            delay_ns = 0
+            extraction.notes.append(
+                f"camera stamps taken as they are against {extraction.topics.odom}: SLAM's "
+                "residuals have no minimum between -50 and +100 ms (--camera-delay sets a delay)"
+            )
+        else:
+            delay_ns = chosen.delay_ns
+            extraction.notes.append(
+                f"camera stamps {delay_ns / 1e6:+.1f} ms against {extraction.topics.odom} "
+                "(chosen by SLAM's residuals over -50..+100 ms; --camera-delay sets it)"
+            )
     else:
         delay_ns = round(v["camera.delay_ms"] * 1e6)
     return retimed(observations, delay_ns, readout_ns, height)

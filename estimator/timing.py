@@ -91,11 +91,12 @@ class CameraDelay:
     """The camera stamps' delay against odometry, as the residuals chose it.
 
     Attributes:
-        delay_ns: the chosen delay: the stamp minus the capture [ns].
+        delay_ns: the chosen delay: the stamp minus the capture [ns]; None when the cost has
+            no minimum inside the range searched (the residuals cannot tell).
         delays_ns, costs: each delay tried and SLAM's final cost with it.
     """
 
-    delay_ns: int
+    delay_ns: int | None
     delays_ns: tuple[int, ...]
     costs: tuple[float, ...]
 
@@ -113,7 +114,8 @@ def camera_delay_by_residuals(
     image_height: int = 0,
 ) -> CameraDelay:
     """The delay, from -50 to +100 ms, under which batch SLAM's solution has the lowest cost:
-    a 10 ms grid, then a parabola through the best point and its neighbours."""
+    a 10 ms grid, then a parabola through the best point and its neighbours; None (in
+    ``delay_ns``) when the lowest cost is at either end of the range."""
 
     def cost(delay_ns: int) -> float:
         moved = retimed(observations, delay_ns, readout_ns, image_height)
@@ -134,8 +136,10 @@ def camera_delay_by_residuals(
     delays = [round(d * 1e9) for d in DELAYS_S]
     costs = [cost(d) for d in delays]
     best = int(np.argmin(costs))
+    if best in (0, len(delays) - 1) or not math.isfinite(costs[best]):
+        return CameraDelay(None, tuple(delays), tuple(costs))  # no minimum inside the range
     chosen = delays[best]
-    if 0 < best < len(delays) - 1 and all(map(math.isfinite, costs[best - 1 : best + 2])):
+    if all(map(math.isfinite, costs[best - 1 : best + 2])):
         c0, c1, c2 = costs[best - 1 : best + 2]
         curvature = c0 - 2 * c1 + c2
         if curvature > 0:
