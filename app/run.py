@@ -79,6 +79,8 @@ class MapRun:
         true_markers: ground truth ``T_map_marker`` in the estimate's map frame (empty for a
             real log).
         true_path: the true base path in the estimate's map frame, if logged.
+        camera_delay_ns: how late the camera's stamps were taken to be against odometry [ns].
+        odometry_source: the odometry noise model used (``wheel``, ``vio``, ``t265``).
         seconds: stage -> wall time.
     """
 
@@ -89,6 +91,8 @@ class MapRun:
     results: list[MethodResult]
     true_markers: dict[int, gtsam.Pose2] = field(default_factory=dict)
     true_path: Trajectory | None = None
+    camera_delay_ns: int = 0
+    odometry_source: str = "wheel"
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -113,10 +117,10 @@ def _score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory
 
 def _timed(
     extraction: Extraction, config: MapConfig, noise: OdometryNoise, breaks: list[int]
-) -> list[Observation]:
+) -> tuple[list[Observation], int]:
     """The observations at their capture times (the camera's delay, chosen by the residuals
     unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked,
-    for the shutter instead."""
+    for the shutter instead; and the camera's delay used [ns]."""
     v = config.values
     observations = extraction.observations
     readout_ns = round(v["camera.readout_ms"] * 1e6)
@@ -147,7 +151,7 @@ def _timed(
             )
     else:
         delay_ns = round(v["camera.delay_ms"] * 1e6)
-    return retimed(observations, delay_ns, readout_ns, height)
+    return retimed(observations, delay_ns, readout_ns, height), delay_ns
 
 
 def map_log(
@@ -218,7 +222,7 @@ def map_log(
         )
     )
     breaks = [t for t, _ in jumps]
-    observations = _timed(extraction, config, odometry_noise, breaks)
+    observations, delay_ns = _timed(extraction, config, odometry_noise, breaks)
     frames = build_frames(
         observations,
         extraction.odometry,
@@ -255,4 +259,6 @@ def map_log(
         result = MethodResult(method, estimate, marker_map)
         _score(result, truth, true_path)
         results.append(result)
-    return MapRun(Path(log), config, extraction, frames, results, truth, true_path, seconds)
+    return MapRun(
+        Path(log), config, extraction, frames, results, truth, true_path, delay_ns, source, seconds
+    )

@@ -163,6 +163,10 @@ def _optional(parse: Callable[[Any], float]) -> Callable[[Any], float | None]:
     return optional
 
 
+def _scale_or_auto(value: Any) -> float | None:
+    return None if value == "auto" else _number(0.5, 2.0)(value)
+
+
 _NOISE_M = _number(0.0, 10.0)
 _ODOMETRY_NOISE = _number(1e-6, 10.0)
 
@@ -207,9 +211,9 @@ SETTINGS: tuple[Setting, ...] = (
             "(sigmas grow with the turn rate)", choices=["model", "widen"]),
     Setting("camera.exposure_ms", 0.0, _number(0.0, 200.0),
             "exposure time: sigmas grow with what a turn smears during it [ms]"),
-    Setting("noise.depth_scale", None, _optional(_number(0.5, 2.0)),
-            "what depth reads per true metre (default: measured against the markers' size; "
-            "1 trusts the depth camera)"),
+    Setting("noise.depth_scale", 1.0, _scale_or_auto,
+            "what depth reads per true metre; auto: as measured against the markers' size "
+            "(always measured and reported; up to 1 percent off on simulated logs)"),
     Setting("noise.corner_px", 0.3, _number(0.01, 100.0),
             "corner noise after sub-pixel refinement, propagated into theta [px]"),
     Setting("noise.depth_base_m", DepthModel().base_m, _NOISE_M,

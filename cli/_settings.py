@@ -54,7 +54,7 @@ FLAGS: dict[str, Flag] = {
     "camera.readout_ms": Flag("--readout", "MS", type=float, commands=_MAP),
     "camera.shutter": Flag("--shutter", commands=_MAP),
     "camera.exposure_ms": Flag("--exposure", "MS", type=float, commands=_MAP),
-    "noise.depth_scale": Flag("--depth-scale", "K", type=float),
+    "noise.depth_scale": Flag("--depth-scale", "K|auto"),
     "noise.corner_px": Flag("--corner-noise", "PX", type=float),
     "noise.depth_base_m": Flag("--depth-noise-base", "M", type=float),
     "noise.depth_per_m2": Flag("--depth-noise-per-m2", "K", type=float),
@@ -73,7 +73,7 @@ _GROUPS = {
     "": "settings (a flag overrides --config; (file: key) names it in the file)",
     "topics": "topics",
     "rig": "a rig's cameras (logs of marker detections)",
-    "camera": "camera mount",
+    "camera": "camera: its mount (without /tf_static) and timing",
     "odometry": "odometry",
     "noise": "noise model",
 }

@@ -176,7 +176,7 @@ class OdometryNoise:
         return np.diag([var_xy, var_xy, var_yaw])
 
 
-# Odometry noise by source (tests/benchmarks/odometry_noise.py measures them). Wheel: the
+# Odometry noise by source (tests/benchmarks/real_logs.py measures them). Wheel: the
 # simulator's wheel errors (no real wheel log is shared here). VIO: basalt's VIO against TagSLAM's
 # optimised path on TagSLAM's test 21: mean NEES 2.9-3.0 over 0.5-1 m stretches, where the wheel
 # model gives 0.9-1.0. T265: its odometry against TagSLAM's path on test 22, whose own jitter

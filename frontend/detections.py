@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from markergraph.frontend.detect import Detection
+from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS
 
 __all__ = ["DETECTION_DEFINITIONS", "DETECTION_SCHEMAS", "detections_of"]
 
@@ -29,72 +30,9 @@ DETECTION_SCHEMAS = (
     "apriltag_msgs/msg/ApriltagArrayStamped",
 )
 
-_HEADER = """================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-"""
-
-# The ROS 2 detection types with their dependencies, for logs that carry no definitions (a
-# Humble SQLite bag stores none). apriltag_msgs as Humble ships it: ``Point[4] corners``; its
-# newer ``float64[8] corners`` serialises to the same bytes, so either decodes with this one.
+# Their definitions, for logs that carry none (a Humble SQLite bag stores no definitions).
 DETECTION_DEFINITIONS = {
-    "apriltag_msgs/msg/AprilTagDetectionArray": """std_msgs/Header header
-AprilTagDetection[] detections
-================================================================================
-MSG: apriltag_msgs/AprilTagDetection
-string family
-int32 id
-int32 hamming
-float32 goodness
-float32 decision_margin
-Point centre
-Point[4] corners
-float64[9] homography
-================================================================================
-MSG: apriltag_msgs/Point
-float64 x
-float64 y
-"""
-    + _HEADER,
-    "isaac_ros_apriltag_interfaces/msg/AprilTagDetectionArray": """std_msgs/Header header
-AprilTagDetection[] detections
-================================================================================
-MSG: isaac_ros_apriltag_interfaces/AprilTagDetection
-string family
-int32 id
-geometry_msgs/Point center
-geometry_msgs/Point[4] corners
-geometry_msgs/PoseWithCovarianceStamped pose
-================================================================================
-MSG: geometry_msgs/PoseWithCovarianceStamped
-std_msgs/Header header
-PoseWithCovariance pose
-================================================================================
-MSG: geometry_msgs/PoseWithCovariance
-Pose pose
-float64[36] covariance
-================================================================================
-MSG: geometry_msgs/Pose
-Point position
-Quaternion orientation
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x
-float64 y
-float64 z
-float64 w
-"""
-    + _HEADER,
+    name: MESSAGE_DEFINITIONS[name] for name in DETECTION_SCHEMAS if name in MESSAGE_DEFINITIONS
 }
 
 

@@ -17,6 +17,7 @@ from markergraph.frontend.yaw import (
     YawMethod,
     marker_centre,
     pnp_pose,
+    pnp_theta,
     yaw_from_corners,
     yaw_sigma,
 )
@@ -35,6 +36,8 @@ class Flags:
 
 
 EDGE_MARGIN_PX = 10.0
+DEPTH_DISAGREES = 0.2  # depth this far from the marker's PnP distance belongs to something else
+MIN_PLANE_PIXELS = 30  # valid depth pixels on a marker before a plane is fitted to them
 SMALL_EDGE_PX = 20.0
 GRAZING_RAD = math.radians(60.0)
 GRAZING_SIGMA_RAD = math.radians(90.0)
@@ -95,9 +98,30 @@ def corner_flags(corners: NDArray[np.float64], camera: Camera) -> set[str]:
     return flags
 
 
+def robust_least_squares(
+    A: NDArray[np.float64], b: NDArray[np.float64], passes: int
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], float]:
+    """``A x = b`` by least squares, refitted ``passes`` times without the rows beyond three
+    robust sigmas (1.4826 MAD) of the last fit: (x, the rows kept, that sigma)."""
+    kept = np.ones(len(b), dtype=bool)
+    for _ in range(passes):
+        x, *_ = np.linalg.lstsq(A[kept], b[kept], rcond=None)
+        residual = b - A @ x
+        sigma = 1.4826 * float(np.median(np.abs(residual[kept])))
+        kept = np.abs(residual) <= 3.0 * max(sigma, 1e-9)
+    return np.asarray(x, dtype=np.float64), np.asarray(kept, dtype=np.bool_), sigma
+
+
 def _marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthModel) -> float | None:
-    """Median depth [m] of valid pixels inside the marker, shrunk by a fifth toward its centre
-    to stay clear of the edge where depth mixes with the wall; None without a valid pixel."""
+    """Depth [m] at the marker's centre, from the valid pixels inside it (shrunk by a fifth
+    toward its centre to stay clear of the edge where depth mixes with the wall); None without
+    a valid pixel.
+
+    The marker is a plane, so 1/Z is linear in the pixel: a plane fitted to the valid pixels
+    (least squares, points beyond three robust sigmas dropped once) gives the centre's depth
+    even when whole cells return nothing (black laminated cells) and the marker is oblique,
+    where the median of what is left would lean to one side. With few pixels, their median.
+    """
     centre = marker_centre(corners)
     inner = centre + 0.8 * (corners - centre)
     x0, y0 = np.floor(inner.min(axis=0)).astype(int)
@@ -108,10 +132,21 @@ def _marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthMode
         return None
     mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
     cv2.fillConvexPoly(mask, np.rint(inner - [x0, y0]).astype(np.int32), 1)
-    window = depth[y0:y1, x0:x1][mask.astype(bool)]
+    v, u = np.nonzero(mask)
+    window = depth[y0:y1, x0:x1][v, u]
     metres = window.astype(np.float64) / 1000.0 if depth.dtype == np.uint16 else window
-    valid = metres[np.isfinite(metres) & (metres > 0.0) & (metres <= model.max_range_m)]
-    return float(np.median(valid)) if valid.size else None
+    valid = np.isfinite(metres) & (metres > 0.0) & (metres <= model.max_range_m)
+    if np.count_nonzero(valid) < MIN_PLANE_PIXELS:
+        return float(np.median(metres[valid])) if np.any(valid) else None
+    A = np.column_stack([np.ones(np.count_nonzero(valid)), u[valid] + x0 - centre[0],
+                         v[valid] + y0 - centre[1]])  # fmt: skip
+    plane, kept, _ = robust_least_squares(A, 1.0 / metres[valid], passes=2)
+    # A plane extrapolated from a few rows or a corner of cells is not trusted beyond the
+    # depths it was fitted to.
+    inside = metres[valid][kept]
+    if plane[0] > 0 and inside.min() <= 1.0 / plane[0] <= inside.max():
+        return float(1.0 / plane[0])
+    return float(np.median(metres[valid]))
 
 
 def observe_detections(
@@ -137,7 +172,14 @@ def observe_detections(
     for detection in detections:
         length_m = model.length_of(detection.marker_id)
         corners = camera.undistort(detection.corners)
-        theta = yaw_from_corners(corners, method, camera, length_m)
+        # One PnP solve serves theta (the default method), the range without depth and the
+        # depth's scale.
+        pose = pnp_pose(corners, camera, length_m)
+        theta = (
+            pnp_theta(pose)
+            if method is YawMethod.PNP
+            else yaw_from_corners(corners, method, camera, length_m)
+        )
         if not math.isfinite(theta):
             continue  # PAPER has no solution here; nothing honest to report
         centre = marker_centre(corners)
@@ -147,13 +189,20 @@ def observe_detections(
         left = float(np.linalg.norm(corners[0] - corners[3]))
         right = float(np.linalg.norm(corners[1] - corners[2]))
         flags = set()
-        z = None if depth is None else _marker_depth(depth, corners, depth_model)
+        # Depth is aligned to the colour image as recorded: look it up at the detected
+        # (distorted) corners, not the undistorted ones.
+        z = None if depth is None else _marker_depth(depth, detection.corners, depth_model)
+        if (
+            z is not None
+            and pose is not None
+            and abs(z - pose[1][2]) > DEPTH_DISAGREES * pose[1][2]
+        ):
+            z = None  # depth saw something else (a door frame in front, the wall behind)
         if z is None:
             # Without depth: the marker's full pose from its corners and size (PnP); a pitched
             # camera or an oblique marker foreshortens the edges, which a size-only range would
             # read as distance. Its sigma: the mean vertical edge images f * L / Z.
             flags.add(Flags.NO_DEPTH)
-            pose = pnp_pose(corners, camera, length_m)
             z = (
                 float(pose[1][2])
                 if pose is not None
@@ -164,11 +213,9 @@ def observe_detections(
             sigma_z = z * corner_sigma_px * math.sqrt(2.0) / ((left + right) / 2.0)
         else:
             sigma_z = depth_model.sigma(z)
-            if depth_ratios is not None and abs(theta) < GRAZING_RAD:
-                well_placed = not corner_flags(detection.corners, camera)
-                pose = pnp_pose(corners, camera, length_m) if well_placed else None
-                if pose is not None and pose[1][2] > 0:
-                    depth_ratios.append((t_ns, z, float(pose[1][2])))
+            well_placed = abs(theta) < GRAZING_RAD and not corner_flags(detection.corners, camera)
+            if depth_ratios is not None and well_placed and pose is not None and pose[1][2] > 0:
+                depth_ratios.append((t_ns, z, float(pose[1][2])))
         # The centre in the base frame, then horizontal range and bearing from the camera.
         p_base = R_base_optical @ (z * ray)
         range_m = math.hypot(p_base[0], p_base[1])

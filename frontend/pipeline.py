@@ -39,9 +39,10 @@ from markergraph.frontend.decode import (
     stamp_ns,
 )
 from markergraph.frontend.detect import Detector
-from markergraph.frontend.observe import Flags, observe_detections
+from markergraph.frontend.observe import Flags, observe_detections, robust_least_squares
 from markergraph.frontend.posed import (
     LEVEL_TOLERANCE_RAD,
+    MAX_ATTITUDE_GAP_NS,
     LevelledCamera,
     levelled_view,
     observe_levelled,
@@ -74,7 +75,6 @@ __all__ = ["Extraction", "available_cores", "extract"]
 
 MAX_WAITING_FRAMES = 30
 MAX_ATTITUDES = 64  # the latest odometry attitudes kept to level frames with
-MAX_ATTITUDE_GAP_NS = 100_000_000  # the nearest attitude within this levels a frame
 SPANS_PER_WORKER = 4  # stretches of the log per worker: balances load, moves the progress bar
 
 
@@ -101,8 +101,10 @@ class Extraction:
         levelled_frames: frames observed through the odometry's attitude (a tilted base or a
             rolled camera) rather than as level.
         depth_ratios: each well-placed marker's stamp, depth and PnP distance.
-        depth_scale: what depth read per true metre, as set or estimated; the ranges from
-            depth are divided by it.
+        depth_scale: what depth was taken to read per true metre, as set or measured; the
+            ranges from depth are divided by it.
+        measured_depth_scale: what the markers' known size measured it to be, if enough
+            markers were seen with depth.
     """
 
     observations: list[Observation]
@@ -125,6 +127,7 @@ class Extraction:
     levelled_frames: int = 0
     depth_ratios: list[tuple[int, float, float]] = field(default_factory=list)
     depth_scale: float = 1.0
+    measured_depth_scale: float | None = None
 
 
 @dataclass
@@ -324,16 +327,11 @@ class _SpanReader:
         if self.static and self.image_frame:
             # The odometry's own body first (base_footprint on most diff-drive bases), so the
             # camera's height is above the floor the odometry moves on.
-            bases = dict.fromkeys(b for b in (self.odometry_frame, self.config.base_frame) if b)
-            errors = []
-            for base in bases:
-                try:
-                    result.mount = mount_from_transforms(self.static, base, self.image_frame)
-                    break
-                except LogError as error:
-                    errors.append(str(error))
-            else:
-                result.notes.append(f"{'; '.join(errors)}; assuming the configured camera mount")
+            bases = (self.odometry_frame, self.config.base_frame)
+            try:
+                result.mount = mount_from_transforms(self.static, bases, self.image_frame)
+            except LogError as error:
+                result.notes.append(f"{error}; assuming the configured camera mount")
         else:
             result.notes.append(
                 f"no /tf_static: assuming the configured camera mount ({result.mount})"
@@ -494,41 +492,40 @@ def depth_scale_from_markers(
     if len(steady) < MIN_DEPTH_RATIOS:
         steady = [(z, z_pnp) for _, z, z_pnp in pairs]
     z, z_pnp = np.array(steady, dtype=np.float64).T
-    ratio = z / z_pnp
     A = np.column_stack([np.ones_like(z), z])
-    kept = np.ones(len(z), dtype=bool)
-    for _ in range(3):
-        coefficients, *_ = np.linalg.lstsq(A[kept], ratio[kept], rcond=None)
-        residual = ratio - A @ coefficients
-        sigma = 1.4826 * float(np.median(np.abs(residual[kept])))
-        kept = np.abs(residual) <= 3.0 * max(sigma, 1e-9)
+    coefficients, kept, sigma = robust_least_squares(A, z / z_pnp, passes=3)
     covariance = sigma**2 * np.linalg.inv(A[kept].T @ A[kept])
     return float(coefficients[0]), math.sqrt(float(covariance[0, 0])), len(steady)
 
 
 def _correct_depth_scale(result: Extraction, configured: float | None, topic: str | None) -> None:
-    """Divide the ranges from depth by the depth's scale: as configured, or as the markers'
-    known size measures it (:func:`depth_scale_from_markers`)."""
-    if configured is None:
-        if len(result.depth_ratios) < MIN_DEPTH_RATIOS:
-            return
+    """Measure the depth's scale against the markers' known size
+    (:func:`depth_scale_from_markers`) and say it; divide the ranges from depth by the
+    configured scale, or by the measured one when ``configured`` is None."""
+    measured = None
+    if len(result.depth_ratios) >= MIN_DEPTH_RATIOS:
         scale, error, used = depth_scale_from_markers(result.depth_ratios, result.odometry)
+        result.measured_depth_scale = measured = scale
         if abs(scale - 1.0) > MAX_DEPTH_SCALE_ERROR:
             result.notes.append(
                 f"depth on {topic} reads {100 * (scale - 1):+.1f} % against the markers' size: "
-                "too far off for a depth camera, so the marker size is more likely wrong; depth "
-                "left as it reads (set noise.depth_scale to apply a scale)"
+                "too far off for a depth camera, so the marker size is more likely wrong"
             )
-            return
-        result.notes.append(
-            f"depth on {topic} reads {100 * (scale - 1):+.2f} % +- {100 * error:.2f} against the "
-            f"markers' size ({used} markers): ranges from depth corrected"
-        )
-    else:
-        scale = configured
-    if scale == 1.0:
+            measured = None
+        else:
+            result.notes.append(
+                f"depth on {topic} reads {100 * (scale - 1):+.2f} % +- {100 * error:.2f} against "
+                f"the markers' size ({used} markers): "
+                + (
+                    "ranges from depth corrected"
+                    if configured is None
+                    else "not applied (--depth-scale auto)"
+                )
+            )
+    applied = configured if configured is not None else measured
+    if applied is None or applied == 1.0:
         return
-    result.depth_scale = scale
+    result.depth_scale = scale = applied
     result.observations = [
         o if Flags.NO_DEPTH in o.flags
         else replace(o, range_m=o.range_m / scale, sigma_range=o.sigma_range / scale)
@@ -684,8 +681,9 @@ def extract(
     if result.depth_misses:
         result.notes.append(
             f"{result.depth_misses} of {result.depth_tries} observations in frames with depth "
-            f"found no valid depth on their marker in {choice.depth} (0, NaN, negative or beyond"
-            " noise.depth_max_m): their range comes from the marker's pose (PnP)"
+            f"found no valid depth on their marker in {choice.depth} (0, NaN, negative, beyond"
+            " noise.depth_max_m, or 20 % from the marker's PnP distance): their range comes from"
+            " the marker's pose (PnP)"
         )
     if result.levelled_frames:
         result.notes.append(

@@ -34,9 +34,11 @@ from markergraph.frontend.observe import (
     ObservationModel,
     corner_flags,
 )
+from markergraph.frontend.tf import rot_z
 
 __all__ = [
     "LEVEL_TOLERANCE_RAD",
+    "MAX_ATTITUDE_GAP_NS",
     "WALL_TILT_RAD",
     "LevelledCamera",
     "levelled_view",
@@ -47,6 +49,7 @@ WALL_TILT_RAD = math.radians(45.0)
 # Below this tilt of the base (and roll of the camera) a frame is observed as level: the
 # height-and-pitch model is exact to well under a millimetre at the ranges markers are seen.
 LEVEL_TOLERANCE_RAD = math.radians(0.5)
+MAX_ATTITUDE_GAP_NS = 100_000_000  # the odometry attitude nearest a frame levels it within this
 # IPPE's two solutions explain the corners almost equally well when this close (ratio of their
 # reprojection errors): the marker is seen nearly face-on and its yaw is ambiguous.
 AMBIGUITY_RATIO = 2.0
@@ -114,15 +117,12 @@ def levelled_view(
     so that observations from it compose with the mount's 2-D pose as a level camera's do; None
     when the base and camera are level within :data:`LEVEL_TOLERANCE_RAD`."""
     x_axis = R_world_base[:, 0]
-    yaw = math.atan2(x_axis[1], x_axis[0])  # the 2-D odometry's heading
-    c, s = math.cos(yaw), math.sin(yaw)
-    R_level_base = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ R_world_base
+    R_level_base = rot_z(-math.atan2(x_axis[1], x_axis[0])) @ R_world_base  # 2-D odometry's yaw
     tilt = math.acos(max(-1.0, min(1.0, float(R_level_base[2, 2]))))
     if tilt < LEVEL_TOLERANCE_RAD and abs(mount.roll_rad) < LEVEL_TOLERANCE_RAD:
         return None
     # The estimators compose an observation with the mount's 2-D pose (x, y, yaw) on the base.
-    c, s = math.cos(mount.yaw_rad), math.sin(mount.yaw_rad)
-    R_camera_level = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    R_camera_level = rot_z(-mount.yaw_rad)
     offset = R_level_base @ mount.t_base_optical - np.array([mount.x_m, mount.y_m, 0.0])
     return LevelledCamera(
         camera, R_camera_level @ R_level_base @ mount.R_base_optical, R_camera_level @ offset

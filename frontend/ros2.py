@@ -50,6 +50,21 @@ _BASE = {
     "geometry_msgs/Point[] points\nstd_msgs/ColorRGBA[] colors\nstring text\n"
     "string mesh_resource\nbool mesh_use_embedded_materials",
     "visualization_msgs/MarkerArray": "visualization_msgs/Marker[] markers",
+    "geometry_msgs/PoseWithCovarianceStamped": "std_msgs/Header header\n"
+    "geometry_msgs/PoseWithCovariance pose",
+    # Marker detections, for logs that carry no definitions (a Humble SQLite bag). apriltag_msgs
+    # as Humble ships it (Point[4] corners; the newer float64[8] serialises to the same bytes).
+    "apriltag_msgs/Point": "float64 x\nfloat64 y",
+    "apriltag_msgs/AprilTagDetection": "string family\nint32 id\nint32 hamming\n"
+    "float32 goodness\nfloat32 decision_margin\napriltag_msgs/Point centre\n"
+    "apriltag_msgs/Point[4] corners\nfloat64[9] homography",
+    "apriltag_msgs/AprilTagDetectionArray": "std_msgs/Header header\n"
+    "apriltag_msgs/AprilTagDetection[] detections",
+    "isaac_ros_apriltag_interfaces/AprilTagDetection": "string family\nint32 id\n"
+    "geometry_msgs/Point center\ngeometry_msgs/Point[4] corners\n"
+    "geometry_msgs/PoseWithCovarianceStamped pose",
+    "isaac_ros_apriltag_interfaces/AprilTagDetectionArray": "std_msgs/Header header\n"
+    "isaac_ros_apriltag_interfaces/AprilTagDetection[] detections",
     "nav_msgs/Path": "std_msgs/Header header\ngeometry_msgs/PoseStamped[] poses",
     "nav_msgs/Odometry": "std_msgs/Header header\nstring child_frame_id\n"
     "geometry_msgs/PoseWithCovariance pose\ngeometry_msgs/TwistWithCovariance twist",

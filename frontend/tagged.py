@@ -27,15 +27,19 @@ from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import frame_id, stamp_ns
 from markergraph.frontend.detections import detections_of
-from markergraph.frontend.posed import LevelledCamera, observe_levelled
+from markergraph.frontend.posed import MAX_ATTITUDE_GAP_NS, LevelledCamera, observe_levelled
 from markergraph.frontend.rig import Pose3, read_camera_poses, read_kalibr_cameras, read_tagslam
 from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, messages
-from markergraph.frontend.tf import planar_pose, rotation_of, transform_between, transforms_of
+from markergraph.frontend.tf import (
+    planar_pose,
+    rot_z,
+    rotation_of,
+    transform_between,
+    transforms_of,
+)
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
 
 __all__ = ["DetectionLog", "read_detection_log"]
-
-MAX_ATTITUDE_GAP_NS = 100_000_000  # the nearest odometry sample gives a frame's attitude
 
 
 @dataclass
@@ -58,11 +62,6 @@ class _Frame:
     t_ns: int
     frame_id: str
     detections: list[Any]
-
-
-def _rot_z(angle: float) -> NDArray[np.float64]:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 class _Reader:
@@ -139,16 +138,13 @@ class _Reader:
     def _mount_for(self, name: str | None, frame: str) -> Pose3 | None:
         """``T_body_optical`` of a camera: /tf_static, else TagSLAM's camera poses."""
         if self.static:
-            reason = ""
-            for base in (self.body_frame, self.config.base_frame):
-                if base is None:
-                    continue
-                try:
-                    R, t = transform_between(self.static, base, frame)
-                    return Pose3(R, t)
-                except LogError as error:
-                    reason = str(error)
-            self.log.notes.append(f"{reason}; looking for the camera's pose in the settings")
+            try:
+                R, t = transform_between(
+                    self.static, (self.body_frame, self.config.base_frame), frame
+                )
+                return Pose3(R, t)
+            except LogError as error:
+                self.log.notes.append(f"{error}; looking for the camera's pose in the settings")
         if name is not None and name in self.camera_poses:
             T_rig_odom = (self.tagslam and self.tagslam.T_rig_odom) or Pose3.identity()
             return T_rig_odom.inverse().compose(self.camera_poses[name])
@@ -210,7 +206,7 @@ class _Reader:
                     continue
                 R_world_body = self.poses[i][2]
             f = R_world_body @ forward
-            R_level_body = _rot_z(-math.atan2(f[1], f[0])) @ R_world_body
+            R_level_body = rot_z(-math.atan2(f[1], f[0])) @ R_world_body
             view = LevelledCamera(camera, R_level_body @ mount.R, R_level_body @ mount.t)
             detections = frame.detections
             if allowed is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,6 +20,7 @@ __all__ = [
     "mount_from_transforms",
     "odometry_from_tf",
     "planar_pose",
+    "rot_z",
     "rotation_of",
     "transform_between",
     "transforms_of",
@@ -104,6 +106,12 @@ class _TransformTree:
         return R, t
 
 
+def rot_z(angle: float) -> NDArray[np.float64]:
+    """The rotation by ``angle`` [rad] about z."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def planar_pose(
     t: NDArray[np.float64], R: NDArray[np.float64], forward: NDArray[np.float64]
 ) -> tuple[float, float, float]:
@@ -113,23 +121,33 @@ def planar_pose(
 
 
 def transform_between(
-    transforms: list[Any], base: str, frame: str
+    transforms: list[Any], base: str | Sequence[str | None], frame: str
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(R, t) of ``frame`` in ``base`` through a chain of static transforms, any depth.
+    """(R, t) of ``frame`` in ``base`` through a chain of static transforms, any depth; given
+    several bases (None among them skipped), in the first that the chain reaches.
 
     Raises:
-        LogError: the transforms do not join the two frames, form a loop, or hold a value
-            that is not a transform.
+        LogError: the transforms do not join the frames, form a loop, or hold a value that is
+            not a transform.
     """
     tree = _TransformTree()
     for transform in transforms:
         tree.add(transform)
-    return tree.chain(base, frame)
+    bases = [base] if isinstance(base, str) else list(dict.fromkeys(b for b in base if b))
+    errors = []
+    for candidate in bases:
+        try:
+            return tree.chain(candidate, frame)
+        except LogError as error:
+            errors.append(str(error))
+    raise LogError("; ".join(errors) or f"no base frame to join {frame} to")
 
 
-def mount_from_transforms(transforms: list[Any], base: str, optical_frame: str) -> CameraMount:
-    """The camera's mount from ``/tf_static``: the chain from ``base`` to the optical frame
-    (x right, y down, z forward), its yaw, pitch and roll."""
+def mount_from_transforms(
+    transforms: list[Any], base: str | Sequence[str | None], optical_frame: str
+) -> CameraMount:
+    """The camera's mount from ``/tf_static``: the chain from ``base`` (or the first of several
+    it reaches) to the optical frame (x right, y down, z forward), its yaw, pitch and roll."""
     R, t = transform_between(transforms, base, optical_frame)
     return CameraMount.from_pose(R, t)
 

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from markergraph.frontend.camera import Camera
 
-__all__ = ["YawMethod", "marker_centre", "yaw_from_corners", "yaw_sigma"]
+__all__ = ["YawMethod", "marker_centre", "pnp_pose", "pnp_theta", "yaw_from_corners", "yaw_sigma"]
 
 
 class YawMethod(Enum):
@@ -105,7 +105,12 @@ def yaw_from_corners(
         )
     if marker_length_m is None:
         raise ValueError("yaw method pnp needs the marker's side length")
-    pose = pnp_pose(corners, camera, marker_length_m)
+    return pnp_theta(pnp_pose(corners, camera, marker_length_m))
+
+
+def pnp_theta(pose: tuple[NDArray[np.float64], NDArray[np.float64]] | None) -> float:
+    """theta [rad] from the marker's pose in the optical frame (:func:`pnp_pose`); NaN for
+    none."""
     if pose is None:
         return math.nan
     R, t = pose

@@ -23,6 +23,12 @@ from markergraph.datasets.write import capture
 from markergraph.estimator import Trajectory
 from markergraph.frontend import FrontendConfig, extract
 from markergraph.frontend.detect import Detector
+from markergraph.frontend.observe import (
+    Flags,
+    ObservationModel,
+    _marker_depth,
+    observe_detections,
+)
 
 RATE = 1.0  # turn rate in the capture tests [rad/s]
 
@@ -158,12 +164,36 @@ def test_stamps_drops_jitter_and_tf_tree(realistic_log) -> None:
 def test_remedies_find_the_delay_and_the_depth_scale(realistic_log) -> None:
     """Chosen by SLAM's residuals, the camera's delay comes out near 35 ms once the shutter's
     row delay is modelled (and near 0 on the ideal log); the depth's scale, measured against
-    the markers' size, near 1.012 (and 1)."""
+    the markers' size, near 1.012 (and 1), and applied only when asked."""
     for log, delay_ms, scale in zip(realistic_log, (0.0, 35.0), (1.0, 1.012), strict=True):
         run = mg.map_log(
             log, mg.MapConfig.from_values({"camera.readout_ms": 25.0 * bool(delay_ms)})
         )
-        chosen = next(n for n in run.extraction.notes if n.startswith("camera stamps"))
-        found_ms = float(chosen.split()[2])
-        assert found_ms == pytest.approx(delay_ms, abs=6.0)
-        assert run.extraction.depth_scale == pytest.approx(scale, abs=0.008)  # 1.0185 measured
+        assert run.camera_delay_ns / 1e6 == pytest.approx(delay_ms, abs=6.0)
+        assert run.extraction.measured_depth_scale == pytest.approx(scale, abs=0.008)
+        assert run.extraction.depth_scale == 1.0  # measured and reported, applied only if asked
+
+
+def test_depth_at_an_oblique_marker_with_black_cells_is_its_centres(wall_marker) -> None:
+    """Seen 40 degrees off its normal with no depth on its black cells, a marker's depth still
+    comes out at its centre's (a plane through the white cells' depths), within 5 mm; a depth
+    image that disagrees with the marker's size by more than 20 % is not used."""
+    renderer, _ = wall_marker
+    pose = gtsam.Pose2(1.2, 2.1, -math.pi / 2 + math.radians(40.0))
+    true_z = renderer.mount.world_to_optical(pose, np.array([[3.0, 0.0, 1.0]]))[0, 2]
+    effects = SensorEffects(black_cells_without_depth=True)
+    truth = Trajectory(np.array([0, 10**9]), np.array([[pose.x(), pose.y(), pose.theta()]] * 2))
+    frame = capture(renderer, truth, 0, effects, np.random.default_rng(4))
+    (detection,) = Detector().detect(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY))
+    model = ObservationModel(0.3)
+    (seen,) = observe_detections([detection], renderer.camera, model, depth=frame.depth_mm,
+                                 mount=renderer.mount)  # fmt: skip
+    assert Flags.NO_DEPTH not in seen.flags
+    u, v = np.rint(detection.corners.mean(axis=0)).astype(int)
+    z = _marker_depth(frame.depth_mm, detection.corners, model.depth_model)
+    assert z == pytest.approx(true_z, abs=0.005)  # the white cells' median: 24 mm off
+    assert np.count_nonzero(frame.depth_mm[v - 20 : v + 20, u - 20 : u + 20] == 0) > 100
+    wrong = np.full_like(frame.depth_mm, round(700 * true_z))  # 30 % short
+    (unused,) = observe_detections([detection], renderer.camera, model, depth=wrong,
+                                   mount=renderer.mount)  # fmt: skip
+    assert Flags.NO_DEPTH in unused.flags
