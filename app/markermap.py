@@ -19,6 +19,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.estimator.heights import MarkerHeight
 from markergraph.estimator.paper import Edge, Form, edge_from_pose2, heading
 from markergraph.estimator.types import Estimate, MarkerGraphError
 from markergraph.frontend.files import written_whole
@@ -42,7 +43,9 @@ class MapMarker:
         covariance: 3x3 over (x, y, yaw) in the marker's own tangent space, or None.
         n_observations: how many observations placed it.
         size_m: the side of its black square [m].
-        z_m: the height of its centre above the floor [m], where known.
+        z_m: the height of its centre above the base frame's origin (the floor, for a base
+            on it) [m], where known.
+        sigma_z_m: the height's standard deviation [m], where known.
     """
 
     marker_id: int
@@ -51,6 +54,7 @@ class MapMarker:
     n_observations: int
     size_m: float
     z_m: float | None = None
+    sigma_z_m: float | None = None
 
     def position_ellipse(self, n_sigma: float = 2.0) -> tuple[NDArray[np.float64], float] | None:
         """The ``n_sigma`` position ellipse in the map frame: (diameters (major, minor) [m],
@@ -124,21 +128,23 @@ class MarkerMap:
         dictionary: str,
         marker_size_m: float,
         marker_sizes_m: Mapping[int, float] | None = None,
-        marker_heights_m: Mapping[int, float] | None = None,
+        heights: Mapping[int, MarkerHeight] | None = None,
     ) -> MarkerMap:
-        """An estimate's map; sides from ``marker_sizes_m`` where given, else ``marker_size_m``."""
-        sides, heights = marker_sizes_m or {}, marker_heights_m or {}
-        markers = {
-            i: MapMarker(
+        """An estimate's map; sides from ``marker_sizes_m`` where given, else ``marker_size_m``;
+        heights (:func:`~markergraph.estimator.marker_heights`) where given."""
+        sides, heights = marker_sizes_m or {}, heights or {}
+        markers = {}
+        for i, m in sorted(estimate.markers.items()):
+            height = heights.get(i)
+            markers[i] = MapMarker(
                 i,
                 m.T_map_marker,
                 m.covariance,
                 m.n_observations,
                 sides.get(i, marker_size_m),
-                heights.get(i),
+                None if height is None else height.z_m,
+                None if height is None else height.sigma_m,
             )
-            for i, m in sorted(estimate.markers.items())
-        }
         links = []
         for link in estimate.links:
             a, b = markers.get(link.marker_a), markers.get(link.marker_b)
@@ -207,6 +213,8 @@ class MarkerMap:
             }
             if m.z_m is not None:
                 entry["z"] = m.z_m
+            if m.sigma_z_m is not None:
+                entry["sigma_z"] = m.sigma_z_m
             markers.append(entry)
         links = [
             {
@@ -262,6 +270,9 @@ class MarkerMap:
                 read.whole(f"{where}.n_observations", entry.get("n_observations")),
                 read.number(f"{where}.size_m", entry.get("size_m", size), positive=True),
                 None if "z" not in entry else read.number(f"{where}.z", entry["z"]),
+                None
+                if "sigma_z" not in entry
+                else read.number(f"{where}.sigma_z", entry["sigma_z"], positive=True),
             )
         links = []
         for i, entry in enumerate(read.items("links", document.get("links", []))):

@@ -1,16 +1,33 @@
 """The corrected map over the original log: an MCAP file of ROS 2 messages for Foxglove.
 
-Topics: ``/markergraph/markers`` (``visualization_msgs/MarkerArray``, in ``map``: each marker's
-normal as an arrow, its id, and its 2-sigma position ellipse as a flat cylinder),
-``/markergraph/path`` (``nav_msgs/Path``, the estimated trajectory) and ``/tf`` (``map`` to
-``odom`` at each estimated pose, so the log's own odom frame lands on the map). Play it beside
-the original log.
+Topics (frame names are :func:`write_overlay`'s ``map_frame`` and ``odom_frame``, by default
+``map`` and ``odom``):
+
+- ``/markergraph/markers`` (``visualization_msgs/msg/MarkerArray``, in the map frame, once at
+  the start): each marker's normal as an arrow, its id, and its 2-sigma position ellipse as a
+  flat cylinder, at the marker's height where the map knows it (else on the floor).
+- ``/tf_static`` (``tf2_msgs/msg/TFMessage``, once at the start): the map frame to
+  ``marker_<id>`` at each marker's pose (x, y, height, yaw), so each marker shows as an axis.
+- ``/markergraph/path`` (``nav_msgs/msg/Path``): the estimated trajectory so far, every
+  half second of log time (:data:`PATH_PERIOD_NS`; long paths thinned to :data:`MAX_PATH_POSES`)
+  and once more at its last stamp with every pose, so the path grows as the log plays.
+- ``/markergraph/pose`` (``geometry_msgs/msg/PoseStamped``): each estimated pose at its stamp;
+  ``evo_traj mcap overlay.mcap /markergraph/pose`` reads it.
+- ``/tf`` (``tf2_msgs/msg/TFMessage``): the map frame to the odom frame at each estimated pose
+  the odometry reaches, so the log's own odom frame lands on the map.
+
+Play it beside the original log.
 """
 
 from __future__ import annotations
 
+import heapq
+import math
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 from mcap_ros2.writer import Writer
 
 from markergraph.estimator.trajectory import Trajectory
@@ -21,26 +38,55 @@ from markergraph.frontend.ros2 import (
     quaternion_from_yaw,
     transform_stamped,
 )
-from markergraph.markermap import MarkerMap
+from markergraph.markermap import MapMarker, MarkerMap
 
-__all__ = ["write_overlay"]
+__all__ = [
+    "MARKER_TOPIC",
+    "MAX_PATH_POSES",
+    "PATH_PERIOD_NS",
+    "PATH_TOPIC",
+    "POSE_TOPIC",
+    "TF_STATIC_TOPIC",
+    "TF_TOPIC",
+    "write_overlay",
+]
 
 ARROW, CYLINDER, TEXT = 0, 3, 9
-MARKER_TOPIC, PATH_TOPIC, TF_TOPIC = "/markergraph/markers", "/markergraph/path", "/tf"
+MARKER_TOPIC, PATH_TOPIC, POSE_TOPIC = (
+    "/markergraph/markers",
+    "/markergraph/path",
+    "/markergraph/pose",
+)
+TF_TOPIC, TF_STATIC_TOPIC = "/tf", "/tf_static"
+
+PATH_PERIOD_NS = 500_000_000
+"""Log time between two ``/markergraph/path`` messages [ns]; a period without a new pose
+publishes nothing (the previous message still holds)."""
+MAX_PATH_POSES = 1000
+"""Poses at most in a ``/markergraph/path`` message before the last: each message repeats the
+path so far, so K messages of a path of N poses write about K N / 2 poses. Longer paths keep every
+k-th pose (the same ones in every message, so the drawn line only grows) and the newest one. A
+10-minute path of 18,000 poses (30 Hz) makes a 3.1 MB overlay this way."""
+
+# The order of messages that share a stamp: what is drawn with a pose comes after the pose.
+_STATIC, _TF, _POSE, _PATH = range(4)
+
+_Event = tuple[int, int, str, str, dict[str, Any]]  # (t_ns, order, topic, schema, message)
 
 
 def _marker(
     t_ns: int,
+    frame: str,
     marker_id: int,
     ns: str,
     kind: int,
-    pose: dict,
-    scale: tuple,
-    color: tuple,
+    pose: dict[str, Any],
+    scale: tuple[float, float, float],
+    color: tuple[float, float, float, float],
     text: str = "",
-) -> dict:
+) -> dict[str, Any]:
     return {
-        "header": header(t_ns, "map"),
+        "header": header(t_ns, frame),
         "ns": ns,
         "id": marker_id,
         "type": kind,
@@ -58,82 +104,176 @@ def _marker(
     }
 
 
-def _pose(x: float, y: float, z: float, yaw: float) -> dict:
+def _pose(x: float, y: float, z: float, yaw: float) -> dict[str, Any]:
     return {"position": {"x": x, "y": y, "z": z}, "orientation": quaternion_from_yaw(yaw)}
 
 
-def write_overlay(
-    path: Path, marker_map: MarkerMap, trajectory: Trajectory, odometry: Trajectory
-) -> None:
-    """Write the overlay MCAP, whole or not at all: the map, the estimated path and
-    ``map -> odom`` at each estimated pose (where odometry reaches)."""
+def _height_m(marker: MapMarker) -> float:
+    """The marker centre's height [m]; 0 (the floor) where the map does not know it."""
+    z_m = getattr(marker, "z_m", None)
+    return 0.0 if z_m is None else float(z_m)
+
+
+def _map_messages(marker_map: MarkerMap, t_ns: int, map_frame: str, prefix: str) -> list[_Event]:
+    """The MarkerArray and the static marker frames, both at ``t_ns``."""
+    markers, transforms = [], []
+    for marker_id, marker in marker_map.markers.items():
+        T = marker.T_map_marker
+        z = _height_m(marker)
+        markers.append(
+            _marker(t_ns, map_frame, marker_id, "normals", ARROW, _pose(T.x(), T.y(), z, T.theta()),
+                    (0.3, 0.04, 0.04), (0.1, 0.4, 0.9, 1.0))
+        )  # fmt: skip
+        markers.append(
+            _marker(t_ns, map_frame, marker_id, "ids", TEXT, _pose(T.x(), T.y(), z + 0.25, 0.0),
+                    (0.0, 0.0, 0.2), (1.0, 1.0, 1.0, 1.0), str(marker_id))
+        )  # fmt: skip
+        ellipse = marker.position_ellipse(2.0)
+        if ellipse is not None:
+            (major, minor), heading = ellipse
+            markers.append(
+                _marker(t_ns, map_frame, marker_id, "ellipses", CYLINDER,
+                        _pose(T.x(), T.y(), z, heading), (float(major), float(minor), 0.01),
+                        (0.1, 0.4, 0.9, 0.3))
+            )  # fmt: skip
+        transforms.append(
+            transform_stamped(
+                t_ns, map_frame, f"{prefix}{marker_id}", (T.x(), T.y(), z),
+                quaternion_from_yaw(T.theta()),
+            )
+        )  # fmt: skip
+    return [
+        (t_ns, _STATIC, MARKER_TOPIC, "visualization_msgs/msg/MarkerArray", {"markers": markers}),
+        (t_ns, _STATIC, TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", {"transforms": transforms}),
+    ]
+
+
+def _tf_messages(
+    trajectory: Trajectory, odometry: Trajectory, map_frame: str, odom_frame: str
+) -> Iterator[_Event]:
+    """``map -> odom`` at each estimated pose the odometry reaches."""
+    for t in trajectory.t_ns:
+        t_ns = int(t)
+        T_map_odom = trajectory.T_self_other(odometry, t_ns)
+        if T_map_odom is None:
+            continue
+        transform = transform_stamped(
+            t_ns,
+            map_frame,
+            odom_frame,
+            (T_map_odom.x(), T_map_odom.y(), 0.0),
+            quaternion_from_yaw(T_map_odom.theta()),
+        )
+        yield t_ns, _TF, TF_TOPIC, "tf2_msgs/msg/TFMessage", {"transforms": [transform]}
+
+
+def _path_messages(
+    trajectory: Trajectory,
+    stamped: list[dict[str, Any]],
+    map_frame: str,
+    period_ns: int,
+    max_poses: int,
+) -> Iterator[_Event]:
+    """The path so far every ``period_ns`` from the first stamp (where it gained a pose), and
+    the whole path at the last stamp; each message holds the poses stamped at or before its
+    own stamp."""
     stamps = trajectory.t_ns
-    start = int(stamps[0]) if len(stamps) else (int(odometry.t_ns[0]) if len(odometry) else 0)
+    if not len(stamps):
+        return
+    first, last = int(stamps[0]), int(stamps[-1])
+    stride = max(1, math.ceil(len(stamps) / max_poses))
+    published = 0
+    for t_ns in range(first, last, period_ns):
+        count = int(np.searchsorted(stamps, t_ns, side="right"))
+        if count == published:  # no new pose since the last message: it still holds
+            continue
+        published = count
+        poses = stamped[0:count:stride]
+        if (count - 1) % stride:  # the newest pose, so the line reaches the robot
+            poses.append(stamped[count - 1])
+        message = {"header": header(t_ns, map_frame), "poses": poses}
+        yield t_ns, _PATH, PATH_TOPIC, "nav_msgs/msg/Path", message
+    message = {"header": header(last, map_frame), "poses": stamped}
+    yield last, _PATH, PATH_TOPIC, "nav_msgs/msg/Path", message
+
+
+def _check_frame(name: str, value: str) -> None:
+    if not isinstance(value, str) or not value or value.startswith("/") or value != value.strip():
+        raise ValueError(
+            f"{name} must be a frame name without a leading '/' or spaces, not {value!r}"
+        )
+
+
+def write_overlay(
+    path: Path,
+    marker_map: MarkerMap,
+    trajectory: Trajectory,
+    odometry: Trajectory,
+    *,
+    map_frame: str = "map",
+    odom_frame: str = "odom",
+    marker_frame_prefix: str = "marker_",
+    path_period_ns: int = PATH_PERIOD_NS,
+    max_path_poses: int = MAX_PATH_POSES,
+) -> None:
+    """Write the overlay MCAP, whole or not at all (topics: the module's docstring).
+
+    The map (``/markergraph/markers`` and the marker frames on ``/tf_static``) is stamped at the
+    earliest stamp of ``trajectory`` and ``odometry``, so it shows from the start of the log.
+
+    Args:
+        path: the file to write.
+        marker_map: the corrected map; markers are drawn at their height ``z_m`` where known.
+        trajectory: the estimated path, ``T_map_base``.
+        odometry: the log's odometry, ``T_odom_base``, for ``map -> odom`` on ``/tf``.
+        map_frame: the frame of the map, the path, the poses and the parent of the marker
+            frames. Rename it (e.g. ``markergraph_map``) when the overlay plays beside a log of a
+            robot that publishes its own ``map`` (nav2's AMCL or SLAM publish ``map -> odom``):
+            two parents of ``odom`` would fight in the TF tree.
+        odom_frame: the log's odometry frame, the child of ``map_frame`` on ``/tf``. Set it to
+            the ``frame_id`` of the log's odometry when that is not ``odom``.
+        marker_frame_prefix: marker ``i``'s frame on ``/tf_static`` is ``f"{prefix}{i}"``.
+        path_period_ns: log time between two ``/markergraph/path`` messages [ns]; shorter
+            grows the path more smoothly and makes the file bigger.
+        max_path_poses: poses at most in each path message but the last (which holds every
+            pose); the file grows with ``max_path_poses`` times the number of messages.
+
+    Raises:
+        ValueError: an empty or ``/``-prefixed frame name, the map and odom frames the same,
+            or a period or pose limit below 1.
+    """
+    for name, value in (("map_frame", map_frame), ("odom_frame", odom_frame)):
+        _check_frame(name, value)
+    if map_frame == odom_frame:
+        raise ValueError(f"map_frame and odom_frame are both {map_frame!r}")
+    _check_frame("marker_frame_prefix", marker_frame_prefix)
+    if path_period_ns < 1 or max_path_poses < 1:
+        raise ValueError(
+            f"path_period_ns ({path_period_ns}) and max_path_poses ({max_path_poses}) must be"
+            " at least 1"
+        )
+    firsts = [int(t.t_ns[0]) for t in (trajectory, odometry) if len(t)]
+    start = min(firsts) if firsts else 0
+    stamped = [
+        {"header": header(int(t), map_frame), "pose": _pose(x, y, 0.0, yaw)}
+        for t, (x, y, yaw) in zip(trajectory.t_ns, trajectory.poses, strict=True)
+    ]
+    poses = (
+        (int(t), _POSE, POSE_TOPIC, "geometry_msgs/msg/PoseStamped", message)
+        for t, message in zip(trajectory.t_ns, stamped, strict=True)
+    )
+    events = heapq.merge(
+        _map_messages(marker_map, start, map_frame, marker_frame_prefix),
+        _tf_messages(trajectory, odometry, map_frame, odom_frame),
+        poses,
+        _path_messages(trajectory, stamped, map_frame, path_period_ns, max_path_poses),
+        key=lambda event: event[:2],
+    )
     with written_whole(path) as partial, open(partial, "wb") as stream:
         writer = Writer(stream)
-        schemas = {
-            name: writer.register_msgdef(name, MESSAGE_DEFINITIONS[name])
-            for name in (
-                "visualization_msgs/msg/MarkerArray",
-                "nav_msgs/msg/Path",
-                "tf2_msgs/msg/TFMessage",
-            )
-        }
-        markers = []
-        for marker_id, marker in marker_map.markers.items():
-            T = marker.T_map_marker
-            z = marker.z_m or 0.0
-            markers.append(
-                _marker(start, marker_id, "normals", ARROW, _pose(T.x(), T.y(), z, T.theta()),
-                        (0.3, 0.04, 0.04), (0.1, 0.4, 0.9, 1.0))
-            )  # fmt: skip
-            markers.append(
-                _marker(start, marker_id, "ids", TEXT, _pose(T.x(), T.y(), z + 0.25, 0.0),
-                        (0.0, 0.0, 0.2), (1.0, 1.0, 1.0, 1.0), str(marker_id))
-            )  # fmt: skip
-            ellipse = marker.position_ellipse(2.0)
-            if ellipse is not None:
-                (major, minor), heading = ellipse
-                markers.append(
-                    _marker(start, marker_id, "ellipses", CYLINDER,
-                            _pose(T.x(), T.y(), z, heading), (float(major), float(minor), 0.01),
-                            (0.1, 0.4, 0.9, 0.3))
-                )  # fmt: skip
-        writer.write_message(
-            MARKER_TOPIC,
-            schemas["visualization_msgs/msg/MarkerArray"],
-            {"markers": markers},
-            log_time=start,
-            publish_time=start,
-        )
-        for t_ns in stamps:
-            T_map_odom = trajectory.T_self_other(odometry, int(t_ns))
-            if T_map_odom is None:
-                continue
-            transform = transform_stamped(
-                int(t_ns),
-                "map",
-                "odom",
-                (T_map_odom.x(), T_map_odom.y(), 0.0),
-                quaternion_from_yaw(T_map_odom.theta()),
-            )
-            writer.write_message(
-                TF_TOPIC,
-                schemas["tf2_msgs/msg/TFMessage"],
-                {"transforms": [transform]},
-                log_time=int(t_ns),
-                publish_time=int(t_ns),
-            )
-        end = int(stamps[-1]) if len(stamps) else start
-        poses = [
-            {"header": header(int(t), "map"), "pose": _pose(x, y, 0.0, yaw)}
-            for t, (x, y, yaw) in zip(stamps, trajectory.poses, strict=True)
-        ]
-        writer.write_message(
-            PATH_TOPIC,
-            schemas["nav_msgs/msg/Path"],
-            {"header": header(end, "map"), "poses": poses},
-            log_time=end,
-            publish_time=end,
-        )
+        schemas: dict[str, Any] = {}
+        for t_ns, _, topic, schema, message in events:
+            if schema not in schemas:
+                schemas[schema] = writer.register_msgdef(schema, MESSAGE_DEFINITIONS[schema])
+            writer.write_message(topic, schemas[schema], message, log_time=t_ns, publish_time=t_ns)
         writer.finish()

@@ -1,19 +1,24 @@
-"""Floor plans of marker maps (matplotlib, imported here only)."""
+"""Floor plans of marker maps and the diagnostics figure (matplotlib, imported here only)."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import gtsam
 import numpy as np
+from numpy.typing import NDArray
 
+from markergraph.estimator import Observation
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.markermap import MarkerMap
 
-__all__ = ["plot_comparison", "plot_map"]
+__all__ = ["plot_comparison", "plot_diagnostics", "plot_map"]
+
+MARGIN = 0.1  # of the view's larger side, around what is drawn
+CIRCLE = np.stack([np.cos(np.linspace(0, math.tau, 60)), np.sin(np.linspace(0, math.tau, 60))])
 
 
 def _pyplot() -> Any:
@@ -25,63 +30,114 @@ def _pyplot() -> Any:
     return plt
 
 
-def _draw_map(ax: Any, marker_map: MarkerMap, truth: dict[int, gtsam.Pose2], title: str) -> None:
-    """Markers with their normals, ids and 2-sigma ellipses; true markers as grey crosses."""
-    circle = np.stack(
-        [np.cos(np.linspace(0, 2 * math.pi, 60)), np.sin(np.linspace(0, 2 * math.pi, 60))]
+def _extent(points: Sequence[NDArray[np.float64]]) -> tuple[float, float, float, float]:
+    """The view (x0, x1, y0, y1) around every point, with a margin: the room, not the ellipses."""
+    xy = np.concatenate([p.reshape(-1, 2) for p in points if len(p)])
+    (x0, y0), (x1, y1) = xy.min(axis=0), xy.max(axis=0)
+    pad = MARGIN * max(x1 - x0, y1 - y0, 1.0)
+    return x0 - pad, x1 + pad, y0 - pad, y1 + pad
+
+
+def _map_points(
+    marker_map: MarkerMap, truth: Mapping[int, gtsam.Pose2], paths: Sequence[Trajectory | None]
+) -> list[NDArray[np.float64]]:
+    points = [np.array([[T.x(), T.y()] for T in truth.values()]).reshape(-1, 2)]
+    points.append(
+        np.array([[m.T_map_marker.x(), m.T_map_marker.y()] for m in marker_map.markers.values()])
     )
+    points += [p.poses[:, :2] for p in paths if p is not None and len(p)]
+    return points
+
+
+def _title(marker_map: MarkerMap, rmse_m: tuple[float, float] | None) -> str:
+    """What the panel shows: ellipses or none, and the RMSE (in the home marker's frame, and
+    after a rigid alignment) when the truth is known."""
+    has_covariance = any(m.covariance is not None for m in marker_map.markers.values())
+    title = "2-sigma ellipses" if has_covariance else "no covariance"
+    if rmse_m is not None:
+        title += f", marker RMSE {100 * rmse_m[0]:.1f} cm ({100 * rmse_m[1]:.1f} aligned)"
+    return title
+
+
+def _draw_map(
+    ax: Any,
+    marker_map: MarkerMap,
+    truth: Mapping[int, gtsam.Pose2],
+    title: str,
+    view: tuple[float, float, float, float],
+) -> None:
+    """The marker graph's links, markers with their normals and ids, 2-sigma ellipses (those
+    larger than half the view drawn dashed, clipped by it and their size written beside the
+    id), and the true markers as grey crosses."""
+    x0, x1, y0, y1 = view
+    too_big = 0.5 * max(x1 - x0, y1 - y0)
+    for i, link in enumerate(marker_map.links):
+        a, b = marker_map.markers[link.marker_a], marker_map.markers[link.marker_b]
+        ax.plot(
+            [a.T_map_marker.x(), b.T_map_marker.x()],
+            [a.T_map_marker.y(), b.T_map_marker.y()],
+            color="tab:purple", lw=0.5, alpha=0.5, zorder=1,
+            label="links (the paper's edges)" if i == 0 else None,
+        )  # fmt: skip
+    xy = np.array([[m.T_map_marker.x(), m.T_map_marker.y()] for m in marker_map.markers.values()])
+    ax.plot(xy[:, 0], xy[:, 1], "o", color="tab:blue", ms=4, label="estimated markers", zorder=3)
     for marker_id, marker in marker_map.markers.items():
         T = marker.T_map_marker
-        ax.annotate(
-            str(marker_id), (T.x(), T.y()), textcoords="offset points", xytext=(4, 4), fontsize=8
-        )
-        ax.arrow(
-            T.x(),
-            T.y(),
-            0.3 * math.cos(T.theta()),
-            0.3 * math.sin(T.theta()),
-            width=0.02,
-            color="tab:blue",
-            length_includes_head=True,
-        )
+        label = str(marker_id)
+        ax.arrow(T.x(), T.y(), 0.3 * math.cos(T.theta()), 0.3 * math.sin(T.theta()),
+                 width=0.02, color="tab:blue", length_includes_head=True, zorder=3)  # fmt: skip
         ellipse = marker.position_ellipse(2.0)
         if ellipse is not None:
             (major, minor), heading = ellipse
             c, s = math.cos(heading), math.sin(heading)
-            outline = np.array([[c, -s], [s, c]]) @ (np.array([[major / 2], [minor / 2]]) * circle)
-            ax.plot(T.x() + outline[0], T.y() + outline[1], color="tab:blue", lw=0.8)
+            outline = np.array([[c, -s], [s, c]]) @ (np.array([[major / 2], [minor / 2]]) * CIRCLE)
+            oversized = major > too_big
+            ax.plot(T.x() + outline[0], T.y() + outline[1], color="tab:blue", lw=0.8,
+                    ls="--" if oversized else "-", alpha=0.35 if oversized else 1.0,
+                    zorder=2)  # fmt: skip
+            if oversized:
+                label += f" (2σ {major:.1f} m)"
+        ax.annotate(label, (T.x(), T.y()), textcoords="offset points", xytext=(4, 4), fontsize=8)
     if truth:
-        xy = np.array([[T.x(), T.y()] for T in truth.values()])
-        ax.plot(xy[:, 0], xy[:, 1], "x", color="grey", label="true markers")
-    ax.set_aspect("equal")
+        true_xy = np.array([[T.x(), T.y()] for T in truth.values()])
+        ax.plot(true_xy[:, 0], true_xy[:, 1], "x", color="grey", label="true markers")
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
     ax.set_title(title, fontsize=9)
 
 
 def plot_map(
     marker_map: MarkerMap,
-    truth: dict[int, gtsam.Pose2],
+    truth: Mapping[int, gtsam.Pose2],
     path: Path,
     *,
     trajectory: Trajectory | None = None,
     odometry: Trajectory | None = None,
     truth_path: Trajectory | None = None,
+    rmse_m: tuple[float, float] | None = None,
 ) -> None:
     """The map with its estimated trajectory, the raw odometry (anchored on the trajectory's
-    first pose) and the dashed ground truth, as PNG and SVG."""
+    first pose) and the dashed ground truth, as PNG and SVG; ``rmse_m`` (against the truth)
+    goes into the title."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 6), constrained_layout=True)
-    _draw_map(
-        ax,
-        marker_map,
-        truth,
-        f"{marker_map.method}: markers in the frame of marker {marker_map.home_id}, "
-        "2-sigma ellipses",
-    )
+    drawn_odometry = None
     if trajectory is not None and len(trajectory) and odometry is not None and len(odometry):
         T_map_odom = trajectory.T_self_other(odometry, int(trajectory.t_ns[0]))
         if T_map_odom is not None:
-            drawn = odometry.in_frame(T_map_odom, "map").poses
-            ax.plot(drawn[:, 0], drawn[:, 1], color="tab:orange", lw=0.8, label="odometry")
+            drawn_odometry = odometry.in_frame(T_map_odom, "map")
+    view = _extent(_map_points(marker_map, truth, [trajectory, truth_path, drawn_odometry]))
+    title = (
+        f"{marker_map.method}: {_title(marker_map, rmse_m)}\n"
+        f"markers in the frame of marker {marker_map.home_id}"
+    )
+    _draw_map(ax, marker_map, truth, title, view)
+    if drawn_odometry is not None:
+        xy = drawn_odometry.poses
+        ax.plot(xy[:, 0], xy[:, 1], color="tab:orange", lw=0.8, label="odometry")
     if trajectory is not None and len(trajectory):
         xy = trajectory.poses
         ax.plot(xy[:, 0], xy[:, 1], color="tab:green", lw=1.0, label="estimated trajectory")
@@ -89,20 +145,84 @@ def plot_map(
         xy = truth_path.poses
         ax.plot(xy[:, 0], xy[:, 1], "k--", lw=0.8, label="ground truth")
     ax.legend(fontsize=8, loc="best")
-    fig.savefig(path)
-    fig.savefig(Path(path).with_suffix(".svg"))
+    fig.savefig(path, bbox_inches="tight")
+    fig.savefig(Path(path).with_suffix(".svg"), bbox_inches="tight")
     plt.close(fig)
 
 
 def plot_comparison(
-    maps: Sequence[tuple[str, MarkerMap]], truth: dict[int, gtsam.Pose2], path: Path
+    maps: Sequence[tuple[str, MarkerMap, tuple[float, float] | None]],
+    truth: Mapping[int, gtsam.Pose2],
+    path: Path,
 ) -> None:
-    """Every method's map side by side."""
+    """Every method's map, three to a row, on shared axes; (label, map, RMSE in the home
+    frame and aligned, or None) each."""
     plt = _pyplot()
+    columns = min(3, len(maps))
+    rows = math.ceil(len(maps) / columns)
     fig, axes = plt.subplots(
-        1, len(maps), figsize=(4.5 * len(maps), 4.5), constrained_layout=True, squeeze=False
+        rows, columns, figsize=(5.5 * columns, 4.8 * rows), constrained_layout=True,
+        squeeze=False, sharex=True, sharey=True,
+    )  # fmt: skip
+    points = [p for _, m, _ in maps for p in _map_points(m, truth, [])]
+    view = _extent(points)
+    for ax, (label, marker_map, rmse_m) in zip(axes.flat, maps, strict=False):
+        _draw_map(ax, marker_map, truth, f"{label}\n{_title(marker_map, rmse_m)}", view)
+    for ax in axes.flat[len(maps) :]:
+        ax.axis("off")
+    axes[0][0].legend(fontsize=7, loc="best")
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+
+
+def plot_diagnostics(
+    label: str, report: Mapping[str, Any], observations: Sequence[Observation], path: Path
+) -> None:
+    """Two panels for one method: each marker's whitened residuals (median, 95th percentile
+    and largest, down-weighted factors counted), and a timeline of each marker's detections
+    with the down-weighted ones marked."""
+    plt = _pyplot()
+    fig, (left, right) = plt.subplots(
+        1, 2, figsize=(12, 4.5), constrained_layout=True, width_ratios=[1, 1.6]
     )
-    for ax, (label, marker_map) in zip(axes[0], maps, strict=True):
-        _draw_map(ax, marker_map, truth, label)
-    fig.savefig(path)
+    markers = report.get("markers", {})
+    if markers:
+        ids = list(markers)
+        x = np.arange(len(ids))
+        for key, style, name in (("whitened_median", "o", "median"),
+                                 ("whitened_p95", "^", "95th percentile"),
+                                 ("whitened_max", "v", "largest")):  # fmt: skip
+            left.plot(x, [markers[i][key] for i in ids], style, ms=4, label=name)
+        for xi, i in zip(x, ids, strict=True):
+            if down := markers[i]["downweighted"]:
+                left.annotate(f"{down} down", (xi, markers[i]["whitened_max"]),
+                              textcoords="offset points", xytext=(0, 4), fontsize=7,
+                              ha="center", color="tab:red")  # fmt: skip
+        left.axhline(3.0, color="grey", lw=0.8, ls="--", label="3 sigma")
+        left.set_xticks(x, ids, fontsize=7)
+        left.set_yscale("log")
+        left.legend(fontsize=7)
+    else:
+        left.text(0.5, 0.5, f"{label}: no residuals (no factors)", ha="center",
+                  transform=left.transAxes)  # fmt: skip
+    left.set_xlabel("marker id")
+    left.set_ylabel("whitened residual [sigma]")
+    left.set_title(f"{label}: residuals per marker", fontsize=9)
+    if observations:
+        t0 = min(o.t_ns for o in observations)
+        t = np.array([(o.t_ns - t0) * 1e-9 for o in observations])
+        ids_seen = np.array([o.marker_id for o in observations])
+        right.plot(t, ids_seen, "|", color="tab:blue", ms=6, label="detections")
+        rejected = [(d["t_ns"], m) for d in report.get("downweighted", [])
+                    if d["kind"] == "observation" and d["t_ns"] is not None
+                    for m in d["marker_ids"]]  # fmt: skip
+        if rejected:
+            rt = np.array([(s - t0) * 1e-9 for s, _ in rejected])
+            right.plot(rt, [m for _, m in rejected], "x", color="tab:red", ms=6,
+                       label="down-weighted by the robust kernel")  # fmt: skip
+        right.legend(fontsize=7, loc="upper right")
+    right.set_xlabel("time since the first detection [s]")
+    right.set_ylabel("marker id")
+    right.set_title("detections per marker", fontsize=9)
+    fig.savefig(path, bbox_inches="tight")
     plt.close(fig)

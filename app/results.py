@@ -3,16 +3,21 @@ written whole or not at all."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
+from markergraph.diagnostics import diagnostics
 from markergraph.formats import write_g2o, write_tum
 from markergraph.frontend.files import MANIFEST_KEY, REPORT_SCHEMA, result_folder
 from markergraph.markermap import write_json
 from markergraph.overlay import write_overlay
+from markergraph.report_page import REPORT_PAGE, write_report_page
 from markergraph.run import MapRun, MethodResult
 
-__all__ = ["write_results"]
+__all__ = ["DIAGNOSTICS_FIGURE", "write_results"]
+
+DIAGNOSTICS_FIGURE = "diagnostics.png"
 
 
 def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
@@ -47,6 +52,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
             "unplaced": {str(k): v for k, v in result.estimate.unplaced.items()},
             "converged": result.estimate.converged,
             "notes": result.estimate.notes,
+            "diagnostics": diagnostics(result.estimate, run.frames),
         }
         if result.map_error is not None:
             entry["marker_rmse_m"] = result.map_error.rmse_position_m
@@ -55,9 +61,17 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
             entry["marker_rmse_aligned_m"] = result.map_error_aligned.rmse_position_m
         if result.trajectory_error is not None:
             entry["ate_m"] = result.trajectory_error.ate_rmse_m
-            entry["rpe_m_per_m"] = result.trajectory_error.rpe_rmse_m_per_m
+            rpe = result.trajectory_error.rpe_rmse_m_per_m
+            entry["rpe_m_per_m"] = rpe if math.isfinite(rpe) else None  # a path under 1 m
         report["methods"][result.label] = entry
     return report
+
+
+def _rmse(result: MethodResult) -> tuple[float, float] | None:
+    """Marker RMSE in the home marker's frame and after a rigid alignment, if truth is known."""
+    if result.map_error is None or result.map_error_aligned is None:
+        return None
+    return result.map_error.rmse_position_m, result.map_error_aligned.rmse_position_m
 
 
 def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = True) -> list[Path]:
@@ -69,7 +83,7 @@ def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = 
     method, and ``overlay.mcap`` (its map and trajectory as ROS 2 messages, to show over the
     log); ``methods/<method>/`` with the same for every method when there are several, and
     ``comparison.png``; TUM trajectories (estimated per method, odometry, ground truth);
-    ``report.json``.
+    ``report.json`` and ``report.html`` (the same report as one self-contained page).
 
     Returns:
         The files written, relative to ``out``.
@@ -100,6 +114,7 @@ def _write_method(run: MapRun, result: MethodResult, folder: Path, plots: bool) 
             trajectory=estimate.trajectory,
             odometry=run.extraction.odometry,
             truth_path=result.true_path,
+            rmse_m=_rmse(result),
         )
 
 
@@ -115,14 +130,33 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
             from markergraph.plots import plot_comparison
 
             plot_comparison(
-                [(r.label, r.marker_map) for r in run.results],
+                [(r.label, r.marker_map, _rmse(r)) for r in run.results],
                 run.true_markers,
                 folder / "comparison.png",
             )
     odometry = run.extraction.odometry
-    write_overlay(folder / "overlay.mcap", first.marker_map, first.estimate.trajectory, odometry)
+    write_overlay(
+        folder / "overlay.mcap", first.marker_map, first.estimate.trajectory, odometry,
+        map_frame=run.config.values["overlay.map_frame"],
+        odom_frame=run.config.values["overlay.odom_frame"],
+    )  # fmt: skip
     write_tum(folder / "odometry.tum", odometry)
-    if run.true_path is not None:
-        write_tum(folder / "ground_truth.tum", run.true_path)
+    if first.true_path is not None:
+        # At the estimate's own stamps, so that evo pairs them exactly and prints our figures.
+        write_tum(folder / "ground_truth.tum", first.true_path)
     files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
-    write_json(folder / "report.json", _report(run, sorted([*files, "report.json"])))
+    report = _report(run, sorted([*files, "report.json", REPORT_PAGE]
+                                 + ([DIAGNOSTICS_FIGURE] if plots else [])))  # fmt: skip
+    if plots:
+        from markergraph.plots import plot_diagnostics
+
+        # The first method with residuals (the closed form has none).
+        shown = next((r for r in run.results if r.estimate.residuals), first)
+        plot_diagnostics(
+            shown.label,
+            report["methods"][shown.label]["diagnostics"],
+            run.extraction.observations,
+            folder / DIAGNOSTICS_FIGURE,
+        )
+    write_json(folder / "report.json", report)
+    write_report_page(folder / REPORT_PAGE, report, folder)  # the same figures, one page

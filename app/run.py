@@ -28,6 +28,7 @@ from markergraph.estimator import (
     camera_delay_by_residuals,
     estimate_frames,
     map_error,
+    marker_heights,
     retimed,
     trajectory_error,
     widened_for_motion,
@@ -159,19 +160,23 @@ def map_log(
     config: MapConfig | None = None,
     *,
     progress: Callable[[int, int], None] | None = None,
+    stage: Callable[[str], None] | None = None,
 ) -> MapRun:
     """Read a log, estimate the map with each method, and score it when ground truth is logged.
 
     Args:
         log: an MCAP file or a rosbag2 folder.
         config: the settings (default: every default).
-        progress: called with (units done, units in all) while the log is read.
+        progress: called with (colour frames read, frames in all) while the log is read.
+        stage: called with the name of each stage as it begins.
 
     Raises:
         MarkerGraphError: the log cannot be read, has no marker observations, or no odometry
             (``LogError`` and ``SettingsError`` among them).
     """
     config = config or MapConfig.from_values()
+    stage = stage or (lambda name: None)
+    stage(f"reading {Path(log).name}")
     seconds: dict[str, float] = {}
     start = time.perf_counter()
     extraction = extract(log, config.frontend, progress=progress, workers=config.workers)
@@ -222,6 +227,8 @@ def map_log(
         )
     )
     breaks = [t for t, _ in jumps]
+    if config.values["camera.delay_ms"] is None:
+        stage("choosing the camera's delay by SLAM's residuals (16 solves)")
     observations, delay_ns = _timed(extraction, config, odometry_noise, breaks)
     frames = build_frames(
         observations,
@@ -238,8 +245,10 @@ def map_log(
         if len(extraction.true_path):
             true_path = extraction.true_path.in_frame(T_home_map, "map")
     frontend = config.frontend
+    heights = marker_heights(observations)
     results = []
-    for method in config.methods:
+    for i, method in enumerate(config.methods, start=1):
+        stage(f"estimating: {method.value} ({i} of {len(config.methods)})")
         start = time.perf_counter()
         try:
             estimate = estimate_frames(
@@ -255,6 +264,7 @@ def map_log(
             dictionary=frontend.dictionary,
             marker_size_m=frontend.marker_length_m,
             marker_sizes_m=frontend.marker_lengths_m,
+            heights=heights,
         )
         result = MethodResult(method, estimate, marker_map)
         _score(result, truth, true_path)

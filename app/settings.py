@@ -167,6 +167,13 @@ def _scale_or_auto(value: Any) -> float | None:
     return None if value == "auto" else _number(0.5, 2.0)(value)
 
 
+def _frame(value: Any) -> str:
+    name = _text(value)
+    if not name or name.startswith("/") or any(c.isspace() for c in name):
+        raise SettingsError(f"must be a TF frame name (no leading '/', no spaces), got {name!r}")
+    return name
+
+
 _NOISE_M = _number(0.0, 10.0)
 _ODOMETRY_NOISE = _number(1e-6, 10.0)
 
@@ -242,6 +249,9 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("home", None, _optional_id,
             "the marker whose frame is the map (default: the first seen)"),
     Setting("workers", 1, _count, "processes that decode and detect"),
+    Setting("overlay.map_frame", "map", _frame,
+            "overlay.mcap's map frame (rename it where nav2 already publishes map -> odom)"),
+    Setting("overlay.odom_frame", "odom", _frame, "overlay.mcap's odometry frame"),
 )  # fmt: skip
 _BY_KEY = {s.key: s for s in SETTINGS}
 
@@ -259,6 +269,11 @@ class MapConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "values", _complete(self.values))
+        if self.values["overlay.map_frame"] == self.values["overlay.odom_frame"]:
+            raise SettingsError(
+                f"overlay.map_frame and overlay.odom_frame are both "
+                f"{self.values['overlay.map_frame']!r}: the overlay needs two frames"
+            )
 
     @classmethod
     def from_values(cls, values: Mapping[str, Any] | None = None) -> MapConfig:

@@ -6,9 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from markergraph.cli._settings import add_settings, settings_from
+from markergraph.cli._settings import add_settings, add_verbosity, settings_from
 from markergraph.frontend.files import check_output_folder
-from markergraph.frontend.progress import ProgressBar
+from markergraph.frontend.progress import ProgressBar, Stages
 from markergraph.results import write_results
 from markergraph.run import MapRun, map_log
 from markergraph.settings import config_toml, map_config
@@ -37,6 +37,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         action="store_true",
         help="print the settings in effect as a TOML file for --config, and stop",
     )
+    add_verbosity(parser)
     add_settings(parser, "map")
 
 
@@ -54,15 +55,18 @@ def run(args: argparse.Namespace) -> int:
     if args.log is None:
         log = sample_log(DEFAULT_SAMPLE)
         print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({log})")
-    with ProgressBar(f"reading {Path(log).name}") as bar:
-        result = map_log(log, config, progress=bar)
+    stages = Stages(quiet=args.quiet, verbose=args.verbose)
+    with ProgressBar(f"reading {Path(log).name}", quiet=args.quiet) as bar:
+        result = map_log(log, config, progress=bar, stage=stages)
+    stages(f"writing {out}/")
     written = write_results(result, out, force=args.force, plots=not args.no_plots)
-    _print_summary(result)
+    stages.close()
+    _print_summary(result, quiet=args.quiet)
     print(f"wrote {len(written)} files to {out}/")
     return 0
 
 
-def _print_summary(result: MapRun) -> None:
+def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
     extraction = result.extraction
     markers = {o.marker_id for o in extraction.observations}
     print(
@@ -89,5 +93,6 @@ def _print_summary(result: MapRun) -> None:
             print(f"  {method_result.label}: {note}")
     for reason, count in sorted(extraction.skipped.items()):
         print(f"  {count} frame(s): {reason}")
-    for note in extraction.notes + extraction.warnings:
-        print(f"note: {note}", file=sys.stderr)
+    if not quiet:
+        for note in extraction.notes + extraction.warnings:
+            print(f"note: {note}", file=sys.stderr)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
+import tempfile
 from pathlib import Path
 
 from markergraph.estimator.paper import Form
@@ -26,7 +28,12 @@ def add_parsers(commands: argparse._SubParsersAction) -> None:
         help="aruco-yaml (ArUco MarkerMap), fiducial-slam (map.txt, degrees), "
         "tagslam (a static body, rotation vectors) or csv",
     )
-    export.add_argument("--out", type=Path, required=True, help="the file to write")
+    export.add_argument(
+        "--out",
+        required=True,  # kept a string: Path("./-") would read as "-"
+        metavar="FILE",
+        help="the file to write; - writes to standard output (a file named - is ./-)",
+    )
     export.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     head = commands.add_parser("heading", help=HEADING, description=HEADING)
     head.add_argument("map", type=Path, help="a map.json written by markergraph map")
@@ -48,10 +55,32 @@ def add_parsers(commands: argparse._SubParsersAction) -> None:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    check_output_file(args.out, [args.map], force=args.force)
+    if args.out == "-":
+        return _export_to_stdout(args)
+    out = Path(args.out)
+    check_output_file(out, [args.map], force=args.force)
     marker_map = MarkerMap.load(args.map)
-    export_map(marker_map, ExportFormat(args.format), args.out)
+    export_map(marker_map, ExportFormat(args.format), out)
     print(f"wrote {len(marker_map.markers)} markers as {args.format} to {args.out}")
+    return 0
+
+
+def _export_to_stdout(args: argparse.Namespace) -> int:
+    """The export on standard output, and nothing else there (a pipe takes it as it is)."""
+    marker_map = MarkerMap.load(args.map)
+    # The same bytes as a file: the one writer writes a file of its own, copied out whole once
+    # written, so an export that fails half-way puts nothing on standard output.
+    with tempfile.TemporaryDirectory(prefix="markergraph-export-") as folder:
+        written = Path(folder) / "export"
+        export_map(marker_map, ExportFormat(args.format), written)
+        data = written.read_bytes()
+    sys.stdout.flush()
+    binary = getattr(sys.stdout, "buffer", None)  # text-only where a caller replaced stdout
+    if binary is None:
+        sys.stdout.write(data.decode("utf-8"))
+    else:
+        binary.write(data)
+    sys.stdout.flush()
     return 0
 
 

@@ -16,7 +16,7 @@ from typing import Any
 from markergraph.estimator.types import SettingsError
 from markergraph.settings import SETTINGS, read_config_file
 
-__all__ = ["FLAGS", "add_settings", "settings_from"]
+__all__ = ["FLAGS", "add_settings", "add_verbosity", "settings_from"]
 
 
 @dataclass(frozen=True)
@@ -31,11 +31,12 @@ class Flag:
 
 
 _MAP = ("map",)
+_READ = ("map", "detect")  # what changes the observations, not what info checks
 FLAGS: dict[str, Flag] = {
     "dictionary": Flag("--dictionary", "NAME"),
-    "marker_size": Flag("--marker-size", "M", type=float),
-    "marker_sizes": Flag("--marker-sizes", "ID=M", "+"),
-    "yaw_method": Flag("--yaw-method"),
+    "marker_size": Flag("--marker-size", "M", type=float, commands=_READ),
+    "marker_sizes": Flag("--marker-sizes", "ID=M", "+", commands=_READ),
+    "yaw_method": Flag("--yaw-method", commands=_READ),
     "ids": Flag("--ids", "ID", "+", int),
     "topics.color": Flag("--color-topic", "TOPIC"),
     "topics.depth": Flag("--depth-topic", "TOPIC"),
@@ -45,20 +46,20 @@ FLAGS: dict[str, Flag] = {
     "rig.camera_poses": Flag("--camera-poses", "FILE"),
     "rig.tagslam": Flag("--tagslam", "FILE"),
     "camera.base_frame": Flag("--base-frame", "FRAME"),
-    "camera.x": Flag("--camera-x", "M", type=float),
-    "camera.y": Flag("--camera-y", "M", type=float),
-    "camera.height": Flag("--camera-height", "M", type=float),
-    "camera.pitch_deg": Flag("--camera-pitch", "DEG", type=float),
-    "camera.yaw_deg": Flag("--camera-yaw", "DEG", type=float),
+    "camera.x": Flag("--camera-x", "M", type=float, commands=_READ),
+    "camera.y": Flag("--camera-y", "M", type=float, commands=_READ),
+    "camera.height": Flag("--camera-height", "M", type=float, commands=_READ),
+    "camera.pitch_deg": Flag("--camera-pitch", "DEG", type=float, commands=_READ),
+    "camera.yaw_deg": Flag("--camera-yaw", "DEG", type=float, commands=_READ),
     "camera.delay_ms": Flag("--camera-delay", "MS", type=float, commands=_MAP),
     "camera.readout_ms": Flag("--readout", "MS", type=float, commands=_MAP),
     "camera.shutter": Flag("--shutter", commands=_MAP),
     "camera.exposure_ms": Flag("--exposure", "MS", type=float, commands=_MAP),
-    "noise.depth_scale": Flag("--depth-scale", "K|auto"),
-    "noise.corner_px": Flag("--corner-noise", "PX", type=float),
-    "noise.depth_base_m": Flag("--depth-noise-base", "M", type=float),
-    "noise.depth_per_m2": Flag("--depth-noise-per-m2", "K", type=float),
-    "noise.depth_max_m": Flag("--depth-max", "M", type=float),
+    "noise.depth_scale": Flag("--depth-scale", "K|auto", commands=_READ),
+    "noise.corner_px": Flag("--corner-noise", "PX", type=float, commands=_READ),
+    "noise.depth_base_m": Flag("--depth-noise-base", "M", type=float, commands=_READ),
+    "noise.depth_per_m2": Flag("--depth-noise-per-m2", "K", type=float, commands=_READ),
+    "noise.depth_max_m": Flag("--depth-max", "M", type=float, commands=_READ),
     "odometry.source": Flag("--odometry-source", commands=_MAP),
     "noise.odometry_per_m": Flag("--odometry-noise", "M", type=float, commands=_MAP),
     "noise.odometry_yaw_per_m": Flag("--odometry-yaw-noise", "RAD", type=float, commands=_MAP),
@@ -67,6 +68,8 @@ FLAGS: dict[str, Flag] = {
     "method": Flag("--method", commands=_MAP),
     "home": Flag("--home", "ID", type=int, commands=_MAP),
     "workers": Flag("--workers", "N", type=int, commands=("map", "detect")),
+    "overlay.map_frame": Flag("--map-frame", "FRAME", commands=_MAP),
+    "overlay.odom_frame": Flag("--odom-frame", "FRAME", commands=_MAP),
 }
 
 _GROUPS = {
@@ -76,6 +79,7 @@ _GROUPS = {
     "camera": "camera: its mount (without /tf_static) and timing",
     "odometry": "odometry",
     "noise": "noise model",
+    "overlay": "overlay.mcap",
 }
 
 
@@ -128,3 +132,15 @@ def settings_from(args: argparse.Namespace, command: str) -> dict[str, Any]:
             except SettingsError as error:
                 raise SettingsError(f"{FLAGS[setting.key].flag} {error}") from None
     return values
+
+
+def add_verbosity(parser: argparse.ArgumentParser) -> None:
+    """``-q`` and ``-v``: how much goes to stderr."""
+    loudness = parser.add_mutually_exclusive_group()
+    loudness.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress, stages or notes on stderr"
+    )
+    loudness.add_argument(
+        "-v", "--verbose", action="store_true",
+        help="each stage and its time on stderr, even off a terminal",
+    )  # fmt: skip

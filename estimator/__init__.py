@@ -9,6 +9,7 @@ from markergraph.estimator.consistency import (
 )
 from markergraph.estimator.frames import Frame, Frames, build_frames
 from markergraph.estimator.graph import Robust
+from markergraph.estimator.heights import MarkerHeight, marker_heights
 from markergraph.estimator.metrics import (
     MapError,
     TrajectoryError,
@@ -68,6 +69,7 @@ __all__ = [
     "MapError",
     "MarkerEstimate",
     "MarkerGraphError",
+    "MarkerHeight",
     "MarkerLink",
     "Method",
     "Observation",
@@ -94,6 +96,7 @@ __all__ = [
     "fit_odometry_noise",
     "heading",
     "map_error",
+    "marker_heights",
     "nees",
     "odometry",
     "odometry_nees",

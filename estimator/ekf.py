@@ -27,7 +27,13 @@ from markergraph.estimator.frames import Frames
 from markergraph.estimator.graph import observation_measurement
 from markergraph.estimator.models import ekf_marker_init, ekf_motion, ekf_observation
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import Estimate, MarkerEstimate, Method, Observation
+from markergraph.estimator.types import (
+    Estimate,
+    FactorResidual,
+    MarkerEstimate,
+    Method,
+    Observation,
+)
 
 __all__ = ["MarkerEkf", "solve_ekf"]
 
@@ -193,6 +199,7 @@ def solve_ekf(frames: Frames, T_base_camera: gtsam.Pose2) -> Estimate:
         np.array([T_map_base.x(), T_map_base.y(), T_map_base.theta()]),
     )
     t_ns, trajectory, covariances = [], [], []
+    residuals: list[FactorResidual] = []
     for k in range(frames.home_frame, len(frames.frames)):
         frame = frames.frames[k]
         if k > frames.home_frame:
@@ -200,7 +207,13 @@ def solve_ekf(frames: Frames, T_base_camera: gtsam.Pose2) -> Estimate:
             ekf.predict(previous.T_odom_base.between(frame.T_odom_base), frame.odometry_covariance)
         # Home first, so the robot is localised before it places anything.
         for obs in sorted(frame.observations, key=lambda o: o.marker_id != frames.home_id):
+            updates = len(ekf.nis)
             ekf.update(obs)
+            if len(ekf.nis) > updates and not (k == frames.home_frame and updates == 0):
+                # Its innovation's Mahalanobis length: what a factor's whitened error is to SLAM.
+                residuals.append(FactorResidual(
+                    "observation", (f"x{k}", f"m{obs.marker_id}"), math.sqrt(ekf.nis[-1])
+                ))  # fmt: skip
         if k == frames.home_frame:  # the first update only placed the robot: no innovation
             del ekf.innovations[0], ekf.nis[0]
         t_ns.append(frame.t_ns)
@@ -227,6 +240,7 @@ def solve_ekf(frames: Frames, T_base_camera: gtsam.Pose2) -> Estimate:
         markers=markers,
         trajectory=Trajectory(np.array(t_ns, dtype=np.int64), np.array(trajectory)),
         trajectory_covariance=np.array(covariances),
+        residuals=residuals,
         nis=np.array(ekf.nis),
         innovations=np.array(ekf.innovations).reshape(-1, 3),
         notes=list(frames.notes),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -112,13 +113,28 @@ class TrajectoryError:
     n_segments: int
 
 
+def _segment_ends(positions: NDArray[np.float64], delta_m: float) -> list[int]:
+    """Where evo's ``filter_pairs_by_path`` cuts a path: the start, then each index at which
+    the distance since the last cut reaches ``delta_m``."""
+    ends, travelled = [0], 0.0
+    steps = np.concatenate([[0.0], np.hypot(*np.diff(positions, axis=0).T)])
+    for i, step in enumerate(steps):
+        travelled += float(step)
+        if travelled >= delta_m:
+            ends.append(i)
+            travelled = 0.0
+    return ends
+
+
 def trajectory_error(
     estimated: NDArray[np.float64], truth: NDArray[np.float64], delta_m: float = 1.0
 ) -> TrajectoryError:
     """ATE and RPE of an estimated trajectory against the true one at the same stamps.
 
-    The RPE follows evo's ``delta_unit=m``: from each pose i, the first later pose j at least
-    ``delta_m`` further along the true path; the error of the relative motion i -> j.
+    The RPE is evo's ``evo_rpe --delta 1 --delta_unit m`` (its defaults: consecutive pairs,
+    cut on the estimated path): the estimated path is cut at its start and wherever the
+    distance since the last cut reaches ``delta_m``, and each pair of consecutive cuts (i, j)
+    gives the error of the relative motion i -> j. A path shorter than ``delta_m`` gives NaN.
 
     Args:
         estimated, truth: (N, 3) poses (x, y, yaw), row for row at the same stamps.
@@ -131,12 +147,9 @@ def trajectory_error(
     T = align_rigid_2d(estimated[:, :2], truth[:, :2])
     aligned = np.array([T.transformFrom(p) for p in estimated[:, :2]]).reshape(-1, 2)
     aligned_error = np.hypot(*(aligned - truth[:, :2]).T)
-    path = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(truth[:, :2], axis=0).T))])
-    ends = np.searchsorted(path, path + delta_m)
     rpe_t, rpe_yaw = [], []
-    for i, j in enumerate(ends):
-        if j >= len(truth):
-            break
+    ends = _segment_ends(estimated[:, :2], delta_m)
+    for i, j in itertools.pairwise(ends):
         est_rel = gtsam.Pose2(*estimated[i]).between(gtsam.Pose2(*estimated[j]))
         true_rel = gtsam.Pose2(*truth[i]).between(gtsam.Pose2(*truth[j]))
         error = true_rel.between(est_rel)

@@ -85,6 +85,9 @@ class Observation:
             top-right, bottom-right, bottom-left), empty when the observation was not detected.
         flags: quality flags set by the front end (``near-edge``, ``small``, ``grazing``,
             ``ambiguous``, ``no-depth``); the estimators weight by the sigmas, not by these.
+        height_m: the marker centre's height above the base frame's origin (the floor, for a
+            base on it) [m]; NaN where unknown. The 2-D estimators ignore it; each marker's
+            height in the map is a robust mean of its observations' (:func:`marker_heights`).
     """
 
     t_ns: int
@@ -97,6 +100,7 @@ class Observation:
     sigma_range: float
     corners: tuple[tuple[float, float], ...] = ()
     flags: frozenset[str] = frozenset()
+    height_m: float = math.nan
 
     def validate(self) -> None:
         """Raise :class:`RejectedObservationError` naming this record if it is unusable."""

@@ -204,6 +204,18 @@ class CameraMount:
         R_roll = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
         return R_yaw @ R_pitch @ R_roll @ _R_LEVEL_OPTICAL
 
+    def describe(self) -> str:
+        """The mount in plain words and units, for notes."""
+        words = (
+            f"{self.x_m:.2f} m ahead, {self.y_m:.2f} m left, {self.height_m:.2f} m up, "
+            f"pitched {math.degrees(self.pitch_rad):+.1f} deg"
+        )
+        if self.yaw_rad:
+            words += f", turned {math.degrees(self.yaw_rad):+.1f} deg left"
+        if self.roll_rad:
+            words += f", rolled {math.degrees(self.roll_rad):+.1f} deg"
+        return words
+
     @property
     def t_base_optical(self) -> NDArray[np.float64]:
         """The optical centre in the base frame [m]."""

@@ -244,6 +244,7 @@ def observe_detections(
                 float(sigma_range),
                 tuple((float(u), float(v)) for u, v in detection.corners),
                 frozenset(flags),
+                float(mount.height_m + p_base[2]),
             )
         )
     return observations

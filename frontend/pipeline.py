@@ -223,16 +223,17 @@ class _SpanReader:
                       self.choice.odom, TRUE_POSE)
             if t and t in self.counts
         ]  # fmt: skip
-        total = sum(self.counts[t] for t in streamed)
+        # Progress counts colour frames: what a person knows the log by.
+        total, done, color = self.counts.get(self.choice.color or "", 0), 0, self.choice.color
         # Read a margin either side so frames at the span's edges still find their depth.
         margin = 3 * self.config.pair_tolerance_ns
         start = None if span.start_ns is None else span.start_ns - margin
         end = None if span.end_ns is None else span.end_ns + margin
-        for done, message in enumerate(
-            messages(self.path, streamed, self.failures, start, end), start=1
-        ):
-            if progress is not None and done % 50 == 0:
-                progress(done, total)
+        for message in messages(self.path, streamed, self.failures, start, end):
+            if message.topic == color:
+                done += 1
+                if progress is not None and done % 10 == 0:
+                    progress(done, total)
             self._take(message, span.holds(message.log_time_ns))
         self._drain(0, flush=True)
         if progress is not None:
@@ -334,7 +335,7 @@ class _SpanReader:
                 result.notes.append(f"{error}; assuming the configured camera mount")
         else:
             result.notes.append(
-                f"no /tf_static: assuming the configured camera mount ({result.mount})"
+                f"no /tf_static: assuming the configured camera mount ({result.mount.describe()})"
             )
 
     def _levelled_view(self, t_ns: int) -> LevelledCamera | None:
@@ -669,8 +670,9 @@ def extract(
             jobs = [(path, config, choice, counts, span) for span in spans]
             for done, piece in enumerate(pool.map(_read_span, jobs), start=1):
                 parts.append(piece)
-                if progress is not None:
-                    progress(done, len(spans))
+                if progress is not None:  # in frames, as one process counts them
+                    frames = counts.get(choice.color or "", 0)
+                    progress(done * frames // len(spans), frames)
         part = _merge(parts)
     result = part.extraction
     result.notes = notes + result.notes

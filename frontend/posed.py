@@ -99,15 +99,16 @@ def _polar(
     R_optical_marker: NDArray[np.float64],
     t_optical_marker: NDArray[np.float64],
     view: LevelledCamera,
-) -> tuple[float, float, float, float]:
-    """(bearing, theta, range, normal's elevation) of a marker pose, seen from the body origin
-    along the heading."""
+) -> tuple[float, float, float, float, float]:
+    """(bearing, theta, range, normal's elevation, height) of a marker pose, seen from the
+    body origin along the heading."""
     p = view.R_level_optical @ t_optical_marker + view.t_level_optical
     n = view.R_level_optical @ R_optical_marker[:, 2]
     bearing = math.atan2(p[1], p[0])
     yaw = math.atan2(n[1], n[0])
     theta = math.remainder(bearing + math.pi - yaw, math.tau)
-    return bearing, theta, math.hypot(p[0], p[1]), math.asin(max(-1.0, min(1.0, n[2])))
+    elevation = math.asin(max(-1.0, min(1.0, n[2])))
+    return bearing, theta, math.hypot(p[0], p[1]), elevation, float(p[2])
 
 
 def levelled_view(
@@ -169,7 +170,7 @@ def observe_levelled(
             left_out[detection.marker_id] = "PnP found no pose"
             continue
         error, R, t = solutions[0]
-        bearing, theta, range_m, elevation = _polar(R, t, view)
+        bearing, theta, range_m, elevation, height_m = _polar(R, t, view)
         if abs(elevation) > WALL_TILT_RAD:
             left_out[detection.marker_id] = (
                 f"not on a wall: its normal is {math.degrees(elevation):+.0f} deg from horizontal"
@@ -200,6 +201,7 @@ def observe_levelled(
                 sigma_range=float(sigma_range),
                 corners=tuple((float(u), float(v)) for u, v in corners),
                 flags=frozenset(flags),
+                height_m=height_m,
             )
         )
     return observations, left_out

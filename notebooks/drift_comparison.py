@@ -51,6 +51,10 @@ from markergraph.datasets import scenario, simulate_fast
 from markergraph.datasets.route import WheelErrors
 from markergraph.datasets.study import DEFAULT_METHODS, drift_study, summarise
 from markergraph.estimator import Form, Method, OdometryNoise, build_frames, estimate_frames
+from markergraph.notebook_figures import NotebookFigures
+
+# each figure is also saved as PNG: in $MARKERGRAPH_FIGURES, or notebooks/figures/ from a script
+figures = NotebookFigures.of("drift_comparison")
 
 SEEDS = range(int(os.environ.get("MARKERGRAPH_SEEDS", "3")))
 LEVELS = (0.5, 1.0, 2.0, 4.0)  # wheel error, as a multiple of WheelErrors()'s
@@ -114,7 +118,7 @@ for ax, title in zip(axes, ("marker position RMSE [m]", "trajectory ATE [m]"), s
     ax.grid(True, which="both", alpha=0.3)
 axes[0].legend()
 fig.suptitle(f"corridor loop, mean of {len(SEEDS)} seeds per point")
-plt.show()
+figures.show(fig, "wheel-error-sweep")
 for level in LEVELS:
     print(
         f"wheel error x{level:g}: EKF mean NEES {sweep[level][('corridor-loop', 'ekf')]['mean_nees']:.1f}"
@@ -152,7 +156,7 @@ ax.set(yscale="log", ylabel="marker position RMSE [m]", xticks=range(len(SCENARI
 ax.set_xticklabels(SCENARIOS)
 ax.grid(True, axis="y", which="both", alpha=0.3)
 ax.legend(ncols=5, fontsize=8)
-plt.show()
+figures.show(fig, "scenarios")
 
 print(
     f"{'scenario':<14} {'method':<20} {'marker RMSE':>11} {'aligned':>8} {'yaw':>7} {'ATE':>7} {'NEES':>6}"
@@ -222,7 +226,7 @@ for label, estimate in estimates.items():
 ax_error.set(xlabel="distance travelled [m]", ylabel="position error [m]", yscale="log")
 ax_error.grid(True, which="both", alpha=0.3)
 ax_error.legend(fontsize=8)
-plt.show()
+figures.show(fig, "one-run")
 
 # %% [markdown]
 # ## What the figures say

@@ -53,6 +53,10 @@ from markergraph.datasets.render import Renderer
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import ObservationModel, observe_detections
 from markergraph.frontend.yaw import YawMethod
+from markergraph.notebook_figures import NotebookFigures
+
+# each figure is also saved as PNG: in $MARKERGRAPH_FIGURES, or notebooks/figures/ from a script
+figures = NotebookFigures.of("frontend_accuracy")
 
 DISTANCES = np.arange(1.0, 5.01, 0.5)
 ANGLES_DEG = np.arange(-70, 71, 10)
@@ -180,7 +184,7 @@ for ax in axes:
     ax.axhline(2.0, color="k", ls="--", lw=1)
     ax.grid(True, which="both", alpha=0.3)
 axes[0].legend()
-plt.show()
+figures.show(fig, "theta-error")
 
 # %% [markdown]
 # ## Range and position error against distance
@@ -219,7 +223,7 @@ axes[1].set(xlabel="distance [m]", ylabel="max(|x error|, |y error|) [cm]", ysca
 for ax in axes:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-plt.show()
+figures.show(fig, "range-and-position-error")
 range_cm = {
     d: 100 * np.nanmedian(range_err[(method_ix == 0) & np.isclose(dist, d)]) for d in DISTANCES
 }

@@ -46,6 +46,10 @@ from markergraph.estimator import (
     heading,
     odometry,
 )
+from markergraph.notebook_figures import NotebookFigures
+
+# each figure is also saved as PNG: in $MARKERGRAPH_FIGURES, or notebooks/figures/ from a script
+figures = NotebookFigures.of("paper_closed_forms")
 
 WIDTH_M, HEIGHT_M = 6.0, 4.0
 # Three markers on three consecutive walls, clockwise: the layout of the paper's figures.
@@ -115,7 +119,7 @@ for ax, field in zip(axes, ("theta_ab", "theta_ba", "phi"), strict=True):
     )
     print(f"{field:>8}: printed value right at {np.mean(grid < 1e-4):.0%} of robot positions")
 fig.colorbar(image, ax=axes, shrink=0.8)
-plt.show()
+figures.show(fig, "edge-error-maps")
 
 # %% [markdown]
 # The signed form is exact at every position (largest error over the grid):
@@ -193,7 +197,7 @@ ax.set_xlabel("c's position around the walls: bottom, right, top, left (fraction
 ax.set_ylabel("|error| [deg]")
 ax.set_title("M(E_ab, E_bc) against the true E_ac")
 ax.legend()
-plt.show()
+figures.show(fig, "composition-error")
 
 # %% [markdown]
 # ## The target heading
@@ -216,7 +220,7 @@ def printed_heading_error_deg(p_robot):
 fig, ax = plt.subplots(figsize=(6, 3.6), constrained_layout=True)
 image, grid = error_map(printed_heading_error_deg, "printed heading: |turn error| [deg]", ax)
 fig.colorbar(image, ax=ax)
-plt.show()
+figures.show(fig, "heading-error-map")
 print(f"printed heading right at {np.mean(grid < 1e-4):.0%} of robot positions")
 
 # %% [markdown]
@@ -242,7 +246,7 @@ for form, style in ((Form.EXACT, "k-o"), (Form.SIGNED, "g--x"), (Form.PAPER, "r-
 ax.set_aspect("equal")
 ax.set_title("odometry chained with alpha over 12 goals")
 ax.legend()
-plt.show()
+figures.show(fig, "alpha-chain")
 end = {form: chain[-1] for form, chain in states.items()}
 for form in (Form.PAPER, Form.SIGNED):
     gap = math.dist(

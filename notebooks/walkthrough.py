@@ -38,6 +38,11 @@ import cv2
 import matplotlib.pyplot as plt
 import numpy as np
 
+from markergraph.notebook_figures import NotebookFigures
+
+# each figure is also saved as PNG: in $MARKERGRAPH_FIGURES, or notebooks/figures/ from a script
+figures = NotebookFigures.of("walkthrough")  # before the chdir below
+
 
 def sh(command: str) -> None:
     """Run a shell command as you would in a terminal and print what it says."""
@@ -135,7 +140,7 @@ for (stamp, image, depth_image, detections), top, bottom in zip(shown, *axes, st
     bottom.set_title("aligned depth [m]")
 for ax in axes.flat:
     ax.axis("off")
-plt.show()
+figures.show(fig, "frames-and-detections")
 
 # %% [markdown]
 # ## 3. Map it
@@ -159,6 +164,9 @@ sh("markergraph map robot.mcap --method all --out robot-map --force")
 # centimetres. The aligned column shows the map's shape.
 #
 # ## 4. The result folder
+#
+# Open `report.html` in a browser for all of it on one page: the table above, the figures
+# below, the notes and every setting used (it works offline: nothing in it is fetched).
 
 # %%
 folder = Path("robot-map")
@@ -170,7 +178,7 @@ for name, size in (("map.png", (10, 5)), ("comparison.png", (16, 4))):
     fig, ax = plt.subplots(figsize=size)
     ax.imshow(plt.imread(folder / name))
     ax.axis("off")
-    plt.show()
+    figures.show(fig, f"result-{name.removesuffix('.png')}")
 
 # %% [markdown]
 # `map.json` is the corrected marker graph (schema `markergraph.map/1`, documented in the
@@ -222,6 +230,7 @@ sh("markergraph heading robot-map/map.json --from 0 --at 1.5,20 --to 2")
 report = json.loads((folder / "report.json").read_text())
 methods = report["methods"]
 assert report["ground_truth"] and len(document["markers"]) == 3
+assert "report.html" in report["files"] and (folder / "report.html").is_file()
 assert methods["slam"]["marker_rmse_aligned_m"] < 0.02
 assert methods["slam"]["ate_m"] < methods["closed-form"]["ate_m"]
 print({name: round(figures["marker_rmse_m"], 3) for name, figures in methods.items()})

@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from markergraph.datasets import scenario, simulate_fast
-from markergraph.estimator import Edge, Method, build_frames, estimate_frames
+from markergraph.estimator import Edge, MarkerHeight, Method, build_frames, estimate_frames
 from markergraph.formats import (
     MARKER_VERTEX_OFFSET,
     ExportFormat,
@@ -46,7 +46,7 @@ def map_json(solved, tmp_path_factory: pytest.TempPathFactory) -> Path:
         dictionary="DICT_4X4_50",
         marker_size_m=0.2,
         marker_sizes_m={3: 0.1},  # one smaller marker
-        marker_heights_m={0: 1.0},
+        heights={0: MarkerHeight(1.0, 0.01, 5)},
     ).save(path)
     return path
 

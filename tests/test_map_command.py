@@ -64,8 +64,9 @@ def test_map_json_matches_ground_truth(mapped) -> None:
         report["methods"]["closed-form"]["marker_rmse_m"]
         > (report["methods"]["slam"]["marker_rmse_m"])
     )
-    truth = read_tum(folder / "ground_truth.tum").poses
-    assert len(truth) > 1000
+    # The truth at the estimate's own stamps, one pose for each.
+    truth, estimated = read_tum(folder / "ground_truth.tum"), read_tum(folder / "trajectory.tum")
+    assert len(truth.t_ns) > 400 and np.array_equal(truth.t_ns, estimated.t_ns)
 
 
 def test_g2o_tum_png_and_per_method_files_read_back(mapped) -> None:
@@ -119,13 +120,16 @@ def test_overlay_reads_with_the_standard_reader(mapped) -> None:
         assert types == {
             "/markergraph/markers": "visualization_msgs/msg/MarkerArray",
             "/markergraph/path": "nav_msgs/msg/Path",
+            "/markergraph/pose": "geometry_msgs/msg/PoseStamped",
             "/tf": "tf2_msgs/msg/TFMessage",
+            "/tf_static": "tf2_msgs/msg/TFMessage",
         }
+        path_sizes = []
         for _, channel, _, decoded in reader.iter_decoded_messages(
             topics=["/markergraph/markers", "/markergraph/path"]
         ):
             if channel.topic == "/markergraph/path":
-                assert len(decoded.poses) > 100
+                path_sizes.append(len(decoded.poses))
                 continue
             arrows = [m for m in decoded.markers if m.ns == "normals"]
             assert len(arrows) == len(positions)
@@ -133,6 +137,7 @@ def test_overlay_reads_with_the_standard_reader(mapped) -> None:
                 assert (arrow.pose.position.x, arrow.pose.position.y) == pytest.approx(
                     positions[arrow.id]
                 )
+        assert len(path_sizes) > 1 and path_sizes[-1] > 100  # the path grows along the log
 
 
 def test_one_marker_maps_honestly_and_none_fails_in_one_line(mapped, tmp_path: Path) -> None:
@@ -149,3 +154,25 @@ def test_one_marker_maps_honestly_and_none_fails_in_one_line(mapped, tmp_path: P
     run = run_map("--ids", "49", "--out", str(tmp_path / "none"), cache=cache)
     assert run.returncode == 1 and "no markers of DICT_4X4_50" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "none").exists()
+
+
+def test_ate_and_rpe_are_evos_to_its_printed_digits(mapped) -> None:
+    """evo itself, on the folder's trajectory.tum and ground_truth.tum (what `evo_ape tum` and
+    `evo_rpe tum --delta 1 --delta_unit m` read), gives report.json's ATE and RPE."""
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    folder, _ = mapped
+    reported = json.loads((folder / "report.json").read_text())["methods"]["slam"]
+    reference = file_interface.read_tum_trajectory_file(str(folder / "ground_truth.tum"))
+    estimated = file_interface.read_tum_trajectory_file(str(folder / "trajectory.tum"))
+    reference, estimated = sync.associate_trajectories(reference, estimated)
+    assert estimated.num_poses > 100
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((reference, estimated))
+    rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=1.0,
+                      delta_unit=metrics.Unit.meters, all_pairs=False)  # fmt: skip
+    rpe.process_data((reference, estimated))
+    rmse = metrics.StatisticsType.rmse
+    assert f"{ape.get_statistic(rmse):.6f}" == f"{reported['ate_m']:.6f}"
+    assert f"{rpe.get_statistic(rmse):.6f}" == f"{reported['rpe_m_per_m']:.6f}"

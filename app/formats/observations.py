@@ -2,13 +2,15 @@
 
 Each line: ``t_ns`` (int), ``marker_id``, ``bearing``, ``theta`` [rad], ``range_m`` [m], their
 ``sigma_bearing``, ``sigma_theta``, ``sigma_range``, ``corners`` ([[u, v] x 4], OpenCV order),
-``flags`` (list of strings) and ``odom`` ({"x", "y", "yaw"}: ``T_odom_base`` interpolated at
+``flags`` (list of strings), ``height_m`` (the marker centre above the base frame [m], or
+null) and ``odom`` ({"x", "y", "yaw"}: ``T_odom_base`` interpolated at
 ``t_ns``, or null where odometry does not reach).
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from markergraph.estimator.trajectory import Trajectory
@@ -41,6 +43,7 @@ def write_observations(path: Path, observations: list[Observation], odometry: Tr
                         "sigma_range": obs.sigma_range,
                         "corners": [list(c) for c in obs.corners],
                         "flags": sorted(obs.flags),
+                        "height_m": obs.height_m if math.isfinite(obs.height_m) else None,
                         "odom": None
                         if pose is None
                         else {"x": pose.x(), "y": pose.y(), "yaw": pose.theta()},
@@ -75,6 +78,7 @@ def read_observations(path: Path) -> tuple[list[Observation], Trajectory]:
                         float(row["sigma_range"]),
                         tuple((float(u), float(v)) for u, v in row.get("corners", [])),
                         frozenset(row.get("flags", [])),
+                        math.nan if row.get("height_m") is None else float(row["height_m"]),
                     )
                 )
                 if row.get("odom") is not None:

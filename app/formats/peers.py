@@ -48,18 +48,36 @@ def _corners(m: MapMarker) -> NDArray[np.float64]:
 
 
 def _csv(marker_map: MarkerMap) -> list[str]:
-    lines = ["id,x_m,y_m,z_m,yaw_rad,sigma_x_m,sigma_y_m,sigma_yaw_rad,n_observations"]
+    lines = ["id,x_m,y_m,z_m,yaw_rad,sigma_x_m,sigma_y_m,sigma_yaw_rad,sigma_z_m,n_observations"]
     for m in marker_map.markers.values():
-        values = (*_centre(m), m.T_map_marker.theta(), *m.sigmas())
+        values = (*_centre(m), m.T_map_marker.theta(), *m.sigmas(), m.sigma_z_m or 0.0)
         lines.append(",".join([str(m.marker_id), *(repr(float(v)) for v in values),
                                str(m.n_observations)]))  # fmt: skip
     return lines
 
 
+# OpenCV's names for the dictionaries the ArUco library knows by its own name; the rest (4x4 to
+# 7x7) it reads as OpenCV's name without the ``DICT_`` prefix.
+_ARUCO_NAMES = {
+    "DICT_ARUCO_ORIGINAL": "ARUCO",
+    "DICT_ARUCO_MIP_36h12": "ARUCO_MIP_36h12",
+    "DICT_APRILTAG_16h5": "TAG16h5",
+    "DICT_APRILTAG_25h9": "TAG25h9",
+    "DICT_APRILTAG_36h10": "TAG36h10",
+    "DICT_APRILTAG_36h11": "TAG36h11",
+}
+
+
+def aruco_dictionary_name(dictionary: str) -> str:
+    """The ArUco library's name for an OpenCV dictionary (``DICT_APRILTAG_36h11`` ->
+    ``TAG36h11``, ``DICT_4X4_50`` -> ``4X4_50``); a custom dictionary's name as it is."""
+    return _ARUCO_NAMES.get(dictionary, dictionary.removeprefix("DICT_"))
+
+
 def _aruco(marker_map: MarkerMap) -> list[str]:
     lines = [
         "%YAML:1.0",
-        f"aruco_bc_dict: {marker_map.dictionary}",
+        f'aruco_bc_dict: "{aruco_dictionary_name(marker_map.dictionary)}"',  # 4X4_50 is no number
         f"aruco_bc_nmarkers: {len(marker_map.markers)}",
         "aruco_bc_mInfoType: 1",
         "aruco_bc_markers:",
@@ -99,13 +117,14 @@ def _tagslam(marker_map: MarkerMap) -> list[str]:
             float(v) for v in gtsam.Rot3.Logmap(gtsam.Rot3(_R_map_tag(m.T_map_marker.theta())))
         ]
         sx, sy, syaw = m.sigmas()
+        sz = m.sigma_z_m or max(sx, sy)
         lines += [
             f"       - id: {m.marker_id}",
             f"         size: {m.size_m!r}",
             "         pose:",
             f"           position: {{x: {float(x)!r}, y: {float(y)!r}, z: {float(z)!r}}}",
             f"           rotation: {{x: {rotation[0]!r}, y: {rotation[1]!r}, z: {rotation[2]!r}}}",
-            f"           position_noise: {{x: {sx!r}, y: {sy!r}, z: {max(sx, sy)!r}}}",
+            f"           position_noise: {{x: {sx!r}, y: {sy!r}, z: {sz!r}}}",
             f"           rotation_noise: {{x: {syaw!r}, y: {syaw!r}, z: {syaw!r}}}",
         ]
     return lines
