@@ -18,6 +18,7 @@ from markergraph.frontend.yaw import (
     marker_centre,
     pnp_pose,
     pnp_theta,
+    pnp_theta_sigma,
     yaw_from_corners,
     yaw_sigma,
 )
@@ -42,6 +43,9 @@ SMALL_EDGE_PX = 20.0
 GRAZING_RAD = math.radians(60.0)
 GRAZING_SIGMA_RAD = math.radians(90.0)
 AMBIGUOUS_RAD = math.radians(5.0)
+# Beyond this, theta's sigma is propagated from the one PnP solve; nearer frontal, where the
+# linearisation is up to 2x optimistic (IPPE's two poses meet), by re-solving.
+NEAR_FRONTAL_RAD = math.radians(12.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -221,7 +225,10 @@ def observe_detections(
         range_m = math.hypot(p_base[0], p_base[1])
         bearing = math.atan2(p_base[1], p_base[0]) - mount.yaw_rad
         sigma_range = sigma_z * range_m / z  # the horizontal range scales with Z
-        sigma_theta = yaw_sigma(corners, method, corner_sigma_px, camera, length_m)
+        if method is YawMethod.PNP and pose is not None and abs(theta) > NEAR_FRONTAL_RAD:
+            sigma_theta = pnp_theta_sigma(pose, camera, length_m, corner_sigma_px)
+        else:  # near frontal, IPPE's two poses meet and only re-solving shows how far apart
+            sigma_theta = yaw_sigma(corners, method, corner_sigma_px, camera, length_m)
         if abs(theta) > GRAZING_RAD:
             # A foreshortened square's two planar poses reproject alike; beyond 60 degrees
             # the detector's corners cannot tell them apart and theta may be mirrored. Keep

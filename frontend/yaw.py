@@ -124,18 +124,57 @@ def pnp_pose(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """The marker's pose in the optical frame, (R (3, 3), t (3,) [m]), from its undistorted
     corners (OpenCV's order) by ``solvePnP`` with IPPE for squares; None if it finds none."""
-    half = marker_length_m / 2.0
-    # OpenCV's marker frame: x to the viewer's right, y up, z out of the marker toward the viewer.
-    object_points = np.array(
-        [[-half, half, 0.0], [half, half, 0.0], [half, -half, 0.0], [-half, -half, 0.0]]
-    )
     ok, rvec, tvec = cv2.solvePnP(
-        object_points, corners, camera.K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
+        _marker_object_points(marker_length_m),
+        corners,
+        camera.K,
+        None,
+        flags=cv2.SOLVEPNP_IPPE_SQUARE,
     )
     if not ok:
         return None
     R, _ = cv2.Rodrigues(rvec)
     return np.asarray(R, dtype=np.float64), np.asarray(tvec, dtype=np.float64).ravel()
+
+
+def _marker_object_points(marker_length_m: float) -> NDArray[np.float64]:
+    half = marker_length_m / 2.0
+    # OpenCV's marker frame: x to the viewer's right, y up, z out of the marker toward the viewer.
+    return np.array(
+        [[-half, half, 0.0], [half, half, 0.0], [half, -half, 0.0], [-half, -half, 0.0]]
+    )
+
+
+def pnp_theta_sigma(
+    pose: tuple[NDArray[np.float64], NDArray[np.float64]],
+    camera: Camera,
+    marker_length_m: float,
+    corner_sigma_px: float,
+) -> float:
+    """Standard deviation of :func:`pnp_theta` for independent corner noise, from the one
+    solve: PnP fits the pose to the corners by least squares, so its covariance is
+    ``sigma^2 (J^T J)^-1`` with J the reprojection's Jacobian in the pose (``projectPoints``
+    gives it), and theta's variance is ``g (J^T J)^-1 g^T`` with g theta's gradient in the
+    pose. The same as perturbing each corner and solving again (:func:`yaw_sigma`), at one
+    solve's cost instead of nine."""
+    R, t = pose
+    rvec, _ = cv2.Rodrigues(R)
+    _, jacobian = cv2.projectPoints(_marker_object_points(marker_length_m), rvec, t, camera.K, None)
+    J = jacobian[:, :6]  # d(pixels)/d(rvec, tvec)
+    params = np.concatenate([rvec.ravel(), t])
+    gradient = np.zeros(6)
+    for k in range(6):  # theta is cheap to evaluate: central differences in the pose
+        step = np.zeros(6)
+        step[k] = 1e-6
+        ahead = pnp_theta((cv2.Rodrigues(params[:3] + step[:3])[0], params[3:] + step[3:]))
+        behind = pnp_theta((cv2.Rodrigues(params[:3] - step[:3])[0], params[3:] - step[3:]))
+        gradient[k] = math.remainder(ahead - behind, math.tau) / 2e-6
+    try:
+        variance = float(gradient @ np.linalg.solve(J.T @ J, gradient))
+    except np.linalg.LinAlgError:
+        return math.pi / 2
+    sigma = corner_sigma_px * math.sqrt(max(variance, 0.0))
+    return sigma if math.isfinite(sigma) else math.pi / 2
 
 
 def yaw_sigma(
