@@ -109,23 +109,35 @@ class GraphBuilder:
         """Fix the home marker at the map origin."""
         self._add(gtsam.PriorFactorPose2(L(home_id), gtsam.Pose2(), HOME_PRIOR_NOISE), "prior")
 
-    def add_frame(self, frames: Frames, k: int, T_map_odom: gtsam.Pose2) -> None:
-        """Robot pose ``X(k)`` (initially odometry carried into the map by ``T_map_odom``), the
-        odometry factor from ``X(k-1)``, and one factor per observation; a marker seen for the
-        first time starts where this observation puts it."""
+    def add_marker_prior(
+        self, marker_id: int, T_map_marker: gtsam.Pose2, covariance: NDArray[np.float64]
+    ) -> None:
+        """A marker of a saved map, where the map puts it and as sure as the map is."""
+        self._add(gtsam.PriorFactorPose2(L(marker_id), T_map_marker, gaussian(covariance)), "prior")
+        if not self.values.exists(L(marker_id)):
+            self._initial(L(marker_id), T_map_marker)
+
+    def add_frame(self, frames: Frames, k: int, T_map_odom: gtsam.Pose2, offset: int = 0) -> None:
+        """Robot pose ``X(offset + k)`` (initially odometry carried into the map by
+        ``T_map_odom``), the odometry factor from the frame before (within ``frames`` only: a
+        session's chain never joins another's), and one factor per observation; a marker seen
+        for the first time starts where this observation puts it."""
         frame = frames.frames[k]
         T_map_base = T_map_odom.compose(frame.T_odom_base)
-        self._initial(X(k), T_map_base)
+        self._initial(X(offset + k), T_map_base)
         if k > 0:
             delta = frames.frames[k - 1].T_odom_base.between(frame.T_odom_base)
             self._add(
                 gtsam.BetweenFactorPose2(
-                    X(k - 1), X(k), delta, gaussian(frame.odometry_covariance)
+                    X(offset + k - 1), X(offset + k), delta, gaussian(frame.odometry_covariance)
                 ),
                 "odometry",
             )
         for obs in frame.observations:
-            self._add(observation_factor(k, obs, self.T_base_camera, self.robust), "observation")
+            self._add(
+                observation_factor(offset + k, obs, self.T_base_camera, self.robust),
+                "observation",
+            )
             if not self.values.exists(L(obs.marker_id)):
                 T_base_marker, _ = observation_measurement(obs, self.T_base_camera)
                 self._initial(L(obs.marker_id), T_map_base.compose(T_base_marker))

@@ -1,0 +1,332 @@
+"""Many logs of one place: several sessions in one graph, a saved map's markers as priors, and
+localisation against a saved map that finds moved and new markers.
+
+Each session keeps its own odometry chain: nothing joins the last pose of one log to the first
+of the next, because a robot switched off, pushed or carried between logs has no odometry for
+it. Markers seen in several sessions tie them together. A session that shares no marker with
+the map built so far cannot be placed in it and is handed back, to be mapped on its own.
+
+Localisation is the same graph with the saved map's markers entering as priors at their
+covariances (so the map's own uncertainty reaches the robot's poses) and solved in one batch:
+offline the whole log is in hand, and the smoothed solution is what iSAM2 would hold after the
+last frame, with every pose's marginal covariance. A marker that was moved since the map was
+made shows as observations that disagree with its prior; it is found by its residuals, freed
+from its prior and placed anew, so it cannot pull the trajectory.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
+from numpy.typing import NDArray
+
+from markergraph.estimator.frames import Frames
+from markergraph.estimator.graph import (
+    GraphBuilder,
+    Robust,
+    observation_measurement,
+    read_residuals,
+)
+from markergraph.estimator.slam import _lm_params
+from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.types import (
+    EstimationError,
+    FactorResidual,
+    MarkerEstimate,
+)
+
+__all__ = [
+    "Localization",
+    "MapPrior",
+    "MovedMarker",
+    "SessionsEstimate",
+    "localize",
+    "solve_sessions",
+]
+
+# A map marker is a suspect when its prior's whitened error (how hard the observations pull it)
+# or the median of its observations' (how hard the prior holds them off) exceeds this; honest
+# data give about 1.5 (3 degrees of freedom). A suspect is moved when the map's pose and the
+# pose this log alone gives it differ beyond chi-square's 99.9 % point for 3 dof.
+SUSPECT_WHITENED = 3.0
+MOVED_CHI2 = 16.27
+MIN_OBSERVATIONS_TO_MOVE = 3
+
+
+@dataclass(frozen=True)
+class MapPrior:
+    """A saved map's marker: its pose in the map frame and its 3x3 covariance (x, y, yaw, in
+    its tangent space)."""
+
+    T_map_marker: gtsam.Pose2
+    covariance: NDArray[np.float64]
+
+
+@dataclass
+class SessionsEstimate:
+    """One map from several sessions.
+
+    Attributes:
+        markers: marker id -> its estimate, in the map frame.
+        trajectories: each session's robot poses in the map frame; None for a session that
+            could not be placed (see ``apart``).
+        pose_covariances: each placed session's (N, 3, 3) pose covariances, when asked for.
+        apart: sessions that share no marker with this map, in their order.
+        residuals: every factor's whitened error.
+        notes: what a person should read.
+        graph, values: the graph solved and its solution.
+    """
+
+    markers: dict[int, MarkerEstimate]
+    trajectories: list[Trajectory | None]
+    pose_covariances: list[NDArray[np.float64] | None]
+    apart: list[int]
+    residuals: list[FactorResidual] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    graph: gtsam.NonlinearFactorGraph | None = None
+    values: gtsam.Values | None = None
+
+
+def _anchor(
+    frames: Frames,
+    known: Mapping[int, gtsam.Pose2],
+    T_base_camera: gtsam.Pose2,
+) -> gtsam.Pose2 | None:
+    """``T_map_odom`` of a session, from its first sight of a marker already in the map; None
+    if it sees none."""
+    for frame in frames.frames:
+        for obs in frame.observations:
+            if obs.marker_id in known:
+                T_base_marker, _ = observation_measurement(obs, T_base_camera)
+                T_map_base = known[obs.marker_id].compose(T_base_marker.inverse())
+                return T_map_base.compose(frame.T_odom_base.inverse())
+    return None
+
+
+def solve_sessions(
+    sessions: Sequence[Frames],
+    T_base_cameras: Sequence[gtsam.Pose2],
+    *,
+    robust: Robust = Robust.HUBER,
+    priors: Mapping[int, MapPrior] | None = None,
+    home_id: int | None = None,
+    pose_covariances: bool = False,
+) -> SessionsEstimate:
+    """Batch SLAM over several sessions (logs) of one place.
+
+    Args:
+        sessions: each log's frames (``build_frames``), in the order given by the user.
+        T_base_cameras: each session's camera mount.
+        priors: a saved map's markers; without them the home marker is fixed at the origin.
+        home_id: the home marker (default: the first session's).
+        pose_covariances: also compute every robot pose's marginal covariance.
+
+    Raises:
+        EstimationError: no session can be placed, or GTSAM cannot solve the graph.
+    """
+    builder = GraphBuilder(T_base_cameras[0], robust)
+    known: dict[int, gtsam.Pose2] = {}
+    if priors:
+        for marker_id, prior in sorted(priors.items()):
+            builder.add_marker_prior(marker_id, prior.T_map_marker, prior.covariance)
+            known[marker_id] = prior.T_map_marker
+    else:
+        home = sessions[0].home_id if home_id is None else home_id
+        builder.add_home_prior(home)
+        known[home] = gtsam.Pose2()
+    offsets = np.concatenate([[0], np.cumsum([len(s.frames) for s in sessions])]).astype(int)
+    pending, placed = list(range(len(sessions))), []
+    progress = True
+    while pending and progress:
+        progress = False
+        for s in list(pending):
+            T_map_odom = _anchor(sessions[s], known, T_base_cameras[s])
+            if T_map_odom is None:
+                continue
+            builder.T_base_camera = T_base_cameras[s]
+            for k in range(len(sessions[s].frames)):
+                builder.add_frame(sessions[s], k, T_map_odom, int(offsets[s]))
+            for marker_id in sessions[s].marker_ids():
+                known.setdefault(marker_id, builder.values.atPose2(L(marker_id)))
+            pending.remove(s)
+            placed.append(s)
+            progress = True
+    if not placed:
+        raise EstimationError(
+            "no session sees a marker of the map (or the home marker): nothing to place"
+        )
+    optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, builder.values, _lm_params())
+    try:
+        values = optimizer.optimize()
+        marginals = gtsam.Marginals(builder.graph, values)
+    except RuntimeError as error:
+        raise EstimationError(
+            f"GTSAM could not solve the graph: {str(error).splitlines()[0]}"
+        ) from None
+    counts: defaultdict[int, int] = defaultdict(int)
+    for s in placed:
+        for frame in sessions[s].frames:
+            for obs in frame.observations:
+                counts[obs.marker_id] += 1
+    markers = {
+        i: MarkerEstimate(i, values.atPose2(L(i)), np.array(marginals.marginalCovariance(L(i))),
+                          counts[i])
+        for i in sorted(known) if values.exists(L(i))
+    }  # fmt: skip
+    trajectories: list[Trajectory | None] = [None] * len(sessions)
+    covariances: list[NDArray[np.float64] | None] = [None] * len(sessions)
+    for s in placed:
+        keys = [X(int(offsets[s]) + k) for k in range(len(sessions[s].frames))]
+        poses = [values.atPose2(key) for key in keys]
+        trajectories[s] = Trajectory(
+            np.array([f.t_ns for f in sessions[s].frames], dtype=np.int64),
+            np.array([[p.x(), p.y(), p.theta()] for p in poses]),
+        )
+        if pose_covariances:
+            covariances[s] = np.array([marginals.marginalCovariance(key) for key in keys])
+    notes = []
+    if pending:
+        notes.append(
+            f"session(s) {', '.join(str(s + 1) for s in pending)} share no marker with the "
+            "map and are left out of it"
+        )
+    return SessionsEstimate(
+        markers, trajectories, covariances, pending,
+        read_residuals(builder.graph, values, builder.kinds), notes, builder.graph, values,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class MovedMarker:
+    """A saved map's marker that is no longer where the map puts it.
+
+    Attributes:
+        marker_id: its id.
+        T_map_before: where the map has it.
+        T_map_now: where this log's observations put it.
+        displacement_m: how far its centre moved [m].
+        prior_whitened: how many sigmas the log's observations pulled the map's pose.
+    """
+
+    marker_id: int
+    T_map_before: gtsam.Pose2
+    T_map_now: gtsam.Pose2
+    displacement_m: float
+    prior_whitened: float
+
+
+@dataclass
+class Localization:
+    """A log's robot trajectory in a saved map's frame.
+
+    Attributes:
+        trajectory: the robot's poses in the map frame.
+        pose_covariances: (N, 3, 3) their marginal covariances.
+        moved: the map's markers that were moved, left out of the localisation.
+        new: markers the map does not know, placed by this log.
+        checked: for each map marker, how many sigmas this log pulled it from the map.
+        estimate: the final solution (residuals, graph, markers).
+    """
+
+    trajectory: Trajectory
+    pose_covariances: NDArray[np.float64]
+    moved: list[MovedMarker]
+    new: dict[int, MarkerEstimate]
+    checked: dict[int, float]
+    estimate: SessionsEstimate
+
+
+def _median_whitened(residuals: Sequence[FactorResidual]) -> dict[int, tuple[float, int]]:
+    errors: defaultdict[int, list[float]] = defaultdict(list)
+    for r in residuals:
+        if r.kind == "observation":
+            for key in r.keys:
+                if key.startswith("m"):
+                    errors[int(key[1:])].append(r.whitened_error)
+    return {i: (float(np.median(e)), len(e)) for i, e in errors.items()}
+
+
+def _prior_whitened(residuals: Sequence[FactorResidual]) -> dict[int, float]:
+    return {int(r.keys[0][1:]): r.whitened_error for r in residuals if r.kind == "prior"}
+
+
+def localize(
+    frames: Frames,
+    T_base_camera: gtsam.Pose2,
+    saved: Mapping[int, MapPrior],
+    *,
+    robust: Robust = Robust.HUBER,
+) -> Localization:
+    """The robot's trajectory in a saved map, its markers held at their covariances.
+
+    A map marker seen at least :data:`MIN_OBSERVATIONS_TO_MOVE` times whose prior or
+    observations are more than :data:`SUSPECT_WHITENED` sigmas off is freed and placed by this
+    log alone; if that pose differs from the map's beyond chi-square's 99.9 % point
+    (:data:`MOVED_CHI2`, both covariances), it is reported as moved and the trajectory is solved
+    without its prior, so it cannot pull the robot. Markers the map does not know are placed and
+    reported as new.
+
+    Raises:
+        EstimationError: the log sees no marker of the map.
+    """
+    first = solve_sessions(
+        [frames], [T_base_camera], robust=robust, priors=saved, pose_covariances=True
+    )
+    seen = set(frames.marker_ids()) & set(saved)
+    observed = _median_whitened(first.residuals)
+    pulled = _prior_whitened(first.residuals)
+    # Suspects: a prior the observations pull hard on, or observations the prior holds off.
+    suspects = sorted(
+        i for i in seen
+        if observed.get(i, (0.0, 0))[1] >= MIN_OBSERVATIONS_TO_MOVE
+        and (pulled.get(i, 0.0) > SUSPECT_WHITENED or observed[i][0] > SUSPECT_WHITENED)
+    )  # fmt: skip
+    if not suspects:
+        return _localization(first, [], saved, pulled)
+    if not (seen - set(suspects)):
+        raise EstimationError(
+            f"every map marker this log sees ({', '.join(map(str, suspects))}) disagrees with "
+            "the map: nothing to localise against"
+        )
+    freed = solve_sessions(
+        [frames], [T_base_camera], robust=robust,
+        priors={i: p for i, p in saved.items() if i not in suspects}, pose_covariances=True,
+    )  # fmt: skip
+    moved_ids = []
+    for i in suspects:
+        # The map's pose against this log's, each with its own covariance: chi-square, 3 dof.
+        difference = saved[i].T_map_marker.localCoordinates(freed.markers[i].T_map_marker)
+        covariance = saved[i].covariance + freed.markers[i].covariance
+        if float(difference @ np.linalg.solve(covariance, difference)) > MOVED_CHI2:
+            moved_ids.append(i)
+    if not moved_ids:
+        return _localization(first, [], saved, pulled)
+    final = freed if moved_ids == suspects else solve_sessions(
+        [frames], [T_base_camera], robust=robust,
+        priors={i: p for i, p in saved.items() if i not in moved_ids}, pose_covariances=True,
+    )  # fmt: skip
+    return _localization(final, moved_ids, saved, pulled)
+
+
+def _localization(
+    final: SessionsEstimate,
+    moved_ids: list[int],
+    saved: Mapping[int, MapPrior],
+    pulled: Mapping[int, float],
+) -> Localization:
+    moved = []
+    for i in moved_ids:
+        before, now = saved[i].T_map_marker, final.markers[i].T_map_marker
+        moved.append(MovedMarker(
+            i, before, now, math.hypot(now.x() - before.x(), now.y() - before.y()), pulled[i]
+        ))  # fmt: skip
+    new = {i: m for i, m in final.markers.items() if i not in saved}
+    trajectory, covariances = final.trajectories[0], final.pose_covariances[0]
+    assert trajectory is not None and covariances is not None
+    return Localization(trajectory, covariances, moved, new, dict(pulled), final)

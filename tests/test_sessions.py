@@ -1,0 +1,99 @@
+"""Many sessions of one place (simulated, against the simulator's truth): two logs merged map
+at least as well as either alone, a third log localises within 3 cm in the saved map, a marker
+moved 0.3 m between sessions is reported as moved (displacement within 5 cm) and no other ever
+is, and a log of another place is handed back instead of bent into the map."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from markergraph.datasets import scenario, simulate_fast
+from markergraph.estimator import Method, build_frames, estimate_frames, map_error
+from markergraph.estimator.sessions import MapPrior, localize, solve_sessions
+
+MOVED_ID, MOVED_BY_M = 7, 0.3
+
+
+def frames_of(run, home: int | None = None):
+    return build_frames(run.observations, run.odometry, home, odometry_noise=run.odometry_noise)
+
+
+@pytest.fixture(scope="module")
+def office():
+    world, route = scenario("office")
+    runs = [simulate_fast(world, route, seed=seed, duration_s=120.0) for seed in (1, 2)]
+    merged = solve_sessions(
+        [frames_of(runs[0], 0), frames_of(runs[1])], [runs[0].mount.T_base_camera] * 2
+    )
+    saved = {i: MapPrior(m.T_map_marker, m.covariance) for i, m in merged.markers.items()}
+    return world, route, runs, merged, saved
+
+
+def ate(localization, run) -> float:
+    stamps = np.asarray(run.frame_t_ns)
+    rows = np.searchsorted(stamps, localization.trajectory.t_ns)
+    assert np.array_equal(stamps[rows], localization.trajectory.t_ns)
+    error = localization.trajectory.poses[:, :2] - run.true_trajectory()[rows, :2]
+    return float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
+
+
+def test_two_sessions_merged_map_at_least_as_well_as_either(office) -> None:
+    world, _, runs, merged, _ = office
+    truth = world.T_map_markers()
+    alone = [
+        map_error(estimate_frames(frames_of(r, 0), Method.SLAM, r.mount.T_base_camera), truth)
+        for r in runs
+    ]
+    both = map_error(merged, truth)
+    assert merged.apart == [] and all(t is not None for t in merged.trajectories)
+    assert both.rmse_position_m <= min(e.rmse_position_m for e in alone)
+    assert both.rmse_position_m < 0.03  # 1.2 cm when written; each alone 9-10 cm
+
+
+def test_a_third_log_localises_within_3_cm_and_nothing_is_called_moved(office) -> None:
+    world, route, _, _, saved = office
+    third = simulate_fast(world, route, seed=3, duration_s=120.0)
+    localization = localize(frames_of(third), third.mount.T_base_camera, saved)
+    assert localization.moved == [] and localization.new == {}
+    assert ate(localization, third) < 0.03
+    # Honest covariances: the typical error is about the typical sigma.
+    sigma = np.sqrt(localization.pose_covariances[:, 0, 0] + localization.pose_covariances[:, 1, 1])
+    assert 0.3 < ate(localization, third) / float(np.median(sigma)) < 3.0
+
+
+def test_a_marker_moved_between_sessions_is_reported_and_no_other(office) -> None:
+    world, route, _, _, saved = office
+    markers = list(world.markers)
+    index = next(i for i, m in enumerate(markers) if m.id == MOVED_ID)
+    markers[index] = dataclasses.replace(
+        markers[index], position_m=markers[index].position_m + MOVED_BY_M
+    )
+    moved_world = dataclasses.replace(world, markers=tuple(markers))
+    run = simulate_fast(moved_world, route, seed=4, duration_s=120.0)
+    localization = localize(frames_of(run), run.mount.T_base_camera, saved)
+    assert [m.marker_id for m in localization.moved] == [MOVED_ID]
+    (moved,) = localization.moved
+    assert abs(moved.displacement_m - MOVED_BY_M) < 0.05
+    true_now = moved_world.T_map_markers()[MOVED_ID]
+    assert np.hypot(moved.T_map_now.x() - true_now.x(), moved.T_map_now.y() - true_now.y()) < 0.05
+    assert ate(localization, run) < 0.03  # the moved marker does not pull the robot
+
+
+def test_a_log_of_another_place_is_handed_back(office) -> None:
+    _, _, runs, _, _ = office
+    other_world, other_route = scenario("paper-room")
+    elsewhere = simulate_fast(other_world, other_route, seed=5, duration_s=30.0)
+    # Renumber its markers past the office's, so the two share no id.
+    offset = 100
+    renumbered = [dataclasses.replace(o, marker_id=o.marker_id + offset)
+                  for o in elsewhere.observations]  # fmt: skip
+    far = build_frames(renumbered, elsewhere.odometry, odometry_noise=elsewhere.odometry_noise)
+    merged = solve_sessions(
+        [frames_of(runs[0], 0), far], [runs[0].mount.T_base_camera, elsewhere.mount.T_base_camera]
+    )
+    assert merged.apart == [1] and merged.trajectories[1] is None
+    assert all(i < offset for i in merged.markers)
+    assert "share no marker" in merged.notes[0]
