@@ -14,8 +14,9 @@ from markergraph.markermap import write_json
 from markergraph.overlay import write_overlay
 from markergraph.report_page import REPORT_PAGE, write_report_page
 from markergraph.run import MapRun, MethodResult
+from markergraph.sessions import LocalizationRun
 
-__all__ = ["DIAGNOSTICS_FIGURE", "write_results"]
+__all__ = ["DIAGNOSTICS_FIGURE", "write_localization", "write_results"]
 
 DIAGNOSTICS_FIGURE = "diagnostics.png"
 
@@ -45,6 +46,17 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         "settings": dict(run.config.values),
         "methods": {},
     }
+    if run.sessions:
+        report["sessions"] = [
+            {"log": str(session.log), "frames": session.extraction.frames,
+             "observations": len(session.extraction.observations),
+             "placed": session.trajectory is not None}
+            for session in run.sessions
+        ]  # fmt: skip
+        report["separate"] = [
+            {"logs": [str(log) for log in logs], "markers": sorted(marker_map.markers)}
+            for logs, marker_map in run.separate
+        ]
     for result in run.results:
         entry: dict[str, Any] = {
             "markers_placed": len(result.estimate.markers),
@@ -141,6 +153,13 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
         odom_frame=run.config.values["overlay.odom_frame"],
     )  # fmt: skip
     write_tum(folder / "odometry.tum", odometry)
+    for n, session in enumerate(run.sessions, start=1):
+        if session.trajectory is not None:
+            (folder / "sessions").mkdir(exist_ok=True)
+            write_tum(folder / "sessions" / f"{n}-{session.log.stem}.tum", session.trajectory)
+    for n, (_, marker_map) in enumerate(run.separate, start=1):
+        (folder / "separate" / str(n)).mkdir(parents=True)
+        marker_map.save(folder / "separate" / str(n) / "map.json")
     if first.true_path is not None:
         # At the estimate's own stamps, so that evo pairs them exactly and prints our figures.
         write_tum(folder / "ground_truth.tum", first.true_path)
@@ -160,3 +179,30 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
         )
     write_json(folder / "report.json", report)
     write_report_page(folder / REPORT_PAGE, report, folder)  # the same figures, one page
+
+
+def write_localization(run: LocalizationRun, out: Path, *, force: bool = False) -> list[Path]:
+    """A localisation's result folder, whole or not at all: ``trajectory.tum`` (the map
+    frame), ``localization.json`` (every pose with its covariance, moved and new markers),
+    ``overlay.mcap`` (the saved map, the path and map -> odom), ``ground_truth.tum`` when the
+    log carries it, and ``report.json``."""
+    with result_folder(Path(out), force=force) as folder:
+        loc = run.localization
+        write_tum(folder / "trajectory.tum", loc.trajectory)
+        if run.true_path is not None:
+            write_tum(folder / "ground_truth.tum", run.true_path)
+        write_json(folder / "localization.json", run.document())
+        values = run.config.values
+        write_overlay(
+            folder / "overlay.mcap", run.saved, loc.trajectory, run.extraction.odometry,
+            map_frame=values["overlay.map_frame"], odom_frame=values["overlay.odom_frame"],
+        )  # fmt: skip
+        files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+        write_json(folder / "report.json", {
+            "schema": REPORT_SCHEMA, MANIFEST_KEY: sorted([*files, "report.json"]),
+            "log": str(run.log), "map": str(run.map_path), "poses": len(loc.trajectory),
+            "moved": [m.marker_id for m in loc.moved], "new": sorted(loc.new),
+            "ate_m": run.ate_m, "notes": run.notes, "settings": dict(values),
+        })  # fmt: skip
+        written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
+    return written

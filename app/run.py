@@ -8,6 +8,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Literal
 
 import gtsam
 import numpy as np
@@ -83,6 +84,8 @@ class MapRun:
         camera_delay_ns: how late the camera's stamps were taken to be against odometry [ns].
         odometry_source: the odometry noise model used (``wheel``, ``vio``, ``t265``).
         seconds: stage -> wall time.
+        sessions: with several logs, each log and its trajectory in the map.
+        separate: maps of logs that share no marker with this one: (their logs, the map).
     """
 
     log: Path
@@ -95,6 +98,8 @@ class MapRun:
     camera_delay_ns: int = 0
     odometry_source: str = "wheel"
     seconds: dict[str, float] = field(default_factory=dict)
+    sessions: list[Any] = field(default_factory=list)
+    separate: list[tuple[list[Path], MarkerMap]] = field(default_factory=list)
 
 
 def _score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory | None) -> None:
@@ -155,32 +160,20 @@ def _timed(
     return retimed(observations, delay_ns, readout_ns, height), delay_ns
 
 
-def map_log(
+def prepare(
     log: Path,
-    config: MapConfig | None = None,
-    *,
-    progress: Callable[[int, int], None] | None = None,
-    stage: Callable[[str], None] | None = None,
-) -> MapRun:
-    """Read a log, estimate the map with each method, and score it when ground truth is logged.
-
-    Args:
-        log: an MCAP file or a rosbag2 folder.
-        config: the settings (default: every default).
-        progress: called with (colour frames read, frames in all) while the log is read.
-        stage: called with the name of each stage as it begins.
+    extraction: Extraction,
+    config: MapConfig,
+    stage: Callable[[str], None] = lambda name: None,
+    home_id: int | Literal["config"] | None = "config",
+) -> tuple[list[Observation], Frames, int, str]:
+    """One log's extraction made ready for the estimators: checked, odometry jumps released,
+    its noise model chosen, the camera's delay applied (chosen by SLAM's residuals unless set);
+    (observations, frames, the delay used [ns], the odometry source).
 
     Raises:
-        MarkerGraphError: the log cannot be read, has no marker observations, or no odometry
-            (``LogError`` and ``SettingsError`` among them).
+        MarkerGraphError: no marker observations, or no odometry.
     """
-    config = config or MapConfig.from_values()
-    stage = stage or (lambda name: None)
-    stage(f"reading {Path(log).name}")
-    seconds: dict[str, float] = {}
-    start = time.perf_counter()
-    extraction = extract(log, config.frontend, progress=progress, workers=config.workers)
-    seconds["front end"] = time.perf_counter() - start
     if not extraction.observations:
         left_out = sorted(extraction.ids_left_out)
         raise MarkerGraphError(
@@ -233,10 +226,40 @@ def map_log(
     frames = build_frames(
         observations,
         extraction.odometry,
-        config.home_id,
+        config.home_id if home_id == "config" else home_id,
         odometry_noise=odometry_noise,
         odometry_breaks=breaks,
     )
+    return observations, frames, delay_ns, source
+
+
+def map_log(
+    log: Path,
+    config: MapConfig | None = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+    stage: Callable[[str], None] | None = None,
+) -> MapRun:
+    """Read a log, estimate the map with each method, and score it when ground truth is logged.
+
+    Args:
+        log: an MCAP file or a rosbag2 folder.
+        config: the settings (default: every default).
+        progress: called with (colour frames read, frames in all) while the log is read.
+        stage: called with the name of each stage as it begins.
+
+    Raises:
+        MarkerGraphError: the log cannot be read, has no marker observations, or no odometry
+            (``LogError`` and ``SettingsError`` among them).
+    """
+    config = config or MapConfig.from_values()
+    stage = stage or (lambda name: None)
+    stage(f"reading {Path(log).name}")
+    seconds: dict[str, float] = {}
+    start = time.perf_counter()
+    extraction = extract(log, config.frontend, progress=progress, workers=config.workers)
+    seconds["front end"] = time.perf_counter() - start
+    observations, frames, delay_ns, source = prepare(log, extraction, config, stage)
     # Ground truth, when logged, re-expressed in the frame of the estimate's home marker.
     truth, true_path = {}, None
     if frames.home_id in extraction.true_markers:

@@ -164,7 +164,15 @@ def _optional(parse: Callable[[Any], float]) -> Callable[[Any], float | None]:
 
 
 def _scale_or_auto(value: Any) -> float | None:
-    return None if value == "auto" else _number(0.5, 2.0)(value)
+    # None is "auto" parsed: parsing a parsed value gives it back. A flag's number is text.
+    if value is None or value == "auto":
+        return None
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise SettingsError(f"must be a number or auto, got {_shown(value)}") from None
+    return _number(0.5, 2.0)(value)
 
 
 def _frame(value: Any) -> str:
@@ -218,9 +226,9 @@ SETTINGS: tuple[Setting, ...] = (
             "(sigmas grow with the turn rate)", choices=["model", "widen"]),
     Setting("camera.exposure_ms", 0.0, _number(0.0, 200.0),
             "exposure time: sigmas grow with what a turn smears during it [ms]"),
-    Setting("noise.depth_scale", 1.0, _scale_or_auto,
-            "what depth reads per true metre; auto: as measured against the markers' size "
-            "(always measured and reported; up to 1 percent off on simulated logs)"),
+    Setting("noise.depth_scale", None, _scale_or_auto,
+            "what depth reads per true metre; auto (default): measured against the markers' "
+            "size and applied when more than 1 percent from 1 (the measurement's own error)"),
     Setting("noise.corner_px", 0.3, _number(0.01, 100.0),
             "corner noise after sub-pixel refinement, propagated into theta [px]"),
     Setting("noise.depth_base_m", DepthModel().base_m, _NOISE_M,
@@ -472,6 +480,8 @@ def config_toml(values: Mapping[str, Any]) -> str:
         if setting.key == "marker_sizes":
             continue  # a table of its own, last
         value = v[setting.key]
+        if value is None and setting.parse is _scale_or_auto:
+            value = "auto"
         lines.append(f"# {setting.help}")
         lines.append(f"# {name} = ..." if value is None else f"{name} = {_toml_value(value)}")
     parts = ["\n".join(sections.pop(""))]

@@ -47,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"markergraph {_version()}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     _map.add_parser(commands)
+    _map.add_localize_parser(commands)
     _simulate.add_parser(commands)
     _frontend.add_parsers(commands)
     _mapfile.add_parsers(commands)
@@ -63,6 +64,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "map":
             return _map.run(args)
+        if args.command == "localize":
+            return _map.run_localize(args)
         if args.command == "simulate":
             return _simulate.run(args)
         if args.command == "detect":

@@ -6,11 +6,15 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from markergraph.cli._settings import add_settings, add_verbosity, settings_from
 from markergraph.frontend.files import check_output_folder
 from markergraph.frontend.progress import ProgressBar, Stages
-from markergraph.results import write_results
+from markergraph.markermap import MarkerMap
+from markergraph.results import write_localization, write_results
 from markergraph.run import MapRun, map_log
+from markergraph.sessions import localize_log, map_logs
 from markergraph.settings import config_toml, map_config
 
 SUMMARY = "estimate a corrected marker map from an MCAP log (default: the bundled sample)"
@@ -20,13 +24,18 @@ DEFAULT_SAMPLE = "corridor-loop"
 def add_parser(commands: argparse._SubParsersAction) -> None:
     parser = commands.add_parser("map", help=SUMMARY, description=SUMMARY)
     parser.add_argument(
-        "log",
+        "logs",
         type=Path,
-        nargs="?",
-        default=None,
-        help=f"an .mcap file or rosbag2 folder (default: the bundled "
-        f"{DEFAULT_SAMPLE} sample, rendered once into the cache)",
+        nargs="*",
+        metavar="LOG",
+        help="an .mcap file, a rosbag2 folder or a ROS 1 .bag; several logs of one place make "
+        f"one map (default: the bundled {DEFAULT_SAMPLE} sample, rendered once into the cache)",
     )
+    parser.add_argument(
+        "--prior", type=Path, metavar="MAP.json",
+        help="refine a saved map: its markers enter with their covariances",
+    )  # fmt: skip
+    add_executor(parser)
     parser.add_argument(
         "--out", type=Path, default=None, help="result folder (default: map-<log name> here)"
     )
@@ -41,6 +50,64 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     add_settings(parser, "map")
 
 
+LOCALIZE = "the robot's path in a saved map, and which of its markers moved"
+
+
+def add_localize_parser(commands: argparse._SubParsersAction) -> None:
+    parser = commands.add_parser("localize", help=LOCALIZE, description=LOCALIZE)
+    parser.add_argument("log", type=Path, help="an .mcap file, a rosbag2 folder or a ROS 1 .bag")
+    parser.add_argument("--map", type=Path, required=True, metavar="MAP.json",
+                        help="the saved map (markergraph map's map.json)")  # fmt: skip
+    parser.add_argument("--out", type=Path, required=True, help="result folder")
+    parser.add_argument("--force", action="store_true", help="replace an existing result folder")
+    add_verbosity(parser)
+    add_settings(parser, "localize")
+
+
+def run_localize(args: argparse.Namespace) -> int:
+    config = map_config(settings_from(args, "localize"))
+    check_output_folder(args.out, [args.log, args.map], force=args.force)
+    saved = MarkerMap.load(args.map)
+    stages = Stages(quiet=args.quiet, verbose=args.verbose)
+    with ProgressBar(f"reading {Path(args.log).name}", quiet=args.quiet) as bar:
+        run = localize_log(args.log, saved, args.map, config, progress=bar, stage=stages)
+    stages(f"writing {args.out}/")
+    written = write_localization(run, args.out, force=args.force)
+    stages.close()
+    loc = run.localization
+    sigmas = np.sqrt(loc.pose_covariances[:, 0, 0] + loc.pose_covariances[:, 1, 1])
+    print(
+        f"{len(loc.trajectory)} poses in the map of {args.map}; median position sigma "
+        f"{100 * float(np.median(sigmas)):.1f} cm"
+        + (
+            f"; ATE {100 * run.ate_m:.1f} cm against the logged truth"
+            if run.ate_m is not None
+            else ""
+        )
+    )
+    for m in loc.moved:
+        print(f"moved: marker {m.marker_id} by {100 * m.displacement_m:.1f} cm")
+    for i in sorted(loc.new):
+        print(f"new: marker {i}")
+    if not args.quiet:
+        for note in run.notes:
+            print(f"note: {note}", file=sys.stderr)
+    print(f"wrote {len(written)} files to {args.out}/")
+    return 0
+
+
+def add_executor(parser: argparse.ArgumentParser) -> None:
+    """Where the logs' front ends run."""
+    parser.add_argument(
+        "--executor", choices=["local", "ray"], default="local",
+        help="run each log's front end in local processes (--workers) or as Ray tasks",
+    )  # fmt: skip
+    parser.add_argument(
+        "--ray-address", metavar="ADDRESS",
+        help="the Ray cluster to join (default: $RAY_ADDRESS, else a local Ray instance)",
+    )  # fmt: skip
+
+
 def run(args: argparse.Namespace) -> int:
     from markergraph.datasets.samples import sample_log, sample_path
 
@@ -48,16 +115,21 @@ def run(args: argparse.Namespace) -> int:
     if args.print_config:
         print(config_toml(config.values), end="")
         return 0
-    log = args.log if args.log is not None else sample_path(DEFAULT_SAMPLE)
-    out = args.out or Path(f"map-{Path(log).stem}")
+    logs = list(args.logs) or [sample_path(DEFAULT_SAMPLE)]
+    out = args.out or Path(f"map-{Path(logs[0]).stem}")
     # Before any work (a sample's rendering included): never over the input or a user's folder.
-    check_output_folder(out, [log], force=args.force)
-    if args.log is None:
-        log = sample_log(DEFAULT_SAMPLE)
-        print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({log})")
+    check_output_folder(out, [*logs, *([args.prior] if args.prior else [])], force=args.force)
+    prior = MarkerMap.load(args.prior) if args.prior is not None else None
+    if not args.logs:
+        logs = [sample_log(DEFAULT_SAMPLE)]
+        print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({logs[0]})")
     stages = Stages(quiet=args.quiet, verbose=args.verbose)
-    with ProgressBar(f"reading {Path(log).name}", quiet=args.quiet) as bar:
-        result = map_log(log, config, progress=bar, stage=stages)
+    with ProgressBar(f"reading {Path(logs[0]).name}", quiet=args.quiet) as bar:
+        if len(logs) == 1 and prior is None and args.executor == "local":
+            result = map_log(logs[0], config, progress=bar, stage=stages)
+        else:
+            result = map_logs(logs, config, prior=prior, executor=args.executor,
+                              address=args.ray_address, progress=bar, stage=stages)  # fmt: skip
     stages(f"writing {out}/")
     written = write_results(result, out, force=args.force, plots=not args.no_plots)
     stages.close()
@@ -93,6 +165,13 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
             print(f"  {method_result.label}: {note}")
     for reason, count in sorted(extraction.skipped.items()):
         print(f"  {count} frame(s): {reason}")
+    for n, session in enumerate(result.sessions, start=1):
+        where = "in the map" if session.trajectory is not None else "shares no marker: mapped apart"
+        print(f"log {n}: {session.log} ({session.extraction.frames} frames), {where}")
+    for n, (logs, marker_map) in enumerate(result.separate, start=1):
+        print(
+            f"separate map {n}: {len(marker_map.markers)} markers from {', '.join(map(str, logs))}"
+        )
     if not quiet:
         for note in extraction.notes + extraction.warnings:
             print(f"note: {note}", file=sys.stderr)

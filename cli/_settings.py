@@ -27,11 +27,11 @@ class Flag:
     metavar: str | None = None
     nargs: str | None = None
     type: Callable[[str], Any] = str
-    commands: tuple[str, ...] = ("map", "detect", "info")
+    commands: tuple[str, ...] = ("map", "localize", "detect", "info")
 
 
-_MAP = ("map",)
-_READ = ("map", "detect")  # what changes the observations, not what info checks
+_MAP = ("map", "localize")
+_READ = ("map", "localize", "detect")  # what changes the observations, not what info checks
 FLAGS: dict[str, Flag] = {
     "dictionary": Flag("--dictionary", "NAME"),
     "marker_size": Flag("--marker-size", "M", type=float, commands=_READ),
@@ -65,9 +65,9 @@ FLAGS: dict[str, Flag] = {
     "noise.odometry_yaw_per_m": Flag("--odometry-yaw-noise", "RAD", type=float, commands=_MAP),
     "noise.odometry_yaw_per_rad": Flag("--odometry-turn-noise", "RAD", type=float, commands=_MAP),
     "noise.robust": Flag("--robust", commands=_MAP),
-    "method": Flag("--method", commands=_MAP),
-    "home": Flag("--home", "ID", type=int, commands=_MAP),
-    "workers": Flag("--workers", "N", type=int, commands=("map", "detect")),
+    "method": Flag("--method", commands=("map",)),
+    "home": Flag("--home", "ID", type=int, commands=("map",)),
+    "workers": Flag("--workers", "N", type=int, commands=("map", "localize", "detect")),
     "overlay.map_frame": Flag("--map-frame", "FRAME", commands=_MAP),
     "overlay.odom_frame": Flag("--odom-frame", "FRAME", commands=_MAP),
 }

@@ -34,9 +34,10 @@ class FrontendConfig:
         kalibr_cameras: a Kalibr ``cameras.yaml`` giving intrinsics by detection topic.
         camera_poses: a TagSLAM ``camera_poses.yaml`` giving each camera's pose on the rig.
         tagslam: a TagSLAM ``tagslam.yaml`` giving tag sizes and the odometry's body on the rig.
-        depth_scale: what depth reads per true metre: 1.0 trusts the depth camera; None applies
-            the scale measured against the markers' known size (which is always measured and
-            reported: see :func:`~markergraph.frontend.pipeline.depth_scale_from_markers`).
+        depth_scale: what depth reads per true metre: 1.0 trusts the depth camera; None (auto)
+            applies the scale measured against the markers' known size when it is more than 1 %
+            from 1 (it is always measured and reported: see
+            :func:`~markergraph.frontend.pipeline.depth_scale_from_markers`).
     """
 
     dictionary: str = "DICT_4X4_50"
@@ -58,7 +59,7 @@ class FrontendConfig:
     kalibr_cameras: Path | None = None
     camera_poses: Path | None = None
     tagslam: Path | None = None
-    depth_scale: float | None = 1.0
+    depth_scale: float | None = None
 
     @property
     def observation_model(self) -> ObservationModel:

@@ -177,3 +177,24 @@ def test_readme_example_is_a_valid_settings_file(tmp_path: Path) -> None:
     config = map_config(read_config_file(path))
     assert config.frontend.marker_lengths_m == {7: 0.3} and config.methods == ALL_METHODS
     assert config.frontend.default_mount.pitch_rad == pytest.approx(math.radians(5.0))
+
+
+def test_depth_scale_flag_takes_auto_or_a_number() -> None:
+    """--depth-scale auto and --depth-scale 1.012 both reach the settings (each broke once)."""
+    import subprocess
+    import sys
+
+    for given, expected in (("auto", None), ("1.012", 1.012)):
+        run = subprocess.run(
+            [sys.executable, "-m", "markergraph.cli", "map", "--depth-scale", given,
+             "--print-config"],
+            capture_output=True, text=True, check=False,
+        )  # fmt: skip
+        assert run.returncode == 0, run.stderr
+        line = next(x for x in run.stdout.splitlines() if x.startswith("depth_scale"))
+        assert ("auto" in line) if expected is None else (str(expected) in line), line
+    bad = subprocess.run(
+        [sys.executable, "-m", "markergraph.cli", "map", "--depth-scale", "deep", "--print-config"],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert bad.returncode == 1 and "--depth-scale" in bad.stderr

@@ -97,3 +97,70 @@ def test_a_log_of_another_place_is_handed_back(office) -> None:
     assert merged.apart == [1] and merged.trajectories[1] is None
     assert all(i < offset for i in merged.markers)
     assert "share no marker" in merged.notes[0]
+
+
+@pytest.fixture(scope="module")
+def room_logs(tmp_path_factory: pytest.TempPathFactory) -> list:
+    """Three rendered 30 s logs of the paper room (seeds 1-3)."""
+    from markergraph.datasets import write_log
+
+    folder = tmp_path_factory.mktemp("sessions")
+    world, route = scenario("paper-room")
+    logs = []
+    for seed in (1, 2, 3):
+        log = folder / f"room{seed}.mcap"
+        write_log(world, route, log, seed=seed, duration_s=30.0, compressed=True, frame_hz=5.0)
+        logs.append(log)
+    return logs
+
+
+def run_cli(*arguments: str):
+    import subprocess
+    import sys
+
+    return subprocess.run(
+        [sys.executable, "-m", "markergraph.cli", *arguments],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+
+
+def test_the_command_line_maps_two_logs_and_localises_a_third(room_logs, tmp_path) -> None:
+    """`map A B` writes one map with both trajectories; `localize C --map` puts the third
+    robot within 3 cm of its logged truth with honest sigmas; `map C --prior` refines the map."""
+    import json
+
+    one = run_cli("map", str(room_logs[0]), "--out", str(tmp_path / "one"), "--no-plots")
+    both = run_cli("map", str(room_logs[0]), str(room_logs[1]), "--out", str(tmp_path / "both"),
+                   "--no-plots")  # fmt: skip
+    assert one.returncode == 0 and both.returncode == 0, both.stderr
+    report = json.loads((tmp_path / "both" / "report.json").read_text())
+    assert [s["placed"] for s in report["sessions"]] == [True, True]
+    assert sorted(p.name for p in (tmp_path / "both" / "sessions").iterdir()) == [
+        "1-room1.tum", "2-room2.tum",
+    ]  # fmt: skip
+    alone = json.loads((tmp_path / "one" / "report.json").read_text())["methods"]["slam"]
+    merged = report["methods"]["slam"]
+    assert merged["marker_rmse_m"] <= alone["marker_rmse_m"] + 0.002
+    located = run_cli("localize", str(room_logs[2]), "--map", str(tmp_path / "both" / "map.json"),
+                      "--out", str(tmp_path / "loc"))  # fmt: skip
+    assert located.returncode == 0, located.stderr
+    document = json.loads((tmp_path / "loc" / "localization.json").read_text())
+    assert document["moved"] == [] and document["new"] == []
+    assert document["ate_m"] < 0.03
+    sigmas = [np.sqrt(p["covariance"][0][0] + p["covariance"][1][1]) for p in document["poses"]]
+    assert 0.2 < document["ate_m"] / float(np.median(sigmas)) < 5.0
+    refined = run_cli("map", str(room_logs[2]), "--prior", str(tmp_path / "both" / "map.json"),
+                      "--out", str(tmp_path / "refined"), "--no-plots")  # fmt: skip
+    assert refined.returncode == 0, refined.stderr
+    after = json.loads((tmp_path / "refined" / "map.json").read_text())["markers"]
+    before = json.loads((tmp_path / "both" / "map.json").read_text())["markers"]
+    trace = {m["id"]: np.trace(np.array(m["covariance"])[:2, :2]) for m in before}
+    assert all(np.trace(np.array(m["covariance"])[:2, :2]) <= trace[m["id"]] + 1e-12
+               for m in after if m["id"] in trace)  # fmt: skip
+
+
+def test_several_logs_refuse_methods_that_take_one(room_logs, tmp_path) -> None:
+    run = run_cli("map", str(room_logs[0]), str(room_logs[1]), "--method", "ekf",
+                  "--out", str(tmp_path / "x"))  # fmt: skip
+    assert run.returncode == 1 and "slam only" in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "x").exists()

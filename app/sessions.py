@@ -1,0 +1,308 @@
+"""Many logs of one place: one map from several sessions (optionally refining a saved map), and
+a log localised against a saved map with moved and new markers reported.
+
+The front end of each log runs where :func:`~markergraph.executors.extract_logs` puts it (local
+processes or Ray); the estimation runs here, on the caller.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gtsam
+import numpy as np
+
+from markergraph.estimator import (
+    Estimate,
+    Method,
+    SettingsError,
+    Trajectory,
+    marker_heights,
+    trajectory_error,
+)
+from markergraph.estimator.sessions import (
+    Localization,
+    MapPrior,
+    SessionsEstimate,
+    localize,
+    solve_sessions,
+)
+from markergraph.executors import extract_logs
+from markergraph.frontend import Extraction
+from markergraph.markermap import MarkerMap
+from markergraph.run import MapRun, MethodResult, _score, prepare
+from markergraph.settings import MapConfig
+
+__all__ = ["LocalizationRun", "Session", "localize_log", "map_logs", "priors_of"]
+
+# A saved map without covariances (the closed form's) still needs its markers held: this firmly.
+DEFAULT_PRIOR_SIGMAS = np.array([0.01, 0.01, math.radians(1.0)])
+
+
+@dataclass(frozen=True)
+class Session:
+    """One log of a several-log map: where its robot went in the map (None: it shares no
+    marker with the map, and is mapped on its own in ``MapRun.separate``)."""
+
+    log: Path
+    extraction: Extraction
+    trajectory: Trajectory | None
+
+
+def priors_of(saved: MarkerMap, notes: list[str]) -> dict[int, MapPrior]:
+    """A saved map's markers as priors at their covariances."""
+    default = np.diag(DEFAULT_PRIOR_SIGMAS**2)
+    bare = [m.marker_id for m in saved.markers.values() if m.covariance is None]
+    if bare:
+        notes.append(
+            f"the saved map has no covariance for marker(s) {', '.join(map(str, bare))}: held "
+            "at 1 cm and 1 deg"
+        )
+    return {
+        m.marker_id: MapPrior(m.T_map_marker, default if m.covariance is None else m.covariance)
+        for m in saved.markers.values()
+    }
+
+
+def _as_estimate(solved: SessionsEstimate, home_id: int, trajectory: Trajectory) -> Estimate:
+    return Estimate(
+        method=Method.SLAM, home_id=home_id, markers=solved.markers, trajectory=trajectory,
+        residuals=solved.residuals, notes=solved.notes, graph=solved.graph, values=solved.values,
+    )  # fmt: skip
+
+
+def map_logs(
+    logs: Sequence[Path],
+    config: MapConfig | None = None,
+    *,
+    prior: MarkerMap | None = None,
+    executor: str = "local",
+    address: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    stage: Callable[[str], None] | None = None,
+) -> MapRun:
+    """One map from several logs of one place, or one log refining a saved map (``prior``).
+
+    Each log keeps its own odometry chain; markers seen in several logs tie them together; the
+    home marker is the first log's unless the settings name one (with a prior, the saved
+    map's frame stays). A log sharing no marker with the rest is mapped on its own, in
+    ``MapRun.separate``. Only SLAM takes several logs: the closed form and the EKF follow one
+    robot through one log, and iSAM2 and the marker graph are not yet written for several.
+
+    Raises:
+        SettingsError: a method other than slam.
+        MarkerGraphError: a log without markers or odometry (naming it).
+    """
+    config = config or MapConfig.from_values()
+    stage = stage or (lambda name: None)
+    if config.methods != (Method.SLAM,):
+        raise SettingsError(
+            "several logs (or --prior) are mapped by slam only: the closed form and the EKF "
+            "follow one log, and isam2 and the marker graph take one log for now"
+        )
+    seconds: dict[str, float] = {}
+    start = time.perf_counter()
+    stage(f"reading {len(logs)} logs ({executor})")
+    extractions = extract_logs(
+        logs, config.frontend, executor=executor, address=address, workers=config.workers,
+        progress=progress,
+    )  # fmt: skip
+    seconds["front end"] = time.perf_counter() - start
+    prepared = []
+    for i, (log, extraction) in enumerate(zip(logs, extractions, strict=True)):
+        home = "config" if i == 0 and prior is None else None
+        prepared.append(prepare(log, extraction, config, stage, home_id=home))
+    notes: list[str] = []
+    priors = priors_of(prior, notes) if prior is not None else None
+    frames = [p[1] for p in prepared]
+    mounts = [e.mount.T_base_camera for e in extractions]
+    stage("estimating: slam over every log")
+    start = time.perf_counter()
+    solved = solve_sessions(frames, mounts, robust=config.robust, priors=priors,
+                            home_id=config.home_id)  # fmt: skip
+    home_id = prior.home_id if prior is not None else (config.home_id or frames[0].home_id)
+    separate = _separate(solved.apart, logs, frames, mounts, config)
+    seconds[Method.SLAM.value] = time.perf_counter() - start
+    first = next(i for i, t in enumerate(solved.trajectories) if t is not None)
+    trajectory = solved.trajectories[first]
+    assert trajectory is not None
+    estimate = _as_estimate(solved, home_id, trajectory)
+    estimate.notes = notes + estimate.notes
+    frontend = config.frontend
+    marker_map = MarkerMap.from_estimate(
+        estimate, log=", ".join(map(str, logs)), dictionary=frontend.dictionary,
+        marker_size_m=frontend.marker_length_m, marker_sizes_m=frontend.marker_lengths_m,
+        heights=marker_heights([o for p in prepared for o in p[0]]),
+    )  # fmt: skip
+    result = MethodResult(Method.SLAM, estimate, marker_map)
+    extraction = extractions[first]
+    truth, true_path = _truth_in(extraction, home_id)
+    _score(result, truth, true_path)
+    _, _, delay_ns, source = prepared[first]
+    run = MapRun(Path(logs[first]), config, extraction, frames[first], [result], truth,
+                 true_path, delay_ns, source, seconds)  # fmt: skip
+    run.sessions = [
+        Session(Path(log), extraction, solved.trajectories[i])
+        for i, (log, extraction) in enumerate(zip(logs, extractions, strict=True))
+    ]
+    run.separate = separate
+    return run
+
+
+def _separate(
+    apart: list[int],
+    logs: Sequence[Path],
+    frames: list,
+    mounts: list[gtsam.Pose2],
+    config: MapConfig,
+) -> list[tuple[list[Path], MarkerMap]]:
+    """The maps of sessions that share no marker with the main map, each group on its own."""
+    maps = []
+    while apart:
+        solved = solve_sessions([frames[i] for i in apart], [mounts[i] for i in apart],
+                                robust=config.robust)  # fmt: skip
+        placed = [apart[j] for j, t in enumerate(solved.trajectories) if t is not None]
+        trajectory = next(t for t in solved.trajectories if t is not None)
+        estimate = _as_estimate(solved, frames[placed[0]].home_id, trajectory)
+        group = [Path(logs[i]) for i in placed]
+        maps.append((group, MarkerMap.from_estimate(
+            estimate, log=", ".join(map(str, group)), dictionary=config.frontend.dictionary,
+            marker_size_m=config.frontend.marker_length_m,
+            marker_sizes_m=config.frontend.marker_lengths_m,
+        )))  # fmt: skip
+        apart = [apart[j] for j in solved.apart]
+    return maps
+
+
+def _truth_in(
+    extraction: Extraction, home_id: int
+) -> tuple[dict[int, gtsam.Pose2], Trajectory | None]:
+    """A log's ground truth in the frame of the map's home marker, when it carries both."""
+    if home_id not in extraction.true_markers:
+        return {}, None
+    T_home_world = extraction.true_markers[home_id].inverse()
+    truth = {i: T_home_world.compose(T) for i, T in extraction.true_markers.items()}
+    path = extraction.true_path.in_frame(T_home_world, "map") if len(extraction.true_path) else None
+    return truth, path
+
+
+@dataclass
+class LocalizationRun:
+    """A log localised against a saved map.
+
+    Attributes:
+        log, map_path: the log and the saved map.
+        saved: the saved map.
+        config: the settings.
+        extraction: the front end's output.
+        localization: trajectory, pose covariances, moved and new markers.
+        ate_m: the trajectory's RMS error against the logged truth, if any [m].
+        true_path: the logged truth at the trajectory's stamps, in the map frame.
+        notes: what a person should read.
+    """
+
+    log: Path
+    map_path: Path
+    saved: MarkerMap
+    config: MapConfig
+    extraction: Extraction
+    localization: Localization
+    ate_m: float | None
+    true_path: Trajectory | None
+    notes: list[str]
+
+    def document(self) -> dict[str, Any]:
+        """``localization.json``: every pose with its covariance, the moved and new markers,
+        and how far each map marker was pulled (schema ``markergraph.localization/1``)."""
+        loc = self.localization
+        return {
+            "schema": "markergraph.localization/1",
+            "map": str(self.map_path),
+            "log": str(self.log),
+            "frame": "the saved map's (its home marker's) frame; x, y [m], yaw [rad]",
+            "poses": [
+                {
+                    "t_ns": int(t),
+                    "x": float(p[0]),
+                    "y": float(p[1]),
+                    "yaw": float(p[2]),
+                    "covariance": c.tolist(),
+                }
+                for t, p, c in zip(
+                    loc.trajectory.t_ns, loc.trajectory.poses, loc.pose_covariances, strict=True
+                )
+            ],
+            "moved": [
+                {
+                    "id": m.marker_id,
+                    "displacement_m": m.displacement_m,
+                    "before": _pose(m.T_map_before),
+                    "now": _pose(m.T_map_now),
+                    "pulled_sigmas": m.prior_whitened,
+                }
+                for m in loc.moved
+            ],
+            "new": [{"id": i, **_pose(m.T_map_marker)} for i, m in sorted(loc.new.items())],
+            "pulled_sigmas": {str(i): v for i, v in sorted(loc.checked.items())},
+            "ate_m": self.ate_m,
+            "notes": self.notes,
+        }
+
+
+def _pose(T: gtsam.Pose2) -> dict[str, float]:
+    return {"x": T.x(), "y": T.y(), "yaw": T.theta()}
+
+
+def localize_log(
+    log: Path,
+    saved: MarkerMap,
+    map_path: Path,
+    config: MapConfig | None = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+    stage: Callable[[str], None] | None = None,
+) -> LocalizationRun:
+    """A log's robot trajectory in a saved map (:func:`~markergraph.estimator.sessions.localize`).
+
+    Raises:
+        MarkerGraphError: the log cannot be read, has no markers or odometry, or sees no
+            marker of the map.
+    """
+    config = config or MapConfig.from_values()
+    stage = stage or (lambda name: None)
+    stage(f"reading {Path(log).name}")
+    (extraction,) = extract_logs([log], config.frontend, workers=config.workers,
+                                 progress=progress)  # fmt: skip
+    _, frames, _, _ = prepare(log, extraction, config, stage, home_id=None)
+    notes = list(extraction.notes)
+    priors = priors_of(saved, notes)
+    stage("localising against the saved map")
+    localization = localize(frames, extraction.mount.T_base_camera, priors, robust=config.robust)
+    for m in localization.moved:
+        notes.append(
+            f"marker {m.marker_id} moved {100 * m.displacement_m:.1f} cm since the map was made "
+            f"(pulled {m.prior_whitened:.1f} sigmas): left out of the localisation"
+        )
+    if localization.new:
+        notes.append(
+            f"marker(s) {', '.join(map(str, sorted(localization.new)))} are not in the map: "
+            "placed by this log (see localization.json)"
+        )
+    ate_m, true_path = None, None
+    _, path = _truth_in(extraction, saved.home_id)
+    if path is not None:
+        true_path = path.at_stamps(localization.trajectory.t_ns)
+        covered = np.isin(localization.trajectory.t_ns, true_path.t_ns)
+        if len(true_path) >= 2:
+            ate_m = trajectory_error(
+                localization.trajectory.poses[covered], true_path.poses
+            ).ate_rmse_m
+    return LocalizationRun(
+        Path(log), Path(map_path), saved, config, extraction, localization, ate_m, true_path,
+        notes,
+    )  # fmt: skip
