@@ -40,6 +40,7 @@ from markergraph.settings import MapConfig
 
 __all__ = ["LocalizationRun", "Session", "localize_log", "map_logs", "priors_of"]
 
+SESSION_METHODS = (Method.SLAM, Method.ISAM2, Method.MARKER_GRAPH)
 # A saved map without covariances (the closed form's) still needs its markers held: this firmly.
 DEFAULT_PRIOR_SIGMAS = np.array([0.01, 0.01, math.radians(1.0)])
 
@@ -69,9 +70,11 @@ def priors_of(saved: MarkerMap, notes: list[str]) -> dict[int, MapPrior]:
     }
 
 
-def _as_estimate(solved: SessionsEstimate, home_id: int, trajectory: Trajectory) -> Estimate:
+def _as_estimate(
+    solved: SessionsEstimate, method: Method, home_id: int, trajectory: Trajectory
+) -> Estimate:
     return Estimate(
-        method=Method.SLAM, home_id=home_id, markers=solved.markers, trajectory=trajectory,
+        method=method, home_id=home_id, markers=solved.markers, trajectory=trajectory,
         residuals=solved.residuals, notes=solved.notes, graph=solved.graph, values=solved.values,
     )  # fmt: skip
 
@@ -90,20 +93,21 @@ def map_logs(
 
     Each log keeps its own odometry chain; markers seen in several logs tie them together; the
     home marker is the first log's unless the settings name one (with a prior, the saved
-    map's frame stays). A log sharing no marker with the rest is mapped on its own, in
-    ``MapRun.separate``. Only SLAM takes several logs: the closed form and the EKF follow one
-    robot through one log, and iSAM2 and the marker graph are not yet written for several.
+    map's frame stays). A log sharing no marker with the rest is mapped on its own (by SLAM), in
+    ``MapRun.separate``. SLAM, iSAM2 and the marker graph take several logs; the closed form and
+    the EKF follow one robot through one log and are left out (with ``all``, said so).
 
     Raises:
-        SettingsError: a method other than slam.
+        SettingsError: only methods that take one log.
         MarkerGraphError: a log without markers or odometry (naming it).
     """
     config = config or MapConfig.from_values()
     stage = stage or (lambda name: None)
-    if config.methods != (Method.SLAM,):
+    methods = [m for m in config.methods if m in SESSION_METHODS]
+    if not methods:
         raise SettingsError(
-            "several logs (or --prior) are mapped by slam only: the closed form and the EKF "
-            "follow one log, and isam2 and the marker graph take one log for now"
+            f"several logs (or --prior) are mapped by {', '.join(m.value for m in SESSION_METHODS)}"
+            ": the closed form and the EKF follow one robot through one log"
         )
     seconds: dict[str, float] = {}
     start = time.perf_counter()
@@ -118,39 +122,47 @@ def map_logs(
         home = "config" if i == 0 and prior is None else None
         prepared.append(prepare(log, extraction, config, stage, home_id=home))
     notes: list[str] = []
+    if len(methods) < len(config.methods):
+        notes.append("the closed form and the EKF follow one log: left out of a several-log map")
     priors = priors_of(prior, notes) if prior is not None else None
     frames = [p[1] for p in prepared]
     mounts = [e.mount.T_base_camera for e in extractions]
-    stage("estimating: slam over every log")
-    start = time.perf_counter()
-    solved = solve_sessions(frames, mounts, robust=config.robust, priors=priors,
-                            home_id=config.home_id)  # fmt: skip
     home_id = prior.home_id if prior is not None else (config.home_id or frames[0].home_id)
-    separate = _separate(solved.apart, logs, frames, mounts, config)
-    seconds[Method.SLAM.value] = time.perf_counter() - start
-    first = next(i for i, t in enumerate(solved.trajectories) if t is not None)
-    trajectory = solved.trajectories[first]
-    assert trajectory is not None
-    estimate = _as_estimate(solved, home_id, trajectory)
-    estimate.notes = notes + estimate.notes
     frontend = config.frontend
-    marker_map = MarkerMap.from_estimate(
-        estimate, log=", ".join(map(str, logs)), dictionary=frontend.dictionary,
-        marker_size_m=frontend.marker_length_m, marker_sizes_m=frontend.marker_lengths_m,
-        heights=marker_heights([o for p in prepared for o in p[0]]),
-    )  # fmt: skip
-    result = MethodResult(Method.SLAM, estimate, marker_map)
+    heights = marker_heights([o for p in prepared for o in p[0]])
+    results, solutions = [], []
+    for method in methods:
+        stage(f"estimating: {method.value} over every log")
+        start = time.perf_counter()
+        solved = solve_sessions(frames, mounts, robust=config.robust, priors=priors,
+                                home_id=config.home_id, method=method)  # fmt: skip
+        seconds[method.value] = time.perf_counter() - start
+        first = next(i for i, t in enumerate(solved.trajectories) if t is not None)
+        trajectory = solved.trajectories[first]
+        assert trajectory is not None
+        estimate = _as_estimate(solved, method, home_id, trajectory)
+        estimate.notes = notes + estimate.notes
+        marker_map = MarkerMap.from_estimate(
+            estimate, log=", ".join(map(str, logs)), dictionary=frontend.dictionary,
+            marker_size_m=frontend.marker_length_m, marker_sizes_m=frontend.marker_lengths_m,
+            heights=heights,
+        )  # fmt: skip
+        results.append(MethodResult(method, estimate, marker_map))
+        solutions.append(solved)
+    solved = solutions[0]
+    first = next(i for i, t in enumerate(solved.trajectories) if t is not None)
     extraction = extractions[first]
     truth, true_path = _truth_in(extraction, home_id)
-    _score(result, truth, true_path)
+    for result in results:
+        _score(result, truth, true_path)
     _, _, delay_ns, source = prepared[first]
-    run = MapRun(Path(logs[first]), config, extraction, frames[first], [result], truth,
+    run = MapRun(Path(logs[first]), config, extraction, frames[first], results, truth,
                  true_path, delay_ns, source, seconds)  # fmt: skip
     run.sessions = [
         Session(Path(log), extraction, solved.trajectories[i])
         for i, (log, extraction) in enumerate(zip(logs, extractions, strict=True))
     ]
-    run.separate = separate
+    run.separate = _separate(solved.apart, logs, frames, mounts, config)
     return run
 
 
@@ -168,7 +180,7 @@ def _separate(
                                 robust=config.robust)  # fmt: skip
         placed = [apart[j] for j, t in enumerate(solved.trajectories) if t is not None]
         trajectory = next(t for t in solved.trajectories if t is not None)
-        estimate = _as_estimate(solved, frames[placed[0]].home_id, trajectory)
+        estimate = _as_estimate(solved, Method.SLAM, frames[placed[0]].home_id, trajectory)
         group = [Path(logs[i]) for i in placed]
         maps.append((group, MarkerMap.from_estimate(
             estimate, log=", ".join(map(str, group)), dictionary=config.frontend.dictionary,

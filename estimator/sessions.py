@@ -33,12 +33,14 @@ from markergraph.estimator.graph import (
     observation_measurement,
     read_residuals,
 )
-from markergraph.estimator.slam import _lm_params
+from markergraph.estimator.links import measure_links
+from markergraph.estimator.slam import _lm_params, _localise_on_markers
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     EstimationError,
     FactorResidual,
     MarkerEstimate,
+    Method,
 )
 
 __all__ = [
@@ -109,6 +111,49 @@ def _anchor(
     return None
 
 
+def _add_links(
+    builder: GraphBuilder, frames: Frames, T_base_camera: gtsam.Pose2, T_map_odom: gtsam.Pose2
+) -> list:
+    """A session's measured E_ab as factors; markers new to the map start where the session's
+    odometry, anchored by ``T_map_odom``, first sees them."""
+    links = measure_links(frames, T_base_camera)
+    for link in links:
+        builder.add_link(link.marker_a, link.marker_b, link.T_a_b, link.covariance)
+    for frame in frames.frames:
+        T_map_base = T_map_odom.compose(frame.T_odom_base)
+        for obs in frame.observations:
+            if not builder.values.exists(L(obs.marker_id)):
+                T_base_marker, _ = observation_measurement(obs, T_base_camera)
+                builder.set_initial(obs.marker_id, T_map_base.compose(T_base_marker))
+    return links
+
+
+def _isam2() -> gtsam.ISAM2:
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(0.01)
+    params.relinearizeSkip = 1
+    params.setFactorization("QR")  # as IncrementalSlam: Cholesky fails on in-place turns
+    return gtsam.ISAM2(params)
+
+
+def _update(isam: gtsam.ISAM2, builder: GraphBuilder) -> None:
+    graph, values = builder.take_new()
+    if graph.size() or values.size():
+        isam.update(graph, values)
+
+
+def _isam2_to_rest(isam: gtsam.ISAM2, builder: GraphBuilder) -> gtsam.Values:
+    """iSAM2's estimate after full relinearisations, then a batch pass from it (as
+    :func:`~markergraph.estimator.slam.solve_isam2` ends) so robust weights settle."""
+    params = gtsam.ISAM2UpdateParams()
+    params.force_relinearize = True
+    params.forceFullSolve = True
+    for _ in range(5):
+        isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), params)
+    start = isam.calculateEstimate()
+    return gtsam.LevenbergMarquardtOptimizer(builder.graph, start, _lm_params()).optimize()
+
+
 def solve_sessions(
     sessions: Sequence[Frames],
     T_base_cameras: Sequence[gtsam.Pose2],
@@ -117,8 +162,12 @@ def solve_sessions(
     priors: Mapping[int, MapPrior] | None = None,
     home_id: int | None = None,
     pose_covariances: bool = False,
+    method: Method = Method.SLAM,
 ) -> SessionsEstimate:
-    """Batch SLAM over several sessions (logs) of one place.
+    """SLAM over several sessions (logs) of one place: batch (``Method.SLAM``), one iSAM2
+    update per frame, session after session (``Method.ISAM2``), or the paper's marker graph
+    from every session's measured links (``Method.MARKER_GRAPH``, robots localised on their
+    nearest marker).
 
     Args:
         sessions: each log's frames (``build_frames``), in the order given by the user.
@@ -142,6 +191,8 @@ def solve_sessions(
         known[home] = gtsam.Pose2()
     offsets = np.concatenate([[0], np.cumsum([len(s.frames) for s in sessions])]).astype(int)
     pending, placed = list(range(len(sessions))), []
+    links = []
+    isam = _isam2() if method is Method.ISAM2 else None
     progress = True
     while pending and progress:
         progress = False
@@ -150,8 +201,13 @@ def solve_sessions(
             if T_map_odom is None:
                 continue
             builder.T_base_camera = T_base_cameras[s]
-            for k in range(len(sessions[s].frames)):
-                builder.add_frame(sessions[s], k, T_map_odom, int(offsets[s]))
+            if method is Method.MARKER_GRAPH:
+                links += _add_links(builder, sessions[s], T_base_cameras[s], T_map_odom)
+            else:
+                for k in range(len(sessions[s].frames)):
+                    builder.add_frame(sessions[s], k, T_map_odom, int(offsets[s]))
+                    if isam is not None:
+                        _update(isam, builder)
             for marker_id in sessions[s].marker_ids():
                 known.setdefault(marker_id, builder.values.atPose2(L(marker_id)))
             pending.remove(s)
@@ -161,9 +217,15 @@ def solve_sessions(
         raise EstimationError(
             "no session sees a marker of the map (or the home marker): nothing to place"
         )
-    optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, builder.values, _lm_params())
     try:
-        values = optimizer.optimize()
+        if isam is not None:
+            _update(isam, builder)
+            values = _isam2_to_rest(isam, builder)
+        else:
+            optimizer = gtsam.LevenbergMarquardtOptimizer(
+                builder.graph, builder.values, _lm_params()
+            )
+            values = optimizer.optimize()
         marginals = gtsam.Marginals(builder.graph, values)
     except RuntimeError as error:
         raise EstimationError(
@@ -182,6 +244,11 @@ def solve_sessions(
     trajectories: list[Trajectory | None] = [None] * len(sessions)
     covariances: list[NDArray[np.float64] | None] = [None] * len(sessions)
     for s in placed:
+        if method is Method.MARKER_GRAPH:  # no robot poses: each frame on its nearest marker
+            trajectories[s] = _localise_on_markers(
+                sessions[s], values, set(markers), T_base_cameras[s]
+            )
+            continue
         keys = [X(int(offsets[s]) + k) for k in range(len(sessions[s].frames))]
         poses = [values.atPose2(key) for key in keys]
         trajectories[s] = Trajectory(

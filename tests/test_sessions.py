@@ -40,17 +40,26 @@ def ate(localization, run) -> float:
     return float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
 
 
-def test_two_sessions_merged_map_at_least_as_well_as_either(office) -> None:
+@pytest.mark.parametrize("method", [Method.SLAM, Method.ISAM2, Method.MARKER_GRAPH])
+def test_two_sessions_merged_map_at_least_as_well_as_either(office, method) -> None:
+    """Office, 120 s each, when written: SLAM and iSAM2 9.3 / 9.9 cm alone, 1.2 cm merged; the
+    marker graph 104 / 82 cm alone, 31 cm merged."""
     world, _, runs, merged, _ = office
     truth = world.T_map_markers()
     alone = [
-        map_error(estimate_frames(frames_of(r, 0), Method.SLAM, r.mount.T_base_camera), truth)
+        map_error(estimate_frames(frames_of(r, 0), method, r.mount.T_base_camera), truth)
         for r in runs
     ]
+    if method is not Method.SLAM:
+        merged = solve_sessions(
+            [frames_of(runs[0], 0), frames_of(runs[1])], [runs[0].mount.T_base_camera] * 2,
+            method=method,
+        )  # fmt: skip
     both = map_error(merged, truth)
     assert merged.apart == [] and all(t is not None for t in merged.trajectories)
     assert both.rmse_position_m <= min(e.rmse_position_m for e in alone)
-    assert both.rmse_position_m < 0.03  # 1.2 cm when written; each alone 9-10 cm
+    if method is not Method.MARKER_GRAPH:
+        assert both.rmse_position_m < 0.03
 
 
 def test_a_third_log_localises_within_3_cm_and_nothing_is_called_moved(office) -> None:
@@ -162,5 +171,5 @@ def test_the_command_line_maps_two_logs_and_localises_a_third(room_logs, tmp_pat
 def test_several_logs_refuse_methods_that_take_one(room_logs, tmp_path) -> None:
     run = run_cli("map", str(room_logs[0]), str(room_logs[1]), "--method", "ekf",
                   "--out", str(tmp_path / "x"))  # fmt: skip
-    assert run.returncode == 1 and "slam only" in run.stderr
+    assert run.returncode == 1 and "the closed form and the EKF follow one robot" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "x").exists()
