@@ -164,14 +164,16 @@ def test_stamps_drops_jitter_and_tf_tree(realistic_log) -> None:
 def test_remedies_find_the_delay_and_the_depth_scale(realistic_log) -> None:
     """Chosen by SLAM's residuals, the camera's delay comes out near 35 ms once the shutter's
     row delay is modelled (and near 0 on the ideal log); the depth's scale, measured against
-    the markers' size, near 1.012 (and 1), and applied only when asked."""
+    the markers' size, near 1.012 (and 1), and applied by default only beyond 1 %."""
     for log, delay_ms, scale in zip(realistic_log, (0.0, 35.0), (1.0, 1.012), strict=True):
         run = mg.map_log(
             log, mg.MapConfig.from_values({"camera.readout_ms": 25.0 * bool(delay_ms)})
         )
         assert run.camera_delay_ns / 1e6 == pytest.approx(delay_ms, abs=6.0)
-        assert run.extraction.measured_depth_scale == pytest.approx(scale, abs=0.008)
-        assert run.extraction.depth_scale == 1.0  # measured and reported, applied only if asked
+        measured = run.extraction.measured_depth_scale
+        assert measured == pytest.approx(scale, abs=0.008)
+        assert run.extraction.depth_scale == (measured if abs(measured - 1) > 0.01 else 1.0)
+        assert (run.extraction.depth_scale != 1.0) == (scale != 1.0)
 
 
 def test_depth_at_an_oblique_marker_with_black_cells_is_its_centres(wall_marker) -> None:
@@ -197,3 +199,37 @@ def test_depth_at_an_oblique_marker_with_black_cells_is_its_centres(wall_marker)
     (unused,) = observe_detections([detection], renderer.camera, model, depth=wrong,
                                    mount=renderer.mount)  # fmt: skip
     assert Flags.NO_DEPTH in unused.flags
+
+
+def test_depth_calibration_reads_the_scale_and_pnps_lengthening() -> None:
+    """Exact algebra: pairs built as depth / PnP = k (1 - a Z) give back k and -a; PnP ranges
+    are then shortened by a share a * range (never by more than 20 %), depth ranges untouched."""
+    from dataclasses import replace
+
+    from markergraph.estimator import Observation, Trajectory
+    from markergraph.frontend.pipeline import (
+        Extraction,
+        _shorten_pnp_ranges,
+        depth_scale_from_markers,
+    )
+
+    rng = np.random.default_rng(5)
+    k, a = 1.012, 0.005
+    z = rng.uniform(1.0, 5.0, 300)
+    pairs = [(i, float(zi), float(zi / (k * (1 - a * zi)))) for i, zi in enumerate(z)]
+    still = Trajectory(np.array([0, 10**12]), np.zeros((2, 3)))
+    calibration = depth_scale_from_markers(pairs, still)
+    assert calibration.scale == pytest.approx(k, abs=2e-3)
+    assert calibration.pnp_slope == pytest.approx(-a, rel=0.05)
+    seen = Observation(0, 1, 0.0, 0.5, 10.0, 1e-3, 0.1, 0.5, flags=frozenset({Flags.NO_DEPTH}))
+    from markergraph.frontend.camera import CameraMount
+    from markergraph.frontend.topics import TopicChoice
+
+    extraction = Extraction(
+        [seen, replace(seen, flags=frozenset()), replace(seen, range_m=60.0)],
+        still, None, CameraMount(), TopicChoice(None, None, None, None, None),
+    )  # fmt: skip
+    _shorten_pnp_ranges(extraction, -a)
+    shortened, untouched, far = extraction.observations
+    assert shortened.range_m == pytest.approx(10.0 * (1 - 10 * a))
+    assert untouched.range_m == 10.0 and far.range_m == pytest.approx(60.0 * 0.8)
