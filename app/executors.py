@@ -25,7 +25,7 @@ from markergraph.frontend import Extraction, FrontendConfig, extract
 
 # The front end's own worker start (one OpenCV thread, and a watchdog that ends the worker when
 # its parent dies): the same safety for a process per log as for a process per stretch.
-from markergraph.frontend.pipeline import _start_worker, available_cores
+from markergraph.frontend.pipeline import MIN_FRAMES_PER_WORKER, _start_worker, choose_workers
 
 __all__ = ["Executor", "extract_logs"]
 
@@ -47,7 +47,7 @@ def extract_logs(
     *,
     executor: Executor | str = Executor.LOCAL,
     address: str | None = None,
-    workers: int = 1,
+    workers: int | None = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[Extraction]:
     """The front end (:func:`markergraph.frontend.extract`) of each log, one task per log.
@@ -86,21 +86,25 @@ def extract_logs(
         MarkerGraphError: a Ray worker died while reading a log (the message names the log).
     """
     executor = _executor(executor)
-    if workers < 1:
+    if workers is not None and workers < 1:
         raise SettingsError(f"workers must be at least 1, not {workers}")
     paths = [Path(log) for log in logs]
     if not paths:
         return []
     if executor is Executor.RAY:
         return _on_ray(paths, config, address, progress)
-    if workers <= 1 or len(paths) == 1:
+    if len(paths) == 1:  # one log: its own stretches in parallel, where that helps
+        return [extract(paths[0], config, progress=progress, workers=workers)]
+    # A log each: as many processes as logs and idle cores (a log repays a worker's start-up).
+    processes, _ = choose_workers(MIN_FRAMES_PER_WORKER * len(paths), workers)
+    if processes <= 1:
         results = []
         for done, path in enumerate(paths, start=1):
             results.append(extract(path, config))
             if progress is not None:
                 progress(done, len(paths))
         return results
-    return _in_processes(paths, config, min(workers, len(paths), available_cores()), progress)
+    return _in_processes(paths, config, processes, progress)
 
 
 def _executor(value: Executor | str) -> Executor:

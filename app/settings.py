@@ -83,6 +83,14 @@ def _count(value: Any) -> int:
     return value
 
 
+def _count_or_auto(value: Any) -> int | None:
+    if value is None or value == "auto":
+        return None
+    if isinstance(value, str) and value.isdigit():
+        value = int(value)
+    return _count(value)
+
+
 def _marker_id(value: Any) -> int:
     if isinstance(value, str) and value.strip().isdigit():
         value = int(value)
@@ -256,7 +264,9 @@ SETTINGS: tuple[Setting, ...] = (
             choices=[m.value for m in Method] + ["all"]),
     Setting("home", None, _optional_id,
             "the marker whose frame is the map (default: the first seen)"),
-    Setting("workers", 1, _count, "processes that decode and detect"),
+    Setting("workers", None, _count_or_auto,
+            "processes that decode and detect; auto (default): as many as help, one per 1,500 "
+            "frames and idle core"),
     Setting("overlay.map_frame", "map", _frame,
             "overlay.mcap's map frame (rename it where nav2 already publishes map -> odom)"),
     Setting("overlay.odom_frame", "odom", _frame, "overlay.mcap's odometry frame"),
@@ -338,9 +348,9 @@ class MapConfig:
         return cast("int | None", self.values["home"])
 
     @property
-    def workers(self) -> int:
-        """Processes that decode and detect."""
-        return cast(int, self.values["workers"])
+    def workers(self) -> int | None:
+        """Processes that decode and detect (None: as many as help)."""
+        return cast("int | None", self.values["workers"])
 
     def odometry_noise(self, topic: str | None = None) -> tuple[str, OdometryNoise]:
         """The odometry source (``odometry.source``, or guessed from the odometry ``topic``) and
@@ -480,7 +490,7 @@ def config_toml(values: Mapping[str, Any]) -> str:
         if setting.key == "marker_sizes":
             continue  # a table of its own, last
         value = v[setting.key]
-        if value is None and setting.parse is _scale_or_auto:
+        if value is None and setting.parse in (_scale_or_auto, _count_or_auto):
             value = "auto"
         lines.append(f"# {setting.help}")
         lines.append(f"# {name} = ..." if value is None else f"{name} = {_toml_value(value)}")

@@ -67,7 +67,7 @@ FLAGS: dict[str, Flag] = {
     "noise.robust": Flag("--robust", commands=_MAP),
     "method": Flag("--method", commands=("map",)),
     "home": Flag("--home", "ID", type=int, commands=("map",)),
-    "workers": Flag("--workers", "N", type=int, commands=("map", "localize", "detect")),
+    "workers": Flag("--workers", "N|auto", commands=("map", "localize", "detect")),
     "overlay.map_frame": Flag("--map-frame", "FRAME", commands=_MAP),
     "overlay.odom_frame": Flag("--odom-frame", "FRAME", commands=_MAP),
 }

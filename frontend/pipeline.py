@@ -440,6 +440,32 @@ def available_cores() -> int:
     return os.cpu_count() or 1
 
 
+# A worker costs 0.7 s to spawn and import, and a few hundred frames a second repay it: below
+# this many frames each, one process is as fast.
+MIN_FRAMES_PER_WORKER = 1500
+
+
+def choose_workers(frames: int, asked: int | None) -> tuple[int, str | None]:
+    """How many processes to read a log of ``frames`` colour frames with, and a note saying
+    why. A number asked for is used, capped at the cores there are. ``None`` (auto) gives more
+    than one only where each has :data:`MIN_FRAMES_PER_WORKER` frames and a core that is idle
+    now: the 1-minute load average says how many cores other work holds (on a shared 2-core
+    machine two workers ran 0.7x one process while the second core was busy)."""
+    cores = available_cores()
+    if asked is not None:
+        if asked <= cores:
+            return asked, None
+        return cores, f"--workers {asked} capped at the {cores} cores available"
+    held = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
+    idle = max(1, int(cores - held + 0.5))
+    by_length = max(1, frames // MIN_FRAMES_PER_WORKER)
+    chosen = min(cores, idle, by_length)
+    return chosen, (
+        f"workers: {chosen} (auto: {frames} frames, one worker per {MIN_FRAMES_PER_WORKER}; "
+        f"{idle} of {cores} cores idle by the load average {held:.1f})"
+    )
+
+
 def _merge(parts: list[_Part]) -> _Part:
     """Stretches' results joined in log order."""
     first = parts[0].extraction
@@ -692,16 +718,16 @@ def extract(
     path: Path,
     config: FrontendConfig = FrontendConfig(),
     progress: Callable[[int, int], None] | None = None,
-    workers: int = 1,
+    workers: int | None = 1,
 ) -> Extraction:
     """Observations and odometry from a ROS 2 or Foxglove MCAP log (file or rosbag2 folder).
 
     Args:
-        progress: called with (units done, units in all): messages, or stretches with workers.
-        workers: processes (``spawn``ed: forking after OpenCV has run can deadlock), at most
-            the cores available. With more than one, the log is cut into stretches of time that
-            the workers read and process whole, each from its own chunks; the results are
-            joined in log order.
+        progress: called with (colour frames read, frames in all).
+        workers: processes (``spawn``ed: forking after OpenCV has run can deadlock); None: as
+            many as help (:func:`choose_workers`, which also trims a number asked for). With
+            more than one, the log is cut into stretches of time that the workers read and
+            process whole, each from its own chunks; the results are joined in log order.
 
     Raises:
         LogError: the log cannot be read, has no camera, or nothing usable on a topic.
@@ -718,9 +744,9 @@ def extract(
     counts = {t.topic: t.count for t in topics}
     _detector(config)  # a bad dictionary or --ids fails here, before any worker starts
     notes = []
-    if workers > available_cores():
-        notes.append(f"--workers {workers} capped at the {available_cores()} cores available")
-        workers = available_cores()
+    workers, why = choose_workers(counts.get(choice.color or "", 0), workers)
+    if why is not None:
+        notes.append(why)
     if choice.detections:
         part = _from_detections(read_detection_log(path, config, choice, topics), choice)
     elif workers <= 1:

@@ -76,7 +76,7 @@ def test_defaults_are_the_librarys_defaults() -> None:
     assert config.odometry_noise() == ("wheel", OdometryNoise())
     assert config.odometry_noise("/vio_node/odom")[0] == "vio"
     assert config.methods == (Method.SLAM,) and config.robust is Robust.HUBER
-    assert config.home_id is None and config.workers == 1
+    assert config.home_id is None and config.workers is None  # auto: as many as help
 
 
 @pytest.mark.parametrize(("name", "text"), [("robot.toml", TOML), ("robot.yaml", YAML)])

@@ -734,3 +734,19 @@ def test_theta_sigma_from_one_pnp_solve_matches_re_solving() -> None:
         ratios.append(pnp_theta_sigma(pose, camera, 0.2, 0.3) / resolved)
     assert np.all(np.abs(np.array(ratios) - 1.0) < 0.12)
     assert abs(float(np.median(ratios)) - 1.0) < 0.02
+
+
+def test_workers_auto_uses_a_second_process_only_where_it_helps(monkeypatch) -> None:
+    """Auto: one process for a short log or a busy machine, one per 1,500 frames and idle core
+    otherwise; a number asked for is kept, capped at the cores."""
+    from markergraph.frontend import pipeline
+
+    monkeypatch.setattr(pipeline, "available_cores", lambda: 2)
+    monkeypatch.setattr(pipeline.os, "getloadavg", lambda: (0.2, 0.2, 0.2))
+    assert pipeline.choose_workers(9000, None)[0] == 2
+    assert pipeline.choose_workers(2000, None)[0] == 1  # 2,000 frames: one worker's worth
+    monkeypatch.setattr(pipeline.os, "getloadavg", lambda: (1.8, 1.8, 1.8))
+    workers, note = pipeline.choose_workers(9000, None)
+    assert workers == 1 and note is not None and "1 of 2 cores idle" in note
+    assert pipeline.choose_workers(100, 2) == (2, None)
+    assert pipeline.choose_workers(100, 5)[0] == 2
