@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from markergraph.estimator.types import SettingsError
 
-__all__ = ["Detection", "Detector", "DetectorMode", "load_dictionary"]
+__all__ = ["Detection", "Detector", "DetectorMode", "detection_agreement", "load_dictionary"]
 
 
 @dataclass(frozen=True)
@@ -294,3 +294,27 @@ def _merged(windows: Iterable[_Window]) -> list[_Window]:
                     break
         merged.append(box)
     return [(x0, y0, x1, y1) for x0, y0, x1, y1 in merged]
+
+
+SAME_MARKER_PX = 5.0  # a detection of the same id this close to another is the same marker
+
+
+def detection_agreement(
+    reference: list[list[Detection]], found: list[list[Detection]]
+) -> tuple[int, float, NDArray[np.float64]]:
+    """How well ``found`` (frame by frame) reproduces ``reference``: (the reference's
+    detections, the share of them found, the corner distances [px] of those matched)."""
+    matched, distances = 0, []
+    for mine, theirs in zip(reference, found, strict=True):
+        for detection in mine:
+            gaps = [
+                np.linalg.norm(other.corners - detection.corners, axis=1)
+                for other in theirs
+                if other.marker_id == detection.marker_id
+            ]
+            best = min(gaps, key=lambda gap: float(gap.max()), default=None)
+            if best is not None and best.max() < SAME_MARKER_PX:
+                matched += 1
+                distances.extend(best)
+    total = sum(map(len, reference))
+    return total, matched / max(total, 1), np.asarray(distances, dtype=np.float64)

@@ -15,7 +15,7 @@ from markergraph.datasets import scenario
 from markergraph.datasets.sensors import SensorEffects
 from markergraph.datasets.write import write_log
 from markergraph.frontend import FrontendConfig, decode_image, extract, messages
-from markergraph.frontend.detect import Detection, Detector, DetectorMode
+from markergraph.frontend.detect import Detection, Detector, DetectorMode, detection_agreement
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 TUTORIAL = DATA / "opencv-aruco-tutorial" / "modules" / "aruco"
@@ -24,7 +24,6 @@ needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data is not
 COLOUR = "/camera/camera/color/image_raw/compressed"
 MIN_RECALL = 0.99  # issue 15: the fast path keeps at least 99 % of FULL's detections ...
 MAX_MEDIAN_CORNER_PX = 0.05  # ... and adds at most 0.05 px median corner error
-SAME_MARKER_PX = 5.0  # a detection of the same id this close to another is the same marker
 SMALL_SIDE_PX = 20.0  # observe.SMALL_EDGE_PX: the front end's "small" flag
 GRAZING_SIDE_RATIO = 0.5  # shortest side under half the longest: seen at over 60 degrees
 
@@ -44,20 +43,8 @@ def agreement(
 ) -> tuple[int, float, float]:
     """(FULL's detections, the share of them the other found, the median distance [px] between
     matched corners)."""
-    matched, distances = 0, []
-    for mine, theirs in zip(reference, found, strict=True):
-        for detection in mine:
-            gaps = [
-                np.linalg.norm(other.corners - detection.corners, axis=1)
-                for other in theirs
-                if other.marker_id == detection.marker_id
-            ]
-            best = min(gaps, key=lambda gap: float(gap.max()), default=None)
-            if best is not None and best.max() < SAME_MARKER_PX:
-                matched += 1
-                distances.extend(best)
-    total = sum(map(len, reference))
-    return total, matched / total, float(np.median(distances))
+    total, recall, distances = detection_agreement(reference, found)
+    return total, recall, float(np.median(distances))
 
 
 def sides(corners: np.ndarray) -> np.ndarray:

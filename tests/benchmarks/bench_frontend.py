@@ -37,10 +37,9 @@ from numpy.typing import NDArray
 from markergraph.datasets import scenario
 from markergraph.datasets.write import write_log
 from markergraph.frontend import FrontendConfig, extract, messages
-from markergraph.frontend.detect import Detection, Detector, DetectorMode
+from markergraph.frontend.detect import Detection, Detector, DetectorMode, detection_agreement
 
 TOPIC = "/camera/camera/color/image_raw/compressed"
-SAME_MARKER_PX = 5.0  # a fast detection of the same id this close to FULL's is the same marker
 
 
 def grey(jpeg: bytes) -> NDArray[np.uint8]:
@@ -69,21 +68,9 @@ def agreement(
 ) -> tuple[int, float, float, float]:
     """(FULL's detections, the share the fast detector found, median and p95 corner distance
     [px] over the matched corners)."""
-    matched, distances = 0, []
-    for mine, theirs in zip(reference, found, strict=True):
-        for detection in mine:
-            gaps = [
-                np.linalg.norm(other.corners - detection.corners, axis=1)
-                for other in theirs
-                if other.marker_id == detection.marker_id
-            ]
-            best = min(gaps, key=lambda gap: float(gap.max()), default=None)
-            if best is not None and best.max() < SAME_MARKER_PX:
-                matched += 1
-                distances.extend(best)
-    total = sum(map(len, reference))
-    median, p95 = np.percentile(distances, [50, 95]) if distances else (np.nan, np.nan)
-    return total, matched / max(total, 1), float(median), float(p95)
+    total, recall, distances = detection_agreement(reference, found)
+    median, p95 = np.percentile(distances, [50, 95]) if len(distances) else (np.nan, np.nan)
+    return total, recall, float(median), float(p95)
 
 
 def main() -> None:

@@ -19,18 +19,18 @@ from markergraph.datasets import scenario, write_log
 from markergraph.datasets.sensors import D435I_ON_DIFF_DRIVE, SensorEffects
 from markergraph.estimator import map_error
 
-NONE = {"camera.delay_ms": 0.0}
+NONE = {"camera.delay_ms": 0.0, "noise.depth_scale": 1.0}
 REMEDIES = {
     "no remedy": NONE,
     "delay by residuals": {**NONE, "camera.delay_ms": None},
     "depth scale from markers": {**NONE, "noise.depth_scale": "auto"},
+    "defaults (both above)": {},
     "shutter modelled": {**NONE, "camera.readout_ms": 25.0},
     "shutter widened": {**NONE, "camera.readout_ms": 25.0, "camera.shutter": "widen"},
     "blur widened": {**NONE, "camera.exposure_ms": 15.0},
-    "all, shutter modelled": {"camera.readout_ms": 25.0, "camera.exposure_ms": 15.0,
-                              "noise.depth_scale": "auto"},
+    "all, shutter modelled": {"camera.readout_ms": 25.0, "camera.exposure_ms": 15.0},
     "all, shutter widened": {"camera.readout_ms": 25.0, "camera.exposure_ms": 15.0,
-                             "camera.shutter": "widen", "noise.depth_scale": "auto"},
+                             "camera.shutter": "widen"},
 }  # fmt: skip
 
 
@@ -60,7 +60,7 @@ def main() -> None:
     logs: dict[str, tuple[SensorEffects, dict[str, dict[str, object]]]] = {
         "ideal": (
             SensorEffects(),
-            {"default settings": {}, "depth scale from markers": {"noise.depth_scale": "auto"}},
+            {"default settings": {}, "depth taken as it is": {"noise.depth_scale": 1.0}},
         ),
         "D435i preset": (D435I_ON_DIFF_DRIVE, REMEDIES),
     }
