@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -26,14 +27,15 @@ def _marker_of(keys: tuple[str, ...]) -> list[int]:
     return [int(k[1:]) for k in keys if k.startswith("m")]
 
 
-def _stamp(keys: tuple[str, ...], frames: Frames) -> int | None:
+def _stamp(keys: tuple[str, ...], stamps: Sequence[int]) -> int | None:
     """The stamp of the last robot pose a factor touches."""
     poses = [int(k[1:]) for k in keys if k.startswith("x")]
-    return frames.frames[max(poses)].t_ns if poses else None
+    return stamps[max(poses)] if poses else None
 
 
-def diagnostics(estimate: Estimate, frames: Frames) -> dict[str, Any]:
-    """A JSON-ready account of one method's estimate.
+def diagnostics(estimate: Estimate, frames: Frames | Sequence[Frames]) -> dict[str, Any]:
+    """A JSON-ready account of one method's estimate (of one log's frames, or of several
+    sessions' in the order they were given).
 
     Keys: ``markers`` (id -> number of factors, median, 95th percentile and largest whitened
     error, and how many were down-weighted), ``downweighted`` (each observation or link the
@@ -42,6 +44,8 @@ def diagnostics(estimate: Estimate, frames: Frames) -> dict[str, Any]:
     :data:`ODOMETRY_OUTLIER`) and ``unplaced`` (id -> why). A method without factors (the closed
     form) has ``"residuals": "none"``.
     """
+    sessions = [frames] if isinstance(frames, Frames) else list(frames)
+    stamps = [f.t_ns for session in sessions for f in session.frames]
     per_marker: defaultdict[int, list[float]] = defaultdict(list)
     downweighted_per_marker: defaultdict[int, int] = defaultdict(int)
     downweighted, odometry_outliers = [], []
@@ -50,7 +54,7 @@ def diagnostics(estimate: Estimate, frames: Frames) -> dict[str, Any]:
         if r.kind == "odometry":
             if r.whitened_error > ODOMETRY_OUTLIER:
                 odometry_outliers.append(
-                    {"t_ns": _stamp(r.keys, frames), "whitened_error": r.whitened_error}
+                    {"t_ns": _stamp(r.keys, stamps), "whitened_error": r.whitened_error}
                 )
             continue
         if r.kind not in ("observation", "edge"):
@@ -60,7 +64,7 @@ def diagnostics(estimate: Estimate, frames: Frames) -> dict[str, Any]:
             downweighted_per_marker[marker_id] += r.downweighted
         if r.downweighted:
             downweighted.append({
-                "kind": r.kind, "t_ns": _stamp(r.keys, frames), "marker_ids": markers,
+                "kind": r.kind, "t_ns": _stamp(r.keys, stamps), "marker_ids": markers,
                 "whitened_error": r.whitened_error,
             })  # fmt: skip
     result: dict[str, Any] = {

@@ -64,7 +64,9 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
             "unplaced": {str(k): v for k, v in result.estimate.unplaced.items()},
             "converged": result.estimate.converged,
             "notes": result.estimate.notes,
-            "diagnostics": diagnostics(result.estimate, run.frames),
+            "diagnostics": diagnostics(
+                result.estimate, [s.frames for s in run.sessions] or run.frames
+            ),
         }
         if result.map_error is not None:
             entry["marker_rmse_m"] = result.map_error.rmse_position_m

@@ -19,6 +19,7 @@ import numpy as np
 
 from markergraph.estimator import (
     Estimate,
+    Frames,
     Method,
     SettingsError,
     Trajectory,
@@ -52,6 +53,7 @@ class Session:
 
     log: Path
     extraction: Extraction
+    frames: Frames
     trajectory: Trajectory | None
 
 
@@ -159,7 +161,7 @@ def map_logs(
     run = MapRun(Path(logs[first]), config, extraction, frames[first], results, truth,
                  true_path, delay_ns, source, seconds)  # fmt: skip
     run.sessions = [
-        Session(Path(log), extraction, solved.trajectories[i])
+        Session(Path(log), extraction, frames[i], solved.trajectories[i])
         for i, (log, extraction) in enumerate(zip(logs, extractions, strict=True))
     ]
     run.separate = _separate(solved.apart, logs, frames, mounts, config)
