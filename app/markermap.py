@@ -46,6 +46,8 @@ class MapMarker:
         z_m: the height of its centre above the base frame's origin (the floor, for a base
             on it) [m], where known.
         sigma_z_m: the height's standard deviation [m], where known.
+        relative_covariance: ``covariance`` with the map's common rigid motion removed (the
+            marker's uncertainty relative to the map as a whole), or None.
     """
 
     marker_id: int
@@ -55,6 +57,7 @@ class MapMarker:
     size_m: float
     z_m: float | None = None
     sigma_z_m: float | None = None
+    relative_covariance: NDArray[np.float64] | None = None
 
     def position_ellipse(self, n_sigma: float = 2.0) -> tuple[NDArray[np.float64], float] | None:
         """The ``n_sigma`` position ellipse in the map frame: (diameters (major, minor) [m],
@@ -144,6 +147,7 @@ class MarkerMap:
                 sides.get(i, marker_size_m),
                 None if height is None else height.z_m,
                 None if height is None else height.sigma_m,
+                m.relative_covariance,
             )
         links = []
         for link in estimate.links:
@@ -215,6 +219,8 @@ class MarkerMap:
                 entry["z"] = m.z_m
             if m.sigma_z_m is not None:
                 entry["sigma_z"] = m.sigma_z_m
+            if m.relative_covariance is not None:
+                entry["relative_covariance"] = _matrix(m.relative_covariance)
             markers.append(entry)
         links = [
             {
@@ -273,6 +279,9 @@ class MarkerMap:
                 None
                 if "sigma_z" not in entry
                 else read.number(f"{where}.sigma_z", entry["sigma_z"], positive=True),
+                None
+                if "relative_covariance" not in entry
+                else read.covariance(f"{where}.relative_covariance", entry["relative_covariance"]),
             )
         links = []
         for i, entry in enumerate(read.items("links", document.get("links", []))):

@@ -58,7 +58,9 @@ class Session:
 
 
 def priors_of(saved: MarkerMap, notes: list[str]) -> dict[int, MapPrior]:
-    """A saved map's markers as priors at their covariances."""
+    """A saved map's markers as priors, at their covariances relative to the map as a whole
+    (their marginals in the home marker's frame would carry the home's own uncertainty on every
+    marker, and independent priors that wide hold nothing)."""
     default = np.diag(DEFAULT_PRIOR_SIGMAS**2)
     bare = [m.marker_id for m in saved.markers.values() if m.covariance is None]
     if bare:
@@ -66,10 +68,12 @@ def priors_of(saved: MarkerMap, notes: list[str]) -> dict[int, MapPrior]:
             f"the saved map has no covariance for marker(s) {', '.join(map(str, bare))}: held "
             "at 1 cm and 1 deg"
         )
-    return {
-        m.marker_id: MapPrior(m.T_map_marker, default if m.covariance is None else m.covariance)
-        for m in saved.markers.values()
-    }
+    priors = {}
+    for m in saved.markers.values():
+        covariance = m.relative_covariance if m.relative_covariance is not None else m.covariance
+        held = default if covariance is None else covariance
+        priors[m.marker_id] = MapPrior(m.T_map_marker, held)
+    return priors
 
 
 def _as_estimate(

@@ -17,7 +17,7 @@ from its prior and placed anew, so it cannot pull the trajectory.
 from __future__ import annotations
 
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -34,7 +34,7 @@ from markergraph.estimator.graph import (
     read_residuals,
 )
 from markergraph.estimator.links import measure_links
-from markergraph.estimator.slam import _lm_params, _localise_on_markers
+from markergraph.estimator.slam import _lm_params, _localise_on_markers, marker_estimates
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     EstimationError,
@@ -236,11 +236,9 @@ def solve_sessions(
         for frame in sessions[s].frames:
             for obs in frame.observations:
                 counts[obs.marker_id] += 1
-    markers = {
-        i: MarkerEstimate(i, values.atPose2(L(i)), np.array(marginals.marginalCovariance(L(i))),
-                          counts[i])
-        for i in sorted(known) if values.exists(L(i))
-    }  # fmt: skip
+    markers = marker_estimates(
+        values, [i for i in sorted(known) if values.exists(L(i))], Counter(counts), marginals
+    )
     trajectories: list[Trajectory | None] = [None] * len(sessions)
     covariances: list[NDArray[np.float64] | None] = [None] * len(sessions)
     for s in placed:

@@ -10,6 +10,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from markergraph.estimator.frames import Frames
+from markergraph.estimator.gauge import relative_covariances
 from markergraph.estimator.graph import (
     GraphBuilder,
     Robust,
@@ -48,25 +49,25 @@ def _T_map_odom(frames: Frames, T_base_camera: gtsam.Pose2) -> gtsam.Pose2:
     return T_base_home.inverse().compose(frame.T_odom_base.inverse())
 
 
-def _marker_estimates(
+def marker_estimates(
     values: gtsam.Values,
     marker_ids: list[int],
     counts: Counter[int],
     marginals: gtsam.Marginals | None,
 ) -> dict[int, MarkerEstimate]:
-    joint = None
-    if marginals is not None:
-        keys = gtsam.KeyVector([L(i) for i in marker_ids])
-        joint = marginals.jointMarginalCovariance(keys)
+    poses = [values.atPose2(L(i)) for i in marker_ids]
+    if marginals is None:
+        return {
+            i: MarkerEstimate(i, T, None, counts[i]) for i, T in zip(marker_ids, poses, strict=True)
+        }
+    keys = gtsam.KeyVector([L(i) for i in marker_ids])
+    joint = marginals.jointMarginalCovariance(keys).fullMatrix()
+    relative = relative_covariances(poses, joint)
     return {
-        i: MarkerEstimate(
-            i,
-            values.atPose2(L(i)),
-            None if joint is None else np.array(joint.at(L(i), L(i))),
-            counts[i],
-        )
-        for i in marker_ids
-    }
+        i: MarkerEstimate(i, T, joint[3 * k : 3 * k + 3, 3 * k : 3 * k + 3].copy(), counts[i],
+                          relative[k])
+        for k, (i, T) in enumerate(zip(marker_ids, poses, strict=True))
+    }  # fmt: skip
 
 
 def _marginals(
@@ -168,7 +169,7 @@ def _solved_estimate(
     estimate = Estimate(
         method=method,
         home_id=frames.home_id,
-        markers=_marker_estimates(result, marker_ids, _observation_counts(frames), marginals),
+        markers=marker_estimates(result, marker_ids, _observation_counts(frames), marginals),
         trajectory=trajectory,
         residuals=read_residuals(graph, result, builder.kinds),
         links=links,

@@ -203,12 +203,16 @@ class MarkerEstimate:
         covariance: 3x3 over (x, y, yaw) in the marker's own tangent space, or None where the
             method has none.
         n_observations: how many observations of it were used.
+        relative_covariance: the same with the map's common rigid motion removed (its
+            uncertainty relative to the map as a whole: :mod:`~markergraph.estimator.gauge`),
+            or None.
     """
 
     marker_id: int
     T_map_marker: gtsam.Pose2
     covariance: NDArray[np.float64] | None
     n_observations: int
+    relative_covariance: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True, slots=True)

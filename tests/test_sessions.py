@@ -28,7 +28,7 @@ def office():
     merged = solve_sessions(
         [frames_of(runs[0], 0), frames_of(runs[1])], [runs[0].mount.T_base_camera] * 2
     )
-    saved = {i: MapPrior(m.T_map_marker, m.covariance) for i, m in merged.markers.items()}
+    saved = {i: MapPrior(m.T_map_marker, m.relative_covariance) for i, m in merged.markers.items()}
     return world, route, runs, merged, saved
 
 
@@ -163,8 +163,10 @@ def test_the_command_line_maps_two_logs_and_localises_a_third(room_logs, tmp_pat
     assert refined.returncode == 0, refined.stderr
     after = json.loads((tmp_path / "refined" / "map.json").read_text())["markers"]
     before = json.loads((tmp_path / "both" / "map.json").read_text())["markers"]
-    trace = {m["id"]: np.trace(np.array(m["covariance"])[:2, :2]) for m in before}
-    assert all(np.trace(np.array(m["covariance"])[:2, :2]) <= trace[m["id"]] + 1e-12
+    # Relative to the map as a whole (the home marker's own uncertainty taken out), a new log
+    # only adds information.
+    trace = {m["id"]: np.trace(np.array(m["relative_covariance"])[:2, :2]) for m in before}
+    assert all(np.trace(np.array(m["relative_covariance"])[:2, :2]) <= trace[m["id"]] + 1e-8
                for m in after if m["id"] in trace)  # fmt: skip
 
 
@@ -173,3 +175,25 @@ def test_several_logs_refuse_methods_that_take_one(room_logs, tmp_path) -> None:
                   "--out", str(tmp_path / "x"))  # fmt: skip
     assert run.returncode == 1 and "the closed form and the EKF follow one robot" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "x").exists()
+
+
+def test_relative_covariances_remove_the_maps_common_rigid_motion() -> None:
+    """Exact algebra: a joint covariance made of one rigid motion shared by every marker plus
+    independent noise comes back as the noise alone (projected), never the shared motion."""
+    import gtsam
+
+    from markergraph.estimator.gauge import MIN_VARIANCE, relative_covariances
+
+    rng = np.random.default_rng(2)
+    poses = [gtsam.Pose2(*rng.uniform(-5, 5, 2), rng.uniform(-3, 3)) for _ in range(6)]
+    G = np.vstack([T.inverse().AdjointMap() for T in poses])
+    common = G @ np.diag([0.5, 0.5, 0.3]) ** 2 @ G.T  # the home marker's frame, metres off
+    noise = np.diag(np.tile([0.01, 0.02, 0.005], 6) ** 2)
+    shared_only = relative_covariances(poses, common)
+    assert all(np.allclose(c, MIN_VARIANCE * np.eye(3), atol=1e-9) for c in shared_only)
+    both = relative_covariances(poses, common + noise)
+    P = np.eye(18) - G @ np.linalg.solve(G.T @ G, G.T)
+    expected = P @ noise @ P.T
+    for k, c in enumerate(both):
+        np.testing.assert_allclose(c, expected[3 * k : 3 * k + 3, 3 * k : 3 * k + 3], atol=1e-9)
+        assert np.trace(c) < 0.01 * np.trace(common[3 * k : 3 * k + 3, 3 * k : 3 * k + 3])
