@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import gtsam
 import numpy as np
@@ -125,7 +125,7 @@ def map_logs(
     seconds["front end"] = time.perf_counter() - start
     prepared = []
     for i, (log, extraction) in enumerate(zip(logs, extractions, strict=True)):
-        home = "config" if i == 0 and prior is None else None
+        home: Literal["config"] | None = "config" if i == 0 and prior is None else None
         prepared.append(prepare(log, extraction, config, stage, home_id=home))
     notes: list[str] = []
     if len(methods) < len(config.methods):

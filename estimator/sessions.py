@@ -367,7 +367,9 @@ def localize(
     for i in suspects:
         # The map's pose against this log's, each with its own covariance: chi-square, 3 dof.
         difference = saved[i].T_map_marker.localCoordinates(freed.markers[i].T_map_marker)
-        covariance = saved[i].covariance + freed.markers[i].covariance
+        fresh = freed.markers[i].covariance
+        assert fresh is not None  # solve_sessions always computes marginals
+        covariance = saved[i].covariance + fresh
         if float(difference @ np.linalg.solve(covariance, difference)) > MOVED_CHI2:
             moved_ids.append(i)
     if not moved_ids:

@@ -460,9 +460,10 @@ def choose_workers(frames: int, asked: int | None) -> tuple[int, str | None]:
     idle = max(1, int(cores - held + 0.5))
     by_length = max(1, frames // MIN_FRAMES_PER_WORKER)
     chosen = min(cores, idle, by_length)
+    idle_words = f"{idle} of {cores} cores idle" if held < cores - 0.5 else "no core idle"
     return chosen, (
         f"workers: {chosen} (auto: {frames} frames, one worker per {MIN_FRAMES_PER_WORKER}; "
-        f"{idle} of {cores} cores idle by the load average {held:.1f})"
+        f"{idle_words} by the load average {held:.1f})"
     )
 
 

@@ -145,6 +145,10 @@ def _marker_object_points(marker_length_m: float) -> NDArray[np.float64]:
     )
 
 
+def _rotation(rvec: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.asarray(cv2.Rodrigues(rvec)[0], dtype=np.float64)
+
+
 def pnp_theta_sigma(
     pose: tuple[NDArray[np.float64], NDArray[np.float64]],
     camera: Camera,
@@ -166,8 +170,8 @@ def pnp_theta_sigma(
     for k in range(6):  # theta is cheap to evaluate: central differences in the pose
         step = np.zeros(6)
         step[k] = 1e-6
-        ahead = pnp_theta((cv2.Rodrigues(params[:3] + step[:3])[0], params[3:] + step[3:]))
-        behind = pnp_theta((cv2.Rodrigues(params[:3] - step[:3])[0], params[3:] - step[3:]))
+        ahead = pnp_theta((_rotation(params[:3] + step[:3]), params[3:] + step[3:]))
+        behind = pnp_theta((_rotation(params[:3] - step[:3]), params[3:] - step[3:]))
         gradient[k] = math.remainder(ahead - behind, math.tau) / 2e-6
     try:
         variance = float(gradient @ np.linalg.solve(J.T @ J, gradient))

@@ -215,17 +215,18 @@ def run_one(run: str, folder: Path) -> dict[str, Any]:
         from markergraph.estimator.sessions import solve_sessions
 
         start = time.perf_counter()
+        seen = [r for r in results if r.observations]  # a log that saw no marker adds nothing
         frames = [build_frames(r.observations, r.odometry, odometry_noise=OdometryNoise())
-                  for r in results]  # fmt: skip
+                  for r in seen]  # fmt: skip
         home = frames[0].home_id
-        merged = solve_sessions(frames, [r.mount.T_base_camera for r in results])
+        merged = solve_sessions(frames, [r.mount.T_base_camera for r in seen])
         out["merge_s"] = time.perf_counter() - start
         out["merge_peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         out["merge_markers"] = len(merged.markers)
         out["merge_placed"] = sum(t is not None for t in merged.trajectories)
         single = estimate_frames(
-            build_frames(results[0].observations, results[0].odometry, home),
-            Method.SLAM, results[0].mount.T_base_camera,
+            build_frames(seen[0].observations, seen[0].odometry, home),
+            Method.SLAM, seen[0].mount.T_base_camera,
         )  # fmt: skip
         out["single_markers"] = len(single.markers)
     return out
