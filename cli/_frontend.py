@@ -102,7 +102,8 @@ def _mount_text(mount: Mount | None, missing: str) -> str:
     if mount is None:
         return f"none: {missing}"
     if mount.frames:
-        return f"{' -> '.join(mount.frames)} ({mount.source})"
+        pose = f": the camera {mount.pose}" if mount.pose else ""
+        return f"{' -> '.join(mount.frames)} ({mount.source}){pose}"
     return f"none: the camera's pose from {mount.source}"
 
 

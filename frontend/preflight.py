@@ -25,7 +25,7 @@ from mcap.reader import make_reader
 from mcap.records import MessageIndex
 
 from markergraph.frontend.bags import is_bag
-from markergraph.frontend.camera import Camera
+from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_depth, decode_image, frame_id
 from markergraph.frontend.detect import Detector
@@ -123,10 +123,12 @@ class Mount:
             ``settings`` (assumed: the log does not give it).
         frames: the chain of frames from the base to the camera's frame, base first; empty
             where the mount does not come from the log's transforms.
+        pose: the camera's pose on the base it gives, in words (height, pitch...), or "".
     """
 
     source: str
     frames: tuple[str, ...] = ()
+    pose: str = ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -587,7 +589,9 @@ def preflight(path: Path, config: FrontendConfig = FrontendConfig()) -> Prefligh
     elif color is not None:  # the pipeline's bases: the odometry's body, then the base frame
         try:
             frames = _chain(static, (body_frame, config.base_frame), color.frame_id)
-            mount = Mount(choice.tf_static or "/tf_static", frames)
+            R, t = transform_between(static, frames[0], color.frame_id)
+            pose = CameraMount.from_pose(R, t).describe()
+            mount = Mount(choice.tf_static or "/tf_static", frames, pose)
         except LogError as error:
             warnings.append(f"{error}; the configured camera mount is assumed ({assumed})")
     blockers += no_odometry

@@ -111,8 +111,9 @@ def test_complete_log_can_be_mapped(complete: Path, capsys) -> None:
     )
     assert "aligned to colour (same size and frame)" in field(out, "depth")
     assert field(out, "camera").startswith(f"plumb_bob, K [{camera.fx:g} 0 {camera.cx:g}; ")
-    assert field(out, "TF chain") == (
-        "base_link -> camera_link -> camera_color_optical_frame (/tf_static)"
+    assert field(out, "TF chain") == (  # the simulator's mount: 0.6 m up, pitched 10 deg
+        "base_link -> camera_link -> camera_color_optical_frame (/tf_static): the camera "
+        "0.10 m ahead, 0.00 m left, 0.60 m up, pitched +10.0 deg"
     )
     assert "warning:" not in out
 
