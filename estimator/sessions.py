@@ -34,7 +34,13 @@ from markergraph.estimator.graph import (
     read_residuals,
 )
 from markergraph.estimator.links import measure_links
-from markergraph.estimator.slam import _lm_params, _localise_on_markers, marker_estimates
+from markergraph.estimator.slam import (
+    _lm_params,
+    _localise_on_markers,
+    _marginals,
+    first_line,
+    marker_estimates,
+)
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     EstimationError,
@@ -226,11 +232,10 @@ def solve_sessions(
                 builder.graph, builder.values, _lm_params()
             )
             values = optimizer.optimize()
-        marginals = gtsam.Marginals(builder.graph, values)
     except RuntimeError as error:
-        raise EstimationError(
-            f"GTSAM could not solve the graph: {str(error).splitlines()[0]}"
-        ) from None
+        raise EstimationError(f"GTSAM could not solve the graph: {first_line(error)}") from None
+    notes: list[str] = []
+    marginals = _marginals(builder.graph, values, notes)
     counts: defaultdict[int, int] = defaultdict(int)
     for s in placed:
         for frame in sessions[s].frames:
@@ -253,9 +258,8 @@ def solve_sessions(
             np.array([f.t_ns for f in sessions[s].frames], dtype=np.int64),
             np.array([[p.x(), p.y(), p.theta()] for p in poses]),
         )
-        if pose_covariances:
+        if pose_covariances and marginals is not None:
             covariances[s] = np.array([marginals.marginalCovariance(key) for key in keys])
-    notes = []
     if pending:
         notes.append(
             f"session(s) {', '.join(str(s + 1) for s in pending)} share no marker with the "
@@ -368,7 +372,8 @@ def localize(
         # The map's pose against this log's, each with its own covariance: chi-square, 3 dof.
         difference = saved[i].T_map_marker.localCoordinates(freed.markers[i].T_map_marker)
         fresh = freed.markers[i].covariance
-        assert fresh is not None  # solve_sessions always computes marginals
+        if fresh is None:
+            raise EstimationError(f"no covariance for marker {i}: {'; '.join(freed.notes)}")
         covariance = saved[i].covariance + fresh
         if float(difference @ np.linalg.solve(covariance, difference)) > MOVED_CHI2:
             moved_ids.append(i)
@@ -395,5 +400,7 @@ def _localization(
         ))  # fmt: skip
     new = {i: m for i, m in final.markers.items() if i not in saved}
     trajectory, covariances = final.trajectories[0], final.pose_covariances[0]
-    assert trajectory is not None and covariances is not None
+    assert trajectory is not None
+    if covariances is None:
+        raise EstimationError(f"no pose covariances: {'; '.join(final.notes)}")
     return Localization(trajectory, covariances, moved, new, dict(pulled), final)

@@ -76,8 +76,13 @@ def _marginals(
     try:
         return gtsam.Marginals(graph, values)
     except RuntimeError as error:  # an indeterminate system: report, keep the means
-        notes.append(f"marginal covariances unavailable: {error}")
+        notes.append(f"marginal covariances unavailable: {first_line(error)}")
         return None
+
+
+def first_line(error: Exception) -> str:
+    """GTSAM's messages start with a blank line: the first line that says something."""
+    return next((line.strip() for line in str(error).splitlines() if line.strip()), repr(error))
 
 
 def _observation_counts(frames: Frames) -> Counter[int]:
