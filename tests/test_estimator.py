@@ -419,3 +419,22 @@ def test_an_odometry_jump_is_released_and_does_not_bend_the_map(noisy_run: Simul
     clean = rmse(run.odometry, [])
     assert rmse(jumped, [t for t, _ in jumps]) < clean + 0.01
     assert rmse(jumped, []) > clean + 0.02
+
+
+def test_the_delay_search_samples_a_long_log_and_keeps_the_home_markers_frames() -> None:
+    """A log of 2,000 frames is searched on at most 600 of them, evenly spread, plus every frame
+    that sees the home marker; a short log is searched whole."""
+    from markergraph.estimator.timing import DELAY_SEARCH_FRAMES, _sampled
+
+    observations = [
+        Observation(t * 10**8, 0 if t % 97 == 0 else 1 + t % 5, 0.0, 0.3, 2.0, 1e-3, 1e-2, 1e-2)
+        for t in range(2000)
+    ]
+    kept = _sampled(observations, home_id=0)
+    stamps = sorted({o.t_ns for o in kept})
+    home = {o.t_ns for o in observations if o.marker_id == 0}
+    assert home <= set(stamps)
+    assert len(stamps) <= DELAY_SEARCH_FRAMES + len(home)
+    gaps = np.diff([t for t in stamps if t not in home])
+    assert gaps.max() <= 4 * 10**8  # evenly spread: every 4th frame of 2,000
+    assert _sampled(observations[:500], home_id=0) == observations[:500]
