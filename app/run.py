@@ -102,6 +102,19 @@ class MapRun:
     separate: list[tuple[list[Path], MarkerMap]] = field(default_factory=list)
 
 
+def truth_in_home_frame(
+    extraction: Extraction, home_id: int
+) -> tuple[dict[int, gtsam.Pose2], Trajectory | None]:
+    """A log's ground truth (markers, path) in the frame of the map's home marker, when it
+    carries both; ``({}, None)`` otherwise."""
+    if home_id not in extraction.true_markers:
+        return {}, None
+    T_home_world = extraction.true_markers[home_id].inverse()
+    truth = {i: T_home_world.compose(T) for i, T in extraction.true_markers.items()}
+    path = extraction.true_path.in_frame(T_home_world, "map") if len(extraction.true_path) else None
+    return truth, path
+
+
 def _score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory | None) -> None:
     """Marker and trajectory errors against the logged truth, where it covers the estimate."""
     estimate = result.estimate
@@ -260,13 +273,7 @@ def map_log(
     extraction = extract(log, config.frontend, progress=progress, workers=config.workers)
     seconds["front end"] = time.perf_counter() - start
     observations, frames, delay_ns, source = prepare(log, extraction, config, stage)
-    # Ground truth, when logged, re-expressed in the frame of the estimate's home marker.
-    truth, true_path = {}, None
-    if frames.home_id in extraction.true_markers:
-        T_home_map = extraction.true_markers[frames.home_id].inverse()
-        truth = {i: T_home_map.compose(T) for i, T in extraction.true_markers.items()}
-        if len(extraction.true_path):
-            true_path = extraction.true_path.in_frame(T_home_map, "map")
+    truth, true_path = truth_in_home_frame(extraction, frames.home_id)
     frontend = config.frontend
     heights = marker_heights(observations)
     results = []

@@ -36,7 +36,7 @@ from markergraph.estimator.sessions import (
 from markergraph.executors import extract_logs
 from markergraph.frontend import Extraction
 from markergraph.markermap import MarkerMap
-from markergraph.run import MapRun, MethodResult, _score, prepare
+from markergraph.run import MapRun, MethodResult, _score, prepare, truth_in_home_frame
 from markergraph.settings import MapConfig
 
 __all__ = ["LocalizationRun", "Session", "localize_log", "map_logs", "priors_of"]
@@ -158,7 +158,7 @@ def map_logs(
     solved = solutions[0]
     first = next(i for i, t in enumerate(solved.trajectories) if t is not None)
     extraction = extractions[first]
-    truth, true_path = _truth_in(extraction, home_id)
+    truth, true_path = truth_in_home_frame(extraction, home_id)
     for result in results:
         _score(result, truth, true_path)
     _, _, delay_ns, source = prepared[first]
@@ -195,18 +195,6 @@ def _separate(
         )))  # fmt: skip
         apart = [apart[j] for j in solved.apart]
     return maps
-
-
-def _truth_in(
-    extraction: Extraction, home_id: int
-) -> tuple[dict[int, gtsam.Pose2], Trajectory | None]:
-    """A log's ground truth in the frame of the map's home marker, when it carries both."""
-    if home_id not in extraction.true_markers:
-        return {}, None
-    T_home_world = extraction.true_markers[home_id].inverse()
-    truth = {i: T_home_world.compose(T) for i, T in extraction.true_markers.items()}
-    path = extraction.true_path.in_frame(T_home_world, "map") if len(extraction.true_path) else None
-    return truth, path
 
 
 @dataclass
@@ -312,7 +300,7 @@ def localize_log(
             "placed by this log (see localization.json)"
         )
     ate_m, true_path = None, None
-    _, path = _truth_in(extraction, saved.home_id)
+    _, path = truth_in_home_frame(extraction, saved.home_id)
     if path is not None:
         true_path = path.at_stamps(localization.trajectory.t_ns)
         covered = np.isin(localization.trajectory.t_ns, true_path.t_ns)

@@ -40,6 +40,7 @@ from markergraph.estimator.slam import (
     _marginals,
     first_line,
     marker_estimates,
+    new_isam2,
 )
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
@@ -119,7 +120,7 @@ def _anchor(
 
 def _add_links(
     builder: GraphBuilder, frames: Frames, T_base_camera: gtsam.Pose2, T_map_odom: gtsam.Pose2
-) -> list:
+) -> None:
     """A session's measured E_ab as factors; markers new to the map start where the session's
     odometry, anchored by ``T_map_odom``, first sees them."""
     links = measure_links(frames, T_base_camera)
@@ -131,15 +132,6 @@ def _add_links(
             if not builder.values.exists(L(obs.marker_id)):
                 T_base_marker, _ = observation_measurement(obs, T_base_camera)
                 builder.set_initial(obs.marker_id, T_map_base.compose(T_base_marker))
-    return links
-
-
-def _isam2() -> gtsam.ISAM2:
-    params = gtsam.ISAM2Params()
-    params.setRelinearizeThreshold(0.01)
-    params.relinearizeSkip = 1
-    params.setFactorization("QR")  # as IncrementalSlam: Cholesky fails on in-place turns
-    return gtsam.ISAM2(params)
 
 
 def _update(isam: gtsam.ISAM2, builder: GraphBuilder) -> None:
@@ -197,8 +189,7 @@ def solve_sessions(
         known[home] = gtsam.Pose2()
     offsets = np.concatenate([[0], np.cumsum([len(s.frames) for s in sessions])]).astype(int)
     pending, placed = list(range(len(sessions))), []
-    links = []
-    isam = _isam2() if method is Method.ISAM2 else None
+    isam = new_isam2() if method is Method.ISAM2 else None
     progress = True
     while pending and progress:
         progress = False
@@ -208,7 +199,7 @@ def solve_sessions(
                 continue
             builder.T_base_camera = T_base_cameras[s]
             if method is Method.MARKER_GRAPH:
-                links += _add_links(builder, sessions[s], T_base_cameras[s], T_map_odom)
+                _add_links(builder, sessions[s], T_base_cameras[s], T_map_odom)
             else:
                 for k in range(len(sessions[s].frames)):
                     builder.add_frame(sessions[s], k, T_map_odom, int(offsets[s]))

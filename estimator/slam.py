@@ -215,6 +215,17 @@ def _slam_estimate(
     )
 
 
+def new_isam2() -> gtsam.ISAM2:
+    """An iSAM2 as every incremental method here uses it."""
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(0.01)
+    params.relinearizeSkip = 1
+    # Cholesky declared a 10,000-pose warehouse run indeterminate (turning in place makes
+    # odometry nearly exact in translation); QR solves it at the same speed.
+    params.setFactorization("QR")
+    return gtsam.ISAM2(params)
+
+
 class IncrementalSlam:
     """The SLAM graph grown and solved frame by frame with iSAM2.
 
@@ -229,13 +240,7 @@ class IncrementalSlam:
     def __init__(
         self, frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE
     ) -> None:
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(0.01)
-        params.relinearizeSkip = 1
-        # Cholesky declared a 10,000-pose warehouse run indeterminate (turning in place makes
-        # odometry nearly exact in translation); QR solves it at the same speed.
-        params.setFactorization("QR")
-        self.isam = gtsam.ISAM2(params)
+        self.isam = new_isam2()
         self.frames = frames
         self.builder = GraphBuilder(T_base_camera, robust)
         self.T_map_odom = _T_map_odom(frames, T_base_camera)

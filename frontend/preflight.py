@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import math
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -581,7 +580,7 @@ def preflight(path: Path, config: FrontendConfig = FrontendConfig()) -> Prefligh
                 "size, but is it aligned to colour?"
             )
     mount = None
-    assumed = _mount_text(config)
+    assumed = config.default_mount.describe()
     if config.mount is not None:
         mount = Mount("settings")
     elif not static:
@@ -602,12 +601,3 @@ def preflight(path: Path, config: FrontendConfig = FrontendConfig()) -> Prefligh
 
 def _with(report: Preflight, blockers: list[str], warnings: list[str], **found: Any) -> Preflight:
     return replace(report, blockers=tuple(blockers), warnings=tuple(warnings), **found)
-
-
-def _mount_text(config: FrontendConfig) -> str:
-    """The mount assumed without one in the log, for a person."""
-    m = config.default_mount
-    return (
-        f"x {m.x_m:g} m, y {m.y_m:g} m, height {m.height_m:g} m, "
-        f"pitch {math.degrees(m.pitch_rad):g} deg, yaw {math.degrees(m.yaw_rad):g} deg"
-    )
