@@ -114,8 +114,8 @@ def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = 
 def _write_method(run: MapRun, result: MethodResult, folder: Path, plots: bool) -> None:
     estimate = result.estimate
     result.marker_map.save(folder / "map.json")
-    if estimate.graph is not None and estimate.values is not None:
-        write_g2o(folder / "map.g2o", estimate.graph, estimate.values)  # what was solved
+    if estimate.pose_graph is not None:
+        write_g2o(folder / "map.g2o", *estimate.pose_graph())  # what was solved, as g2o has it
     if len(estimate.trajectory):
         write_tum(folder / "trajectory.tum", estimate.trajectory)
     if plots:

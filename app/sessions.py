@@ -82,6 +82,7 @@ def _as_estimate(
     return Estimate(
         method=method, home_id=home_id, markers=solved.markers, trajectory=trajectory,
         residuals=solved.residuals, notes=solved.notes, graph=solved.graph, values=solved.values,
+        pose_graph=solved.pose_graph,
     )  # fmt: skip
 
 

@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import math
 from collections import Counter, defaultdict
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 
 import gtsam
 import numpy as np
@@ -30,6 +31,7 @@ from markergraph.estimator.frames import Frames
 from markergraph.estimator.graph import (
     GraphBuilder,
     Robust,
+    base_covariance,
     observation_measurement,
     read_residuals,
 )
@@ -89,7 +91,8 @@ class SessionsEstimate:
         apart: sessions that share no marker with this map, in their order.
         residuals: every factor's whitened error.
         notes: what a person should read.
-        graph, values: the graph solved and its solution.
+        graph, values: the graph solved and its solution (robot poses are the camera's).
+        pose_graph: makes the solution as a plain pose graph (``GraphBuilder.pose_graph``).
     """
 
     markers: dict[int, MarkerEstimate]
@@ -100,6 +103,7 @@ class SessionsEstimate:
     notes: list[str] = field(default_factory=list)
     graph: gtsam.NonlinearFactorGraph | None = None
     values: gtsam.Values | None = None
+    pose_graph: Callable[[], tuple[gtsam.NonlinearFactorGraph, gtsam.Values]] | None = None
 
 
 def _anchor(
@@ -219,9 +223,11 @@ def solve_sessions(
             _update(isam, builder)
             values = _isam2_to_rest(isam, builder)
         else:
-            optimizer = gtsam.LevenbergMarquardtOptimizer(
-                builder.graph, builder.values, _lm_params()
-            )
+            start = (
+                builder.values if method is Method.MARKER_GRAPH
+                else builder.warm_start(_lm_params())
+            )  # fmt: skip
+            optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, start, _lm_params())
             values = optimizer.optimize()
     except RuntimeError as error:
         raise EstimationError(f"GTSAM could not solve the graph: {first_line(error)}") from None
@@ -244,13 +250,15 @@ def solve_sessions(
             )
             continue
         keys = [X(int(offsets[s]) + k) for k in range(len(sessions[s].frames))]
-        poses = [values.atPose2(key) for key in keys]
         trajectories[s] = Trajectory(
             np.array([f.t_ns for f in sessions[s].frames], dtype=np.int64),
-            np.array([[p.x(), p.y(), p.theta()] for p in poses]),
+            builder.base_poses(values, keys),
         )
         if pose_covariances and marginals is not None:
-            covariances[s] = np.array([marginals.marginalCovariance(key) for key in keys])
+            covariances[s] = np.array([
+                base_covariance(marginals.marginalCovariance(key), T_base_cameras[s])
+                for key in keys
+            ])  # fmt: skip
     if pending:
         notes.append(
             f"session(s) {', '.join(str(s + 1) for s in pending)} share no marker with the "
@@ -259,6 +267,7 @@ def solve_sessions(
     return SessionsEstimate(
         markers, trajectories, covariances, pending,
         read_residuals(builder.graph, values, builder.kinds), notes, builder.graph, values,
+        partial(builder.pose_graph, values),
     )  # fmt: skip
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
+from functools import partial
 
 import gtsam
 import numpy as np
@@ -14,6 +15,7 @@ from markergraph.estimator.gauge import relative_covariances
 from markergraph.estimator.graph import (
     GraphBuilder,
     Robust,
+    base_pose,
     observation_measurement,
     read_residuals,
 )
@@ -102,11 +104,10 @@ def build_slam_graph(
     return builder
 
 
-def _trajectory(values: gtsam.Values, frames: Frames) -> Trajectory:
-    poses = [values.atPose2(X(k)) for k in range(len(frames.frames))]
+def _trajectory(values: gtsam.Values, frames: Frames, builder: GraphBuilder) -> Trajectory:
     return Trajectory(
         np.array([f.t_ns for f in frames.frames], dtype=np.int64),
-        np.array([[p.x(), p.y(), p.theta()] for p in poses]),
+        builder.base_poses(values, [X(k) for k in range(len(frames.frames))]),
     )
 
 
@@ -138,11 +139,15 @@ def solve_slam(
     )
 
 
-def _optimise(builder: GraphBuilder, timings: dict[str, float]) -> tuple[gtsam.Values, bool]:
-    """Levenberg-Marquardt from the builder's initial values; (solution, converged)."""
+def _optimise(
+    builder: GraphBuilder, timings: dict[str, float], warm: bool = True
+) -> tuple[gtsam.Values, bool]:
+    """Levenberg-Marquardt from the builder's initial values, or (``warm``) from its pose-graph
+    form's solution (:meth:`GraphBuilder.warm_start`); (solution, converged)."""
     start = time.perf_counter()
-    optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, builder.values, _lm_params())
     try:
+        start_values = builder.warm_start(_lm_params()) if warm else builder.values
+        optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, start_values, _lm_params())
         result = optimizer.optimize()
     except RuntimeError as error:  # GTSAM's IndeterminantLinearSystemException
         raise EstimationError(
@@ -183,6 +188,7 @@ def _solved_estimate(
         notes=notes,
         graph=graph,
         values=result,
+        pose_graph=partial(builder.pose_graph, result),
     )
     timings["marginals"] = time.perf_counter() - start
     estimate.timings_s = timings
@@ -207,7 +213,7 @@ def _slam_estimate(
         builder,
         result,
         marker_ids=frames.marker_ids(),
-        trajectory=_trajectory(result, frames),
+        trajectory=_trajectory(result, frames, builder),
         links=links,
         notes=frames.notes + notes + ([] if converged else [stop_note]),
         converged=converged,
@@ -264,9 +270,10 @@ class IncrementalSlam:
         self.next_frame = k + 1
         self.updates += 1
         if self.updates % self.REANCHOR_EVERY == 0:
-            self.T_map_odom = self.isam.calculateEstimatePose2(X(k)).compose(
-                self.frames.frames[k].T_odom_base.inverse()
+            T_map_base = base_pose(
+                self.isam.calculateEstimatePose2(X(k)), self.builder.T_base_camera
             )
+            self.T_map_odom = T_map_base.compose(self.frames.frames[k].T_odom_base.inverse())
 
     def finish(self, max_sweeps: int = 30, tolerance: float = 1e-6) -> bool:
         """Relinearise everything until the estimate stops moving; True if it did.
@@ -317,7 +324,7 @@ def solve_isam2(
     if polished:
         polish = GraphBuilder(T_base_camera, robust)
         polish.graph, polish.values = builder.graph, result
-        result, converged = _optimise(polish, timings)
+        result, converged = _optimise(polish, timings, warm=False)
     estimate = _slam_estimate(
         Method.ISAM2,
         frames,
@@ -390,7 +397,7 @@ def solve_marker_graph(
                 builder.set_initial(b, builder.values.atPose2(L(a)).compose(T_a_b))
                 queue.append(b)
     timings["build"] = time.perf_counter() - start
-    result, converged = _optimise(builder, timings)
+    result, converged = _optimise(builder, timings, warm=False)  # links are relative poses
     return _solved_estimate(
         Method.MARKER_GRAPH,
         frames,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import TYPE_CHECKING
@@ -261,7 +262,9 @@ class Estimate:
         nis: (M,) normalised innovation squared of each observation update (EKF only).
         notes: diagnostics a person should read: what was skipped, what is disconnected.
         graph, values: the factor graph the GTSAM methods solved and its solution (None for
-            the closed form and the EKF), so exports write what was solved.
+            the closed form and the EKF); robot poses in it are the camera's.
+        pose_graph: makes the same solution as a plain pose graph of base poses and markers
+            (``GraphBuilder.pose_graph``: g2o's form), or None.
     """
 
     method: Method
@@ -279,3 +282,4 @@ class Estimate:
     notes: list[str] = field(default_factory=list)
     graph: gtsam.NonlinearFactorGraph | None = None
     values: gtsam.Values | None = None
+    pose_graph: Callable[[], tuple[gtsam.NonlinearFactorGraph, gtsam.Values]] | None = None

@@ -36,7 +36,7 @@ class FrontendConfig:
         camera_poses: a TagSLAM ``camera_poses.yaml`` giving each camera's pose on the rig.
         tagslam: a TagSLAM ``tagslam.yaml`` giving tag sizes and the odometry's body on the rig.
         depth_scale: what depth reads per true metre: 1.0 trusts the depth camera; None (auto)
-            applies the scale measured against the markers' known size when it is more than 1 %
+            applies the scale measured against the markers' known size when it is more than 0.5 %
             from 1 (it is always measured and reported: see
             :func:`~markergraph.frontend.pipeline.depth_scale_from_markers`).
         detector_mode: how images are searched for markers (``FAST`` finds FULL's markers and

@@ -86,13 +86,15 @@ def test_tum_round_trip(solved, tmp_path: Path) -> None:
 
 def test_g2o_loads_in_gtsam_and_reoptimises_to_the_same_map(solved, tmp_path: Path) -> None:
     """gtsam.readG2o loads map.g2o (markers at offset ids, full precision) and, with the home
-    vertex fixed, re-optimises to the same markers."""
-    _, _, result = solved
-    graph = result.graph
+    vertex fixed, re-optimises to the same markers within 5 mm: g2o's relative-pose
+    edges are our polar observations linearised at the measurement."""
+    _, frames, result = solved
+    graph, values = result.pose_graph()
     path = tmp_path / "map.g2o"
-    write_g2o(path, graph, result.values)
+    write_g2o(path, graph, values)
     loaded, initial = gtsam.readG2o(str(path), False)
-    assert loaded.size() == graph.size() - 1  # all but the home prior
+    observations = sum(len(f.observations) for f in frames.frames)
+    assert loaded.size() == graph.size() == len(frames.frames) - 1 + observations
     assert initial.size() == len(result.trajectory) + len(result.markers)
     home = MARKER_VERTEX_OFFSET + result.home_id
     loaded.add(
@@ -102,7 +104,12 @@ def test_g2o_loads_in_gtsam_and_reoptimises_to_the_same_map(solved, tmp_path: Pa
     )
     optimised = gtsam.LevenbergMarquardtOptimizer(loaded, initial).optimize()
     for marker_id, marker in result.markers.items():
-        assert optimised.atPose2(MARKER_VERTEX_OFFSET + marker_id).equals(marker.T_map_marker, 1e-6)
+        loaded_pose = optimised.atPose2(MARKER_VERTEX_OFFSET + marker_id)
+        assert np.hypot(*(loaded_pose.translation() - marker.T_map_marker.translation())) < 5e-3
+        assert abs(loaded_pose.theta() - marker.T_map_marker.theta()) < 2e-3
+    # The base poses, not the camera's: the vertices are the trajectory the estimate reports.
+    first = initial.atPose2(0)
+    np.testing.assert_allclose([first.x(), first.y(), first.theta()], result.trajectory.poses[0])
 
 
 def run_cli(*arguments: str) -> subprocess.CompletedProcess[str]:
