@@ -28,7 +28,7 @@ from markergraph.estimator.links import (
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Estimate, EstimationError, MarkerEstimate, Method
 
-__all__ = ["IncrementalSlam", "solve_isam2", "solve_marker_graph", "solve_slam"]
+__all__ = ["IncrementalSlam", "slam_cost", "solve_isam2", "solve_marker_graph", "solve_slam"]
 
 MAX_ITERATIONS = 100
 
@@ -137,6 +137,18 @@ def solve_slam(
     return _slam_estimate(
         Method.SLAM, frames, T_base_camera, builder, result, converged, stop_note, timings
     )
+
+
+def slam_cost(frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE) -> float:
+    """Batch SLAM's final cost alone (no marginals, residuals or links): what a search over a
+    setting compares.
+
+    Raises:
+        EstimationError: GTSAM cannot solve the graph.
+    """
+    builder = build_slam_graph(frames, T_base_camera, robust)
+    result, _ = _optimise(builder, {})
+    return float(builder.graph.error(result))
 
 
 def _optimise(

@@ -20,11 +20,10 @@ import numpy as np
 
 from markergraph.estimator.frames import build_frames
 from markergraph.estimator.graph import Robust
-from markergraph.estimator.run import estimate_frames
+from markergraph.estimator.slam import slam_cost
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     EstimationError,
-    Method,
     Observation,
     OdometryNoise,
 )
@@ -144,11 +143,9 @@ def camera_delay_by_residuals(
                 odometry_noise=odometry_noise,
                 odometry_breaks=odometry_breaks,
             )
-            estimate = estimate_frames(frames, Method.SLAM, T_base_camera, robust=robust)
+            return slam_cost(frames, T_base_camera, robust)
         except EstimationError:
             return math.inf
-        assert estimate.graph is not None and estimate.values is not None
-        return float(estimate.graph.error(estimate.values))
 
     delays = [round(d * 1e9) for d in DELAYS_S]
     costs = [cost(d) for d in delays]

@@ -215,6 +215,7 @@ class _SpanReader:
         self.detector = _detector(config)
         self.model = config.observation_model
         self.attitudes: deque[tuple[int, NDArray[np.float64]]] = deque(maxlen=MAX_ATTITUDES)
+        self.done: set[str] = set()  # topics read as far as they need be
 
     def read(self, span: _Span, progress: Callable[[int, int], None] | None) -> _Part:
         left_out_before = Counter(self.detector.left_out)
@@ -231,7 +232,7 @@ class _SpanReader:
         margin = 3 * self.config.pair_tolerance_ns
         start = None if span.start_ns is None else span.start_ns - margin
         end = None if span.end_ns is None else span.end_ns + margin
-        for message in messages(self.path, streamed, self.failures, start, end):
+        for message in messages(self.path, streamed, self.failures, start, end, self.done):
             if message.topic == color:
                 done += 1
                 if progress is not None and done % 10 == 0:
@@ -287,6 +288,7 @@ class _SpanReader:
             except ValueError as error:  # a later message may be whole
                 self.failures.add(self.path, topic, str(error))
                 return
+            self.done.add(topic)  # one whole camera_info is all it takes: skip the rest
             self._drain(stamp_ns(decoded))
         elif topic == choice.odom:
             if message.schema.endswith("TFMessage"):
@@ -503,11 +505,11 @@ def _merge(parts: list[_Part]) -> _Part:
 
 MIN_DEPTH_RATIOS = 20  # markers seen with depth before a depth scale is estimated
 MAX_DEPTH_SCALE_ERROR = 0.05  # beyond, the markers' size is more likely wrong than the depth
-# A depth scale within this of 1 is left alone by auto: the measurement's own systematic error on
-# ideal logs is 0.0-0.35 % where markers are seen within 2 m. (At 1 %, the independent
-# generator's corridor read +0.80 % of a true +1.2 %, was left alone, and SLAM was 4.5 cm off
-# instead of 2.8.)
-DEPTH_SCALE_RESOLUTION = 0.005
+# A depth scale within this of 1 is left alone by auto: the measurement's own systematic error.
+# Where near markers pin the curve (a parabola), ideal logs read 0.0-0.35 %; the independent
+# generator's corridor read +0.80 % of a true +1.2 %, and left alone SLAM was 4.5 cm off
+# instead of 2.8. A line extrapolated from far markers alone reads up to +0.76 % on ideal logs.
+DEPTH_SCALE_RESOLUTION = {"parabola": 0.005, "line": 0.01}
 NEAR_M, NEAR_SHARE = 2.0, 0.1  # enough markers this near pin the curve down to zero distance
 
 
@@ -521,11 +523,13 @@ class DepthCalibration:
             long), from a line through the same points: a line extrapolates to markers beyond
             the depth camera's reach more safely than a parabola.
         used: how many markers were used.
+        fit: ``"parabola"`` where near markers pinned the curve, else ``"line"``.
     """
 
     scale: float
     pnp_slope: float
     used: int
+    fit: str
 
 
 def _curve(z: NDArray[np.float64], ratio: NDArray[np.float64], degree: int) -> NDArray[np.float64]:
@@ -560,16 +564,17 @@ def depth_scale_from_markers(
     # lengthening growing faster than the distance); else its end is noise (up to 1.4 %).
     bends_down = np.mean(z < NEAR_M) >= NEAR_SHARE and parabola[2] < 0
     scale = parabola[0] if bends_down else line[0]
-    return DepthCalibration(float(scale), float(line[1] / line[0]), len(steady))
+    fit = "parabola" if bends_down else "line"
+    return DepthCalibration(float(scale), float(line[1] / line[0]), len(steady), fit)
 
 
 def _correct_depth_scale(result: Extraction, configured: float | None, topic: str | None) -> None:
     """Measure the depth's scale against the markers' known size
     (:func:`depth_scale_from_markers`) and say it; divide the ranges from depth by the
     configured scale, or (``configured`` None: auto) by the measured one when it is further
-    from 1 than the measurement's own error (:data:`DEPTH_SCALE_RESOLUTION`); and take PnP's
-    measured lengthening out of the ranges that come from PnP (markers beyond the depth's
-    reach)."""
+    from 1 than the measurement's own error (:data:`DEPTH_SCALE_RESOLUTION`, by the fit); and
+    take PnP's measured lengthening out of the ranges that come from PnP (markers beyond the
+    depth's reach)."""
     measured = None
     if len(result.depth_ratios) >= MIN_DEPTH_RATIOS:
         calibration = depth_scale_from_markers(result.depth_ratios, result.odometry)
@@ -590,10 +595,11 @@ def _correct_depth_scale(result: Extraction, configured: float | None, topic: st
                     if configured != 1.0
                     else f"{reads} ({used} markers); depth taken as it is (--depth-scale 1)"
                 )
-            elif abs(scale - 1.0) <= DEPTH_SCALE_RESOLUTION:
+            elif abs(scale - 1.0) <= (resolution := DEPTH_SCALE_RESOLUTION[calibration.fit]):
                 result.notes.append(
-                    f"{reads} ({used} markers): within the measurement's own 0.5 % error, so "
-                    "depth is left as it is (--depth-scale K sets it)"
+                    f"{reads} ({used} markers): within the measurement's own "
+                    f"{100 * resolution:g} % error, so depth is left as it is "
+                    "(--depth-scale K sets it)"
                 )
                 measured = None
             else:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import heapq
 import struct
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -207,6 +207,7 @@ def messages(
     failures: DecodeFailures | None = None,
     start_ns: int | None = None,
     end_ns: int | None = None,
+    done: Collection[str] = (),
 ) -> Iterator[Message]:
     """Decoded messages of the given topics, file after file, in log-time order within each.
 
@@ -215,7 +216,8 @@ def messages(
     ``start_ns``/``end_ns`` only log times in [start, end) are read, from the chunks holding
     them. With ``failures``, a message that does not decode is skipped and counted there, and
     so are a damaged chunk's messages (a damaged stretch of a long log costs that stretch);
-    without it, either raises.
+    without it, either raises. Topics in ``done`` (which the caller may grow while reading:
+    a camera_info once the camera is known) are passed over undecoded.
 
     Raises:
         LogError: an unreadable file, a channel whose encoding or schema cannot be decoded, or
@@ -231,6 +233,8 @@ def messages(
             for schema, channel, message in _raw_messages(
                 file, stream, topics, start_ns, end_ns, failures
             ):
+                if channel.topic in done:
+                    continue
                 decode = decoders.get(channel.id)
                 if decode is None:
                     decode = _decoder_for(file, channel, schema, factory)
