@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import itertools
+import math
 from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
 
@@ -10,7 +10,6 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.models import compose_covariance
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     MarkerGraphError,
@@ -120,16 +119,15 @@ def build_frames(
             continue
         if frames:
             previous = frames[-1]
-            inside = [
-                path.pose(i)
-                for i in range(
-                    int(np.searchsorted(path.t_ns, previous.t_ns, "right")),
-                    int(np.searchsorted(path.t_ns, t_ns, "left")),
-                )
-            ]
-            covariance = _motion_covariance(
-                [previous.T_odom_base, *inside, T_odom_base], odometry_noise
-            )
+            first = int(np.searchsorted(path.t_ns, previous.t_ns, "right"))
+            last = int(np.searchsorted(path.t_ns, t_ns, "left"))
+            ends = [previous.T_odom_base, T_odom_base]
+            along = np.vstack([
+                [ends[0].x(), ends[0].y(), ends[0].theta()],
+                path.poses[first:last],
+                [ends[1].x(), ends[1].y(), ends[1].theta()],
+            ])  # fmt: skip
+            covariance = motion_covariance(along, odometry_noise)
             if any(previous.t_ns < t <= t_ns for t in odometry_breaks):
                 covariance = covariance + RELEASED_MOTION_COVARIANCE
                 released += 1
@@ -162,8 +160,27 @@ def build_frames(
     return Frames(frames, home, home_frame, notes)
 
 
-def _motion_covariance(poses: list[gtsam.Pose2], noise: OdometryNoise) -> NDArray[np.float64]:
-    """Covariance of the odometry motion along ``poses``, composed increment by increment, so
-    heading errors early in a long gap show up as lateral errors at its end."""
-    steps = [start.between(end) for start, end in itertools.pairwise(poses)]
-    return compose_covariance(steps, [noise.covariance(step) for step in steps])[1]
+def motion_covariance(poses: NDArray[np.float64], noise: OdometryNoise) -> NDArray[np.float64]:
+    """Covariance of the odometry motion along ``poses`` ((n + 1, 3): x, y, yaw), composed
+    increment by increment (:func:`~markergraph.estimator.models.compose_covariance`), so
+    heading errors early in a long gap show up as lateral errors at its end.
+
+    In closed form: a step's covariance diag(a, a, b) carried to the end by the adjoint of the
+    motion after it is ``a diag(1, 1, 0) + b c c^T`` with ``c = (q_y, -q_x, 1)`` and ``q`` the
+    step's end in the frame of the path's end, so the sum over steps is a few dot products (the
+    step-by-step composition cost 4 s of a 10-minute log's 16 delay solves).
+    """
+    steps = np.diff(poses, axis=0)
+    dist = np.hypot(steps[:, 0], steps[:, 1])
+    turn = np.abs(np.remainder(steps[:, 2] + np.pi, 2 * np.pi) - np.pi)
+    a = noise.floor_m**2 + noise.per_m**2 * dist
+    b = noise.floor_rad**2 + noise.yaw_per_m**2 * dist + noise.yaw_per_rad**2 * turn
+    c, s = math.cos(poses[-1, 2]), math.sin(poses[-1, 2])
+    dx, dy = (poses[1:, 0] - poses[-1, 0]), (poses[1:, 1] - poses[-1, 1])
+    qx, qy = c * dx + s * dy, -s * dx + c * dy
+    bx, by = b @ qx, b @ qy
+    return np.array([
+        [a.sum() + b @ (qy * qy), -(b @ (qx * qy)), by],
+        [-(b @ (qx * qy)), a.sum() + b @ (qx * qx), -bx],
+        [by, -bx, b.sum()],
+    ])  # fmt: skip

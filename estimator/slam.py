@@ -139,16 +139,26 @@ def solve_slam(
     )
 
 
-def slam_cost(frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE) -> float:
-    """Batch SLAM's final cost alone (no marginals, residuals or links): what a search over a
-    setting compares.
+def slam_cost(
+    frames: Frames,
+    T_base_camera: gtsam.Pose2,
+    robust: Robust = Robust.NONE,
+    near: gtsam.Values | None = None,
+) -> tuple[float, gtsam.Values]:
+    """Batch SLAM's final cost alone (no marginals, residuals or links) and its solution: what
+    a search over a setting compares. ``near``: the solution under a nearby setting, to start
+    from when it holds the same variables (else the pose-graph form's solution is the start).
 
     Raises:
         EstimationError: GTSAM cannot solve the graph.
     """
     builder = build_slam_graph(frames, T_base_camera, robust)
-    result, _ = _optimise(builder, {})
-    return float(builder.graph.error(result))
+    keys = builder.values.keys()  # a gtsam KeyVector
+    warm = near is None or near.size() != len(keys) or not all(near.exists(k) for k in keys)
+    if not warm:
+        builder.values = near
+    result, _ = _optimise(builder, {}, warm=warm)
+    return float(builder.graph.error(result)), result
 
 
 def _optimise(

@@ -55,6 +55,7 @@ from markergraph.frontend.sources import (
     log_time_range,
     log_topics,
     messages,
+    read_ahead,
 )
 from markergraph.frontend.tagged import DetectionLog, read_detection_log
 from markergraph.frontend.tf import (
@@ -232,7 +233,8 @@ class _SpanReader:
         margin = 3 * self.config.pair_tolerance_ns
         start = None if span.start_ns is None else span.start_ns - margin
         end = None if span.end_ns is None else span.end_ns + margin
-        for message in messages(self.path, streamed, self.failures, start, end, self.done):
+        stream = messages(self.path, streamed, self.failures, start, end, self.done)
+        for message in read_ahead(stream):
             if message.topic == color:
                 done += 1
                 if progress is not None and done % 10 == 0:
@@ -511,6 +513,7 @@ MAX_DEPTH_SCALE_ERROR = 0.05  # beyond, the markers' size is more likely wrong t
 # instead of 2.8. A line extrapolated from far markers alone reads up to +0.76 % on ideal logs.
 DEPTH_SCALE_RESOLUTION = {"parabola": 0.005, "line": 0.01}
 NEAR_M, NEAR_SHARE = 2.0, 0.1  # enough markers this near pin the curve down to zero distance
+MIN_CURVE_SPAN_M = 2.0  # distances spanning less show a line's slope, not a curvature
 
 
 @dataclass(frozen=True)
@@ -551,8 +554,8 @@ def depth_scale_from_markers(
     inward shift of the corners gives the linear term; one that grows as the marker shrinks in
     the image, the quadratic). Its value at zero distance is the depth's scale k. The curve is
     fitted by least squares (points beyond three robust sigmas dropped, twice) as a parabola
-    when at least a tenth of the markers were seen within 2 m and it bends down, else as a
-    line. On ideal logs of two generators this reads 0.0 to +0.85 %.
+    when at least a tenth of the markers were seen within 2 m, the distances span 2 m and it
+    bends down, else as a line. On ideal logs of two generators this reads 0.0 to +0.85 %.
     """
     steady = [(z, z_pnp) for t_ns, z, z_pnp in pairs if abs(turn_rate(odometry, t_ns)) < 0.2]
     if len(steady) < MIN_DEPTH_RATIOS:
@@ -562,7 +565,11 @@ def depth_scale_from_markers(
     line, parabola = _curve(z, ratio, 1), _curve(z, ratio, 2)
     # A parabola only where near markers pin its end and it bends as the physics says (PnP's
     # lengthening growing faster than the distance); else its end is noise (up to 1.4 %).
-    bends_down = np.mean(z < NEAR_M) >= NEAR_SHARE and parabola[2] < 0
+    # And only over a span of distances that can show a curvature: from 1.1-1.9 m alone a
+    # parabola put the scale at -148 %.
+    bends_down = (
+        np.mean(z < NEAR_M) >= NEAR_SHARE and np.ptp(z) >= MIN_CURVE_SPAN_M and parabola[2] < 0
+    )
     scale = parabola[0] if bends_down else line[0]
     fit = "parabola" if bends_down else "line"
     return DepthCalibration(float(scale), float(line[1] / line[0]), len(steady), fit)

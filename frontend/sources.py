@@ -6,7 +6,9 @@ messages, decoded."""
 from __future__ import annotations
 
 import heapq
+import queue
 import struct
+import threading
 from collections import Counter
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
@@ -36,6 +38,7 @@ __all__ = [
     "log_time_range",
     "log_topics",
     "messages",
+    "read_ahead",
 ]
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -251,6 +254,55 @@ def messages(
                 yield Message(
                     channel.topic, schema.name if schema else "", message.log_time, decoded
                 )
+
+
+def read_ahead(items: Iterator[Any], size: int = 64) -> Iterator[Any]:
+    """``items``, produced by a thread of their own up to ``size`` ahead of the consumer.
+
+    Reading a log (file reads, zstd, record parsing) then overlaps decoding and detecting
+    images: zstd and OpenCV release the GIL, so one process keeps two cores busy. An error
+    raised while producing is raised here, at the item where it happened; a consumer that stops
+    early stops the thread at its next item.
+    """
+    buffer: queue.Queue[tuple[str, Any]] = queue.Queue(size)
+    stop = threading.Event()
+
+    def offer(entry: tuple[str, Any]) -> bool:
+        """Put ``entry`` when there is room; False once the consumer has stopped."""
+        while not stop.is_set():
+            try:
+                buffer.put(entry, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if not offer(("item", item)):
+                    return
+            offer(("end", None))
+        except BaseException as error:  # handed to the consumer, which raises it
+            offer(("error", error))
+        finally:
+            close = getattr(items, "close", None)
+            if close is not None:  # a generator: its files are closed here, in its thread
+                close()
+
+    thread = threading.Thread(target=produce, name="markergraph-read-ahead", daemon=True)
+    thread.start()
+    try:
+        while True:
+            kind, value = buffer.get()
+            if kind == "end":
+                return
+            if kind == "error":
+                raise value
+            yield value
+    finally:
+        stop.set()
+        thread.join()
 
 
 # What a damaged chunk raises: the record parser's errors, and the decompressors' own types.

@@ -122,6 +122,25 @@ def test_compose_covariance_matches_numerical_adjoints() -> None:
     np.testing.assert_allclose(covariance, expected, atol=1e-9)
 
 
+def test_motion_covariance_equals_composing_step_by_step() -> None:
+    """Exact algebra: the closed-form sum over a path's steps equals composing each step's
+    covariance through the adjoints of what follows it, on random paths of 1-60 steps."""
+    import itertools
+
+    from markergraph.estimator.frames import motion_covariance
+
+    rng = np.random.default_rng(11)
+    noise = OdometryNoise()
+    for _ in range(20):
+        n = int(rng.integers(1, 61))
+        path = np.cumsum(rng.normal(0.0, [0.05, 0.05, 0.3], (n + 1, 3)), axis=0)
+        path += np.array([3.0, -2.0, 2.5])
+        poses = [gtsam.Pose2(*p) for p in path]
+        steps = [a.between(b) for a, b in itertools.pairwise(poses)]
+        _, expected = compose_covariance(steps, [noise.covariance(step) for step in steps])
+        np.testing.assert_allclose(motion_covariance(path, noise), expected, atol=1e-15)
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_ekf_jacobians_match_numerical(seed: int) -> None:
     """Motion F and G, observation H, and marker-initialisation G match central differences."""

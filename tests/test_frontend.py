@@ -750,3 +750,41 @@ def test_workers_auto_uses_a_second_process_only_where_it_helps(monkeypatch) -> 
     assert workers == 1 and note is not None and "no core idle" in note
     assert pipeline.choose_workers(100, 2) == (2, None)
     assert pipeline.choose_workers(100, 5)[0] == 2
+
+
+def test_read_ahead_yields_everything_raises_in_place_and_stops_early() -> None:
+    """The reading thread hands over every item in order, raises a producer's error at the item
+    where it happened, and when the consumer stops early the generator is closed and the
+    thread ends."""
+    import threading
+
+    from markergraph.frontend.sources import read_ahead
+
+    assert list(read_ahead(iter(range(1000)), size=8)) == list(range(1000))
+
+    def failing():
+        yield from range(5)
+        raise LogError("log.mcap: a damaged chunk")
+
+    seen = []
+    with pytest.raises(LogError, match="damaged chunk"):
+        for item in read_ahead(failing(), size=2):
+            seen.append(item)
+    assert seen == [0, 1, 2, 3, 4]
+
+    closed = threading.Event()
+
+    def endless():
+        try:
+            n = 0
+            while True:
+                yield n
+                n += 1
+        finally:
+            closed.set()
+
+    stream = read_ahead(endless(), size=4)
+    assert [next(stream) for _ in range(10)] == list(range(10))
+    stream.close()  # what a consumer's break does
+    assert closed.wait(5.0)
+    assert not any(t.name == "markergraph-read-ahead" for t in threading.enumerate())
