@@ -234,7 +234,7 @@ def prepare(
     )
     breaks = [t for t, _ in jumps]
     if config.values["camera.delay_ms"] is None:
-        stage("choosing the camera's delay by SLAM's residuals (16 solves)")
+        stage("choosing the camera's delay by SLAM's residuals")
     observations, delay_ns = _timed(extraction, config, odometry_noise, breaks)
     frames = build_frames(
         observations,

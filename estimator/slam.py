@@ -154,10 +154,11 @@ def slam_cost(
     """
     builder = build_slam_graph(frames, T_base_camera, robust)
     keys = builder.values.keys()  # a gtsam KeyVector
-    warm = near is None or near.size() != len(keys) or not all(near.exists(k) for k in keys)
-    if not warm:
+    if near is not None and near.size() == len(keys) and all(near.exists(k) for k in keys):
         builder.values = near
-    result, _ = _optimise(builder, {}, warm=warm)
+        result, _ = _optimise(builder, {}, warm=False)
+    else:
+        result, _ = _optimise(builder, {})
     return float(builder.graph.error(result)), result
 
 
