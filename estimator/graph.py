@@ -8,7 +8,7 @@ paper's theta), each with its own sigma. A relative-pose factor on the same numb
 linearise the observation once, at the measurement: its covariance is a straight ellipse where
 the truth is polar, and SE(2)'s logarithm leaks a long range error into the marker's yaw and
 sideways position. On the independent generator's corridor that form left SLAM 2.3-3.8 cm off
-on ideal logs with marker yaws 5.6-6.8 deg off; the polar factors: 1.1-2.5 cm and 0.3-1.1 deg.
+on ideal logs with marker yaws 5.6-6.8 deg off; the polar factors: 1.0-2.6 cm and 0.3-1.1 deg.
 """
 
 from __future__ import annotations
