@@ -444,7 +444,7 @@ def available_cores() -> int:
     return os.cpu_count() or 1
 
 
-# A worker costs 0.7 s to spawn and import, and a few hundred frames a second repay it: below
+# A worker costs 0.3-0.7 s to spawn and import, and a few hundred frames a second repay it: below
 # this many frames each, one process is as fast.
 MIN_FRAMES_PER_WORKER = 1500
 
