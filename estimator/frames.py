@@ -121,12 +121,9 @@ def build_frames(
             previous = frames[-1]
             first = int(np.searchsorted(path.t_ns, previous.t_ns, "right"))
             last = int(np.searchsorted(path.t_ns, t_ns, "left"))
-            ends = [previous.T_odom_base, T_odom_base]
-            along = np.vstack([
-                [ends[0].x(), ends[0].y(), ends[0].theta()],
-                path.poses[first:last],
-                [ends[1].x(), ends[1].y(), ends[1].theta()],
-            ])  # fmt: skip
+            along = np.vstack(
+                [_xyt(previous.T_odom_base), path.poses[first:last], _xyt(T_odom_base)]
+            )
             covariance = motion_covariance(along, odometry_noise)
             if any(previous.t_ns < t <= t_ns for t in odometry_breaks):
                 covariance = covariance + RELEASED_MOTION_COVARIANCE
@@ -160,6 +157,10 @@ def build_frames(
     return Frames(frames, home, home_frame, notes)
 
 
+def _xyt(T: gtsam.Pose2) -> list[float]:
+    return [T.x(), T.y(), T.theta()]
+
+
 def motion_covariance(poses: NDArray[np.float64], noise: OdometryNoise) -> NDArray[np.float64]:
     """Covariance of the odometry motion along ``poses`` ((n + 1, 3): x, y, yaw), composed
     increment by increment (:func:`~markergraph.estimator.models.compose_covariance`), so
@@ -171,10 +172,8 @@ def motion_covariance(poses: NDArray[np.float64], noise: OdometryNoise) -> NDArr
     step-by-step composition cost 4 s of a 10-minute log's 16 delay solves).
     """
     steps = np.diff(poses, axis=0)
-    dist = np.hypot(steps[:, 0], steps[:, 1])
     turn = np.abs(np.remainder(steps[:, 2] + np.pi, 2 * np.pi) - np.pi)
-    a = noise.floor_m**2 + noise.per_m**2 * dist
-    b = noise.floor_rad**2 + noise.yaw_per_m**2 * dist + noise.yaw_per_rad**2 * turn
+    a, b = noise.variances(np.hypot(steps[:, 0], steps[:, 1]), turn)
     c, s = math.cos(poses[-1, 2]), math.sin(poses[-1, 2])
     dx, dy = (poses[1:, 0] - poses[-1, 0]), (poses[1:, 1] - poses[-1, 1])
     qx, qy = c * dx + s * dy, -s * dx + c * dy

@@ -6,7 +6,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import gtsam
 import numpy as np
@@ -171,13 +171,16 @@ class OdometryNoise:
     floor_m: float = 1e-4
     floor_rad: float = 1e-4
 
+    def variances(self, dist: Any, turn: Any) -> tuple[Any, Any]:
+        """``(vxy, vyaw)`` of steps of ``dist`` metres and ``turn`` radians (absolute), as
+        floats or elementwise over arrays."""
+        var_xy = self.floor_m**2 + self.per_m**2 * dist
+        var_yaw = self.floor_rad**2 + self.yaw_per_m**2 * dist + self.yaw_per_rad**2 * turn
+        return var_xy, var_yaw
+
     def covariance(self, delta: gtsam.Pose2) -> NDArray[np.float64]:
         """3x3 covariance over (x, y, yaw) of one relative motion ``delta``."""
-        dist = math.hypot(delta.x(), delta.y())
-        var_xy = self.floor_m**2 + self.per_m**2 * dist
-        var_yaw = (
-            self.floor_rad**2 + self.yaw_per_m**2 * dist + self.yaw_per_rad**2 * abs(delta.theta())
-        )
+        var_xy, var_yaw = self.variances(math.hypot(delta.x(), delta.y()), abs(delta.theta()))
         return np.diag([var_xy, var_xy, var_yaw])
 
 
