@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -20,6 +20,7 @@ from markergraph.estimator import (
     Frames,
     MapError,
     MarkerGraphError,
+    MarkerHeight,
     Method,
     Observation,
     OdometryNoise,
@@ -115,6 +116,21 @@ def truth_in_home_frame(
     return truth, path
 
 
+def marker_map_of(
+    estimate: Estimate,
+    log: str,
+    config: MapConfig,
+    heights: Mapping[int, MarkerHeight] | None = None,
+) -> MarkerMap:
+    """An estimate's marker map with the settings' dictionary and marker sides."""
+    frontend = config.frontend
+    return MarkerMap.from_estimate(
+        estimate, log=log, dictionary=frontend.dictionary,
+        marker_size_m=frontend.marker_length_m, marker_sizes_m=frontend.marker_lengths_m,
+        heights=heights,
+    )  # fmt: skip
+
+
 def _score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory | None) -> None:
     """Marker and trajectory errors against the logged truth, where it covers the estimate."""
     estimate = result.estimate
@@ -123,19 +139,29 @@ def _score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory
     result.map_error = map_error(estimate, truth)
     if len(estimate.markers) >= 2:
         result.map_error_aligned = map_error(estimate, truth, align=True)
+    result.trajectory_error, result.true_path = path_error(estimate.trajectory, path)
+
+
+def path_error(
+    trajectory: Trajectory, path: Trajectory | None
+) -> tuple[TrajectoryError | None, Trajectory | None]:
+    """An estimated trajectory's error against the true path at its own stamps, and that true
+    path (None where the truth does not cover two of them)."""
     if path is None or len(path) < 2:
-        return
-    true_path = path.at_stamps(estimate.trajectory.t_ns)
-    result.true_path = true_path
-    covered = np.isin(estimate.trajectory.t_ns, true_path.t_ns)
-    if len(true_path) >= 2:
-        result.trajectory_error = trajectory_error(
-            estimate.trajectory.poses[covered], true_path.poses
-        )
+        return None, None
+    true_path = path.at_stamps(trajectory.t_ns)
+    if len(true_path) < 2:
+        return None, true_path
+    covered = np.isin(trajectory.t_ns, true_path.t_ns)
+    return trajectory_error(trajectory.poses[covered], true_path.poses), true_path
 
 
 def _timed(
-    extraction: Extraction, config: MapConfig, noise: OdometryNoise, breaks: list[int]
+    extraction: Extraction,
+    config: MapConfig,
+    noise: OdometryNoise,
+    breaks: list[int],
+    home_id: int | None,
 ) -> tuple[list[Observation], int]:
     """The observations at their capture times (the camera's delay, chosen by the residuals
     unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked,
@@ -152,7 +178,7 @@ def _timed(
         observations = widened_for_motion(observations, extraction.odometry, window_s)
     if v["camera.delay_ms"] is None:
         chosen = camera_delay_by_residuals(
-            observations, extraction.odometry, config.home_id, extraction.mount.T_base_camera,
+            observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
             odometry_noise=noise, odometry_breaks=breaks, robust=config.robust,
             readout_ns=readout_ns, image_height=height,
         )  # fmt: skip
@@ -178,7 +204,7 @@ def prepare(
     extraction: Extraction,
     config: MapConfig,
     stage: Callable[[str], None] = lambda name: None,
-    home_id: int | Literal["config"] | None = "config",
+    home_id: int | None = None,
 ) -> tuple[list[Observation], Frames, int, str]:
     """One log's extraction made ready for the estimators: checked, odometry jumps released,
     its noise model chosen, the camera's delay applied (chosen by SLAM's residuals unless set);
@@ -235,11 +261,11 @@ def prepare(
     breaks = [t for t, _ in jumps]
     if config.values["camera.delay_ms"] is None:
         stage("choosing the camera's delay by SLAM's residuals")
-    observations, delay_ns = _timed(extraction, config, odometry_noise, breaks)
+    observations, delay_ns = _timed(extraction, config, odometry_noise, breaks, home_id)
     frames = build_frames(
         observations,
         extraction.odometry,
-        config.home_id if home_id == "config" else home_id,
+        home_id,
         odometry_noise=odometry_noise,
         odometry_breaks=breaks,
     )
@@ -272,9 +298,8 @@ def map_log(
     start = time.perf_counter()
     extraction = extract(log, config.frontend, progress=progress, workers=config.workers)
     seconds["front end"] = time.perf_counter() - start
-    observations, frames, delay_ns, source = prepare(log, extraction, config, stage)
+    observations, frames, delay_ns, source = prepare(log, extraction, config, stage, config.home_id)
     truth, true_path = truth_in_home_frame(extraction, frames.home_id)
-    frontend = config.frontend
     heights = marker_heights(observations)
     results = []
     for i, method in enumerate(config.methods, start=1):
@@ -288,15 +313,7 @@ def map_log(
         except EstimationError as error:
             raise EstimationError(f"{log}: {method.value}: {error}") from None
         seconds[method.value] = time.perf_counter() - start
-        marker_map = MarkerMap.from_estimate(
-            estimate,
-            log=str(log),
-            dictionary=frontend.dictionary,
-            marker_size_m=frontend.marker_length_m,
-            marker_sizes_m=frontend.marker_lengths_m,
-            heights=heights,
-        )
-        result = MethodResult(method, estimate, marker_map)
+        result = MethodResult(method, estimate, marker_map_of(estimate, str(log), config, heights))
         _score(result, truth, true_path)
         results.append(result)
     return MapRun(

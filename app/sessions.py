@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -24,7 +24,6 @@ from markergraph.estimator import (
     SettingsError,
     Trajectory,
     marker_heights,
-    trajectory_error,
 )
 from markergraph.estimator.sessions import (
     Localization,
@@ -36,7 +35,15 @@ from markergraph.estimator.sessions import (
 from markergraph.executors import extract_logs
 from markergraph.frontend import Extraction
 from markergraph.markermap import MarkerMap
-from markergraph.run import MapRun, MethodResult, _score, prepare, truth_in_home_frame
+from markergraph.run import (
+    MapRun,
+    MethodResult,
+    _score,
+    marker_map_of,
+    path_error,
+    prepare,
+    truth_in_home_frame,
+)
 from markergraph.settings import MapConfig
 
 __all__ = ["LocalizationRun", "Session", "localize_log", "map_logs", "priors_of"]
@@ -76,9 +83,9 @@ def priors_of(saved: MarkerMap, notes: list[str]) -> dict[int, MapPrior]:
     return priors
 
 
-def _as_estimate(
-    solved: SessionsEstimate, method: Method, home_id: int, trajectory: Trajectory
-) -> Estimate:
+def _as_estimate(solved: SessionsEstimate, method: Method, home_id: int) -> Estimate:
+    """A several-log solution as one method's estimate, with the first placed log's path."""
+    trajectory = next(t for t in solved.trajectories if t is not None)
     return Estimate(
         method=method, home_id=home_id, markers=solved.markers, trajectory=trajectory,
         residuals=solved.residuals, notes=solved.notes, graph=solved.graph, values=solved.values,
@@ -126,37 +133,31 @@ def map_logs(
     seconds["front end"] = time.perf_counter() - start
     prepared = []
     for i, (log, extraction) in enumerate(zip(logs, extractions, strict=True)):
-        home: Literal["config"] | None = "config" if i == 0 and prior is None else None
-        prepared.append(prepare(log, extraction, config, stage, home_id=home))
+        home = config.home_id if i == 0 and prior is None else None
+        prepared.append(prepare(log, extraction, config, stage, home))
     notes: list[str] = []
     if len(methods) < len(config.methods):
         notes.append("the closed form and the EKF follow one log: left out of a several-log map")
     priors = priors_of(prior, notes) if prior is not None else None
     frames = [p[1] for p in prepared]
     mounts = [e.mount.T_base_camera for e in extractions]
-    home_id = prior.home_id if prior is not None else (config.home_id or frames[0].home_id)
-    frontend = config.frontend
+    # The first log was read with the settings' home marker (or, under a prior, the map's).
+    home_id = prior.home_id if prior is not None else frames[0].home_id
     heights = marker_heights([o for p in prepared for o in p[0]])
-    results, solutions = [], []
+    results, first_solved = [], None
     for method in methods:
         stage(f"estimating: {method.value} over every log")
         start = time.perf_counter()
         solved = solve_sessions(frames, mounts, robust=config.robust, priors=priors,
                                 home_id=config.home_id, method=method)  # fmt: skip
         seconds[method.value] = time.perf_counter() - start
-        first = next(i for i, t in enumerate(solved.trajectories) if t is not None)
-        trajectory = solved.trajectories[first]
-        assert trajectory is not None
-        estimate = _as_estimate(solved, method, home_id, trajectory)
+        first_solved = first_solved or solved
+        estimate = _as_estimate(solved, method, home_id)
         estimate.notes = notes + estimate.notes
-        marker_map = MarkerMap.from_estimate(
-            estimate, log=", ".join(map(str, logs)), dictionary=frontend.dictionary,
-            marker_size_m=frontend.marker_length_m, marker_sizes_m=frontend.marker_lengths_m,
-            heights=heights,
-        )  # fmt: skip
+        marker_map = marker_map_of(estimate, ", ".join(map(str, logs)), config, heights)
         results.append(MethodResult(method, estimate, marker_map))
-        solutions.append(solved)
-    solved = solutions[0]
+    assert first_solved is not None
+    solved = first_solved
     first = next(i for i, t in enumerate(solved.trajectories) if t is not None)
     extraction = extractions[first]
     truth, true_path = truth_in_home_frame(extraction, home_id)
@@ -186,14 +187,9 @@ def _separate(
         solved = solve_sessions([frames[i] for i in apart], [mounts[i] for i in apart],
                                 robust=config.robust)  # fmt: skip
         placed = [apart[j] for j, t in enumerate(solved.trajectories) if t is not None]
-        trajectory = next(t for t in solved.trajectories if t is not None)
-        estimate = _as_estimate(solved, Method.SLAM, frames[placed[0]].home_id, trajectory)
+        estimate = _as_estimate(solved, Method.SLAM, frames[placed[0]].home_id)
         group = [Path(logs[i]) for i in placed]
-        maps.append((group, MarkerMap.from_estimate(
-            estimate, log=", ".join(map(str, group)), dictionary=config.frontend.dictionary,
-            marker_size_m=config.frontend.marker_length_m,
-            marker_sizes_m=config.frontend.marker_lengths_m,
-        )))  # fmt: skip
+        maps.append((group, marker_map_of(estimate, ", ".join(map(str, group)), config)))
         apart = [apart[j] for j in solved.apart]
     return maps
 
@@ -285,7 +281,7 @@ def localize_log(
     stage(f"reading {Path(log).name}")
     (extraction,) = extract_logs([log], config.frontend, workers=config.workers,
                                  progress=progress)  # fmt: skip
-    _, frames, _, _ = prepare(log, extraction, config, stage, home_id=None)
+    _, frames, _, _ = prepare(log, extraction, config, stage)
     notes = list(extraction.notes)
     priors = priors_of(saved, notes)
     stage("localising against the saved map")
@@ -300,15 +296,9 @@ def localize_log(
             f"marker(s) {', '.join(map(str, sorted(localization.new)))} are not in the map: "
             "placed by this log (see localization.json)"
         )
-    ate_m, true_path = None, None
     _, path = truth_in_home_frame(extraction, saved.home_id)
-    if path is not None:
-        true_path = path.at_stamps(localization.trajectory.t_ns)
-        covered = np.isin(localization.trajectory.t_ns, true_path.t_ns)
-        if len(true_path) >= 2:
-            ate_m = trajectory_error(
-                localization.trajectory.poses[covered], true_path.poses
-            ).ate_rmse_m
+    error, true_path = path_error(localization.trajectory, path)
+    ate_m = error.ate_rmse_m if error is not None else None
     return LocalizationRun(
         Path(log), Path(map_path), saved, config, extraction, localization, ate_m, true_path,
         notes,

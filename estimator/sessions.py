@@ -141,7 +141,10 @@ def _add_links(
 def _update(isam: gtsam.ISAM2, builder: GraphBuilder) -> None:
     graph, values = builder.take_new()
     if graph.size() or values.size():
-        isam.update(graph, values)
+        try:
+            isam.update(graph, values)
+        except RuntimeError as error:  # GTSAM's IndeterminantLinearSystemException
+            raise EstimationError(f"iSAM2 could not solve the graph: {first_line(error)}") from None
 
 
 def _isam2_to_rest(isam: gtsam.ISAM2, builder: GraphBuilder) -> gtsam.Values:
@@ -218,9 +221,10 @@ def solve_sessions(
         raise EstimationError(
             "no session sees a marker of the map (or the home marker): nothing to place"
         )
+    if isam is not None:
+        _update(isam, builder)
     try:
         if isam is not None:
-            _update(isam, builder)
             values = _isam2_to_rest(isam, builder)
         else:
             start = (
