@@ -183,6 +183,7 @@ def observe_detections(
     for detection in detections:
         length_m = model.length_of(detection.marker_id)
         corners = camera.undistort(detection.corners)
+        edge_flags = corner_flags(detection.corners, camera)
         # One PnP solve serves theta (the default method), the range without depth and the
         # depth's scale.
         pose = pnp_pose(corners, camera, length_m)
@@ -224,7 +225,7 @@ def observe_detections(
             sigma_z = z * corner_sigma_px * math.sqrt(2.0) / ((left + right) / 2.0)
         else:
             sigma_z = depth_model.sigma(z)
-            well_placed = abs(theta) < GRAZING_RAD and not corner_flags(detection.corners, camera)
+            well_placed = abs(theta) < GRAZING_RAD and not edge_flags
             if depth_ratios is not None and well_placed and pose is not None and pose[1][2] > 0:
                 depth_ratios.append((t_ns, z, float(pose[1][2])))
         # The centre in the base frame, then horizontal range and bearing from the camera.
@@ -241,7 +242,7 @@ def observe_detections(
             # the detector's corners cannot tell them apart and theta may be mirrored. Keep
             # bearing and range, which stay accurate, and let theta weigh next to nothing.
             sigma_theta = max(sigma_theta, GRAZING_SIGMA_RAD)
-        flags |= corner_flags(detection.corners, camera)
+        flags |= edge_flags
         if abs(theta) > GRAZING_RAD:
             flags.add(Flags.GRAZING)
         if abs(theta) < AMBIGUOUS_RAD:

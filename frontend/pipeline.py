@@ -207,7 +207,8 @@ class _SpanReader:
         self.path, self.config, self.choice, self.counts = path, config, choice, counts
         mount = config.mount or config.default_mount
         self.part = _Part(Extraction([], Trajectory.from_samples([]), config.camera, mount, choice))
-        self.failures = DecodeFailures()
+        # Two books, one per thread: the reading thread's (messages) and this one's (_take).
+        self.failures, self.read_failures = DecodeFailures(), DecodeFailures()
         self.static: list[Any] = []
         self.image_frame: str | None = None
         self.odometry_frame: str | None = None
@@ -233,7 +234,7 @@ class _SpanReader:
         margin = 3 * self.config.pair_tolerance_ns
         start = None if span.start_ns is None else span.start_ns - margin
         end = None if span.end_ns is None else span.end_ns + margin
-        stream = messages(self.path, streamed, self.failures, start, end, self.done)
+        stream = messages(self.path, streamed, self.read_failures, start, end, self.done)
         for message in read_ahead(stream):
             if message.topic == color:
                 done += 1
@@ -244,7 +245,7 @@ class _SpanReader:
         if progress is not None:
             progress(total, total)
         result = self.part.extraction
-        result.warnings = self.failures.warnings()
+        result.warnings = self.read_failures.warnings() + self.failures.warnings()
         result.ids_left_out = self.detector.left_out - left_out_before
         return self.part
 

@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 from mcap.records import MessageIndex
 
 from markergraph.frontend.bags import is_bag
-from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_depth, decode_image, frame_id
 from markergraph.frontend.detect import Detector
@@ -37,7 +37,12 @@ from markergraph.frontend.sources import (
     log_topics,
     messages,
 )
-from markergraph.frontend.tf import odometry_from_tf, transform_between, transforms_of
+from markergraph.frontend.tf import (
+    mount_from_transforms,
+    odometry_from_tf,
+    transform_between,
+    transforms_of,
+)
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TF_SCHEMAS, TopicChoice, choose_topics
 
 __all__ = [
@@ -588,8 +593,7 @@ def preflight(path: Path, config: FrontendConfig = FrontendConfig()) -> Prefligh
     elif color is not None:  # the pipeline's bases: the odometry's body, then the base frame
         try:
             frames = _chain(static, (body_frame, config.base_frame), color.frame_id)
-            R, t = transform_between(static, frames[0], color.frame_id)
-            pose = CameraMount.from_pose(R, t).describe()
+            pose = mount_from_transforms(static, frames[0], color.frame_id).describe()
             mount = Mount(choice.tf_static or "/tf_static", frames, pose)
         except LogError as error:
             warnings.append(f"{error}; the configured camera mount is assumed ({assumed})")

@@ -219,8 +219,9 @@ def messages(
     ``start_ns``/``end_ns`` only log times in [start, end) are read, from the chunks holding
     them. With ``failures``, a message that does not decode is skipped and counted there, and
     so are a damaged chunk's messages (a damaged stretch of a long log costs that stretch);
-    without it, either raises. Topics in ``done`` (which the caller may grow while reading:
-    a camera_info once the camera is known) are passed over undecoded.
+    without it, either raises. In an MCAP log, topics in ``done`` (which the caller may grow
+    while reading: a camera_info once the camera is known) are passed over undecoded; a bag
+    yields them still.
 
     Raises:
         LogError: an unreadable file, a channel whose encoding or schema cannot be decoded, or
@@ -256,7 +257,7 @@ def messages(
                 )
 
 
-def read_ahead(items: Iterator[Any], size: int = 64) -> Iterator[Any]:
+def read_ahead(items: Iterator[Any], size: int = 8) -> Iterator[Any]:
     """``items``, produced by a thread of their own up to ``size`` ahead of the consumer.
 
     Reading a log (file reads, zstd, record parsing) then overlaps decoding and detecting

@@ -16,6 +16,7 @@ from markergraph.datasets.sensors import SensorEffects
 from markergraph.datasets.write import write_log
 from markergraph.frontend import FrontendConfig, decode_image, extract, messages
 from markergraph.frontend.detect import Detection, Detector, DetectorMode, detection_agreement
+from markergraph.frontend.observe import SMALL_EDGE_PX
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 TUTORIAL = DATA / "opencv-aruco-tutorial" / "modules" / "aruco"
@@ -24,7 +25,6 @@ needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data is not
 COLOUR = "/camera/camera/color/image_raw/compressed"
 MIN_RECALL = 0.99  # issue 15: the fast path keeps at least 99 % of FULL's detections ...
 MAX_MEDIAN_CORNER_PX = 0.05  # ... and adds at most 0.05 px median corner error
-SMALL_SIDE_PX = 20.0  # observe.SMALL_EDGE_PX: the front end's "small" flag
 GRAZING_SIDE_RATIO = 0.5  # shortest side under half the longest: seen at over 60 degrees
 
 # OpenCV's tutorial photos with their dictionaries: single markers, a grid board (custom
@@ -82,7 +82,7 @@ def test_fast_keeps_full_detections_on_rendered_logs(rendered: dict[str, Path], 
     total, recall, median_px = agreement(reference, [fast.detect(frame) for frame in frames])
     edges = [sides(d.corners) for found in reference for d in found]
     if name == "corridor-loop":  # the log holds what the fast path could lose
-        assert sum(e.min() < SMALL_SIDE_PX for e in edges) >= 20
+        assert sum(e.min() < SMALL_EDGE_PX for e in edges) >= 20
         assert sum(e.min() < GRAZING_SIDE_RATIO * e.max() for e in edges) >= 20
     assert total >= 100
     assert recall >= MIN_RECALL
