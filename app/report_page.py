@@ -60,6 +60,7 @@ _LOG_ROWS: tuple[tuple[str, str], ...] = (
     ("markers_seen", "markers seen"),
     ("odometry_samples", "odometry samples"),
     ("odometry_source", "odometry noise model"),
+    ("odometry_scale", "odometry scale applied"),
     ("camera_delay_ms", "camera delay against odometry [ms]"),
     ("depth_scale", "depth scale applied"),
     ("measured_depth_scale", "depth scale measured"),

@@ -39,6 +39,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         "measured_depth_scale": extraction.measured_depth_scale,
         "camera_delay_ms": run.camera_delay_ns / 1e6,
         "odometry_source": run.odometry_source,
+        "odometry_scale": run.odometry_scale,
         "levelled_frames": extraction.levelled_frames,
         "notes": extraction.notes + extraction.warnings,
         "ground_truth": bool(run.true_markers),

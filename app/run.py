@@ -8,7 +8,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import gtsam
 import numpy as np
@@ -31,6 +31,7 @@ from markergraph.estimator import (
     estimate_frames,
     map_error,
     marker_heights,
+    odometry_scale_by_residuals,
     retimed,
     trajectory_error,
     widened_for_motion,
@@ -69,6 +70,24 @@ class MethodResult:
         return self.method.value
 
 
+class Prepared(NamedTuple):
+    """One log made ready for the estimators (:func:`prepare`).
+
+    Attributes:
+        observations: at their capture times, sigmas widened for blur if asked.
+        frames: the estimators' input, on the scaled odometry.
+        camera_delay_ns: the camera's delay used [ns].
+        odometry_source: the odometry noise model used.
+        odometry_scale: what the odometry's distances were multiplied by.
+    """
+
+    observations: list[Observation]
+    frames: Frames
+    camera_delay_ns: int
+    odometry_source: str
+    odometry_scale: float
+
+
 @dataclass
 class MapRun:
     """Everything the main job produced.
@@ -84,6 +103,7 @@ class MapRun:
         true_path: the true base path in the estimate's map frame, if logged.
         camera_delay_ns: how late the camera's stamps were taken to be against odometry [ns].
         odometry_source: the odometry noise model used (``wheel``, ``vio``, ``t265``).
+        odometry_scale: what the odometry's distances were multiplied by.
         seconds: stage -> wall time.
         sessions: with several logs, each log and its trajectory in the map.
         separate: maps of logs that share no marker with this one: (their logs, the map).
@@ -98,6 +118,7 @@ class MapRun:
     true_path: Trajectory | None = None
     camera_delay_ns: int = 0
     odometry_source: str = "wheel"
+    odometry_scale: float = 1.0
     seconds: dict[str, float] = field(default_factory=dict)
     sessions: list[Any] = field(default_factory=list)
     separate: list[tuple[list[Path], MarkerMap]] = field(default_factory=list)
@@ -205,10 +226,10 @@ def prepare(
     config: MapConfig,
     stage: Callable[[str], None] = lambda name: None,
     home_id: int | None = None,
-) -> tuple[list[Observation], Frames, int, str]:
+) -> Prepared:
     """One log's extraction made ready for the estimators: checked, odometry jumps released,
-    its noise model chosen, the camera's delay applied (chosen by SLAM's residuals unless set);
-    (observations, frames, the delay used [ns], the odometry source).
+    its noise model chosen, the camera's delay and the odometry's scale applied (each chosen by
+    SLAM's residuals unless set).
 
     Raises:
         MarkerGraphError: no marker observations, or no odometry.
@@ -262,14 +283,47 @@ def prepare(
     if config.values["camera.delay_ms"] is None:
         stage("choosing the camera's delay by SLAM's residuals")
     observations, delay_ns = _timed(extraction, config, odometry_noise, breaks, home_id)
+    scale = _odometry_scale(extraction, config, observations, odometry_noise, breaks, home_id)
     frames = build_frames(
         observations,
-        extraction.odometry,
+        extraction.odometry.scaled(scale),
         home_id,
         odometry_noise=odometry_noise,
         odometry_breaks=breaks,
     )
-    return observations, frames, delay_ns, source
+    return Prepared(observations, frames, delay_ns, source, scale)
+
+
+def _odometry_scale(
+    extraction: Extraction,
+    config: MapConfig,
+    observations: list[Observation],
+    noise: OdometryNoise,
+    breaks: list[int],
+    home_id: int | None,
+) -> float:
+    """The factor the odometry's distances are multiplied by: as set, or chosen by SLAM's
+    residuals (1 where they have no minimum), and said in the notes."""
+    configured = config.values["odometry.scale"]
+    if configured is not None:
+        return float(configured)
+    chosen = odometry_scale_by_residuals(
+        observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
+        odometry_noise=noise, odometry_breaks=breaks, robust=config.robust,
+    )  # fmt: skip
+    topic = extraction.topics.odom
+    if chosen.scale is None:
+        extraction.notes.append(
+            f"odometry on {topic} taken at its scale: SLAM's residuals have no minimum between "
+            "0.95 and 1.05 (--odometry-scale sets one)"
+        )
+        return 1.0
+    extraction.notes.append(
+        f"odometry on {topic} reads {100 * (1 / chosen.scale - 1):+.2f} % of the distance: "
+        f"its steps are scaled by {chosen.scale:.4f} (chosen by SLAM's residuals over "
+        "0.95..1.05; --odometry-scale sets it)"
+    )
+    return chosen.scale
 
 
 def map_log(
@@ -298,7 +352,8 @@ def map_log(
     start = time.perf_counter()
     extraction = extract(log, config.frontend, progress=progress, workers=config.workers)
     seconds["front end"] = time.perf_counter() - start
-    observations, frames, delay_ns, source = prepare(log, extraction, config, stage, config.home_id)
+    prepared = prepare(log, extraction, config, stage, config.home_id)
+    observations, frames = prepared.observations, prepared.frames
     truth, true_path = truth_in_home_frame(extraction, frames.home_id)
     heights = marker_heights(observations)
     results = []
@@ -317,5 +372,7 @@ def map_log(
         _score(result, truth, true_path)
         results.append(result)
     return MapRun(
-        Path(log), config, extraction, frames, results, truth, true_path, delay_ns, source, seconds
-    )
+        Path(log), config, extraction, frames, results, truth, true_path,
+        camera_delay_ns=prepared.camera_delay_ns, odometry_source=prepared.odometry_source,
+        odometry_scale=prepared.odometry_scale, seconds=seconds,
+    )  # fmt: skip

@@ -139,11 +139,11 @@ def map_logs(
     if len(methods) < len(config.methods):
         notes.append("the closed form and the EKF follow one log: left out of a several-log map")
     priors = priors_of(prior, notes) if prior is not None else None
-    frames = [p[1] for p in prepared]
+    frames = [p.frames for p in prepared]
     mounts = [e.mount.T_base_camera for e in extractions]
     # The first log was read with the settings' home marker (or, under a prior, the map's).
     home_id = prior.home_id if prior is not None else frames[0].home_id
-    heights = marker_heights([o for p in prepared for o in p[0]])
+    heights = marker_heights([o for p in prepared for o in p.observations])
     results, first_solved = [], None
     for method in methods:
         stage(f"estimating: {method.value} over every log")
@@ -163,9 +163,10 @@ def map_logs(
     truth, true_path = truth_in_home_frame(extraction, home_id)
     for result in results:
         _score(result, truth, true_path)
-    _, _, delay_ns, source = prepared[first]
     run = MapRun(Path(logs[first]), config, extraction, frames[first], results, truth,
-                 true_path, delay_ns, source, seconds)  # fmt: skip
+                 true_path, camera_delay_ns=prepared[first].camera_delay_ns,
+                 odometry_source=prepared[first].odometry_source,
+                 odometry_scale=prepared[first].odometry_scale, seconds=seconds)  # fmt: skip
     run.sessions = [
         Session(Path(log), extraction, frames[i], solved.trajectories[i])
         for i, (log, extraction) in enumerate(zip(logs, extractions, strict=True))
@@ -281,7 +282,7 @@ def localize_log(
     stage(f"reading {Path(log).name}")
     (extraction,) = extract_logs([log], config.frontend, workers=config.workers,
                                  progress=progress)  # fmt: skip
-    _, frames, _, _ = prepare(log, extraction, config, stage)
+    frames = prepare(log, extraction, config, stage).frames
     notes = list(extraction.notes)
     priors = priors_of(saved, notes)
     stage("localising against the saved map")

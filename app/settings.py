@@ -248,6 +248,9 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("odometry.source", "auto", _text,
             "the odometry's noise preset; auto: t265 or vio by the topic's name, else wheel",
             choices=["auto", *ODOMETRY_NOISE]),
+    Setting("odometry.scale", None, _scale_or_auto,
+            "what the odometry's distances are multiplied by (the wheels' radius error); auto "
+            "(default): chosen by SLAM's residuals over 0.95..1.05, 1 where they cannot tell"),
     Setting("noise.odometry_per_m", None, _optional(_ODOMETRY_NOISE),
             "odometry position sigma after 1 m travelled [m/sqrt(m)] (default: the source's)"),
     Setting("noise.odometry_yaw_per_m", None, _optional(_ODOMETRY_NOISE),

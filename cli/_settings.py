@@ -61,6 +61,7 @@ FLAGS: dict[str, Flag] = {
     "noise.depth_per_m2": Flag("--depth-noise-per-m2", "K", type=float, commands=_READ),
     "noise.depth_max_m": Flag("--depth-max", "M", type=float, commands=_READ),
     "odometry.source": Flag("--odometry-source", commands=_MAP),
+    "odometry.scale": Flag("--odometry-scale", "K|auto", commands=_MAP),
     "noise.odometry_per_m": Flag("--odometry-noise", "M", type=float, commands=_MAP),
     "noise.odometry_yaw_per_m": Flag("--odometry-yaw-noise", "RAD", type=float, commands=_MAP),
     "noise.odometry_yaw_per_rad": Flag("--odometry-turn-noise", "RAD", type=float, commands=_MAP),

@@ -18,6 +18,7 @@ from markergraph.estimator.metrics import (
     nees,
     trajectory_error,
 )
+from markergraph.estimator.odometry_scale import OdometryScale, odometry_scale_by_residuals
 from markergraph.estimator.paper import (
     Edge,
     Form,
@@ -75,6 +76,7 @@ __all__ = [
     "Observation",
     "OdometryNoise",
     "OdometrySample",
+    "OdometryScale",
     "OdometryStretch",
     "OutputError",
     "PolarPose",
@@ -100,6 +102,7 @@ __all__ = [
     "nees",
     "odometry",
     "odometry_nees",
+    "odometry_scale_by_residuals",
     "odometry_stretches",
     "retimed",
     "trajectory_error",

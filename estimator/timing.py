@@ -32,6 +32,7 @@ __all__ = [
     "CameraDelay",
     "camera_delay_by_residuals",
     "retimed",
+    "search_sample",
     "turn_rate",
     "widened_for_motion",
 ]
@@ -41,7 +42,7 @@ DELAY_SEARCH_FRAMES = 600  # enough frames to place the cost's minimum; more onl
 COARSE_STRIDE = 3  # the grid is first searched at every third delay (30 ms)
 
 
-def _sampled(observations: Sequence[Observation], home_id: int | None) -> list[Observation]:
+def search_sample(observations: Sequence[Observation], home_id: int | None) -> list[Observation]:
     """The observations of at most about :data:`DELAY_SEARCH_FRAMES` frames, evenly spread,
     plus every frame that sees ``home_id``."""
     stamps = sorted({o.t_ns for o in observations})
@@ -133,7 +134,7 @@ def camera_delay_by_residuals(
     range. A long log is searched on :data:`DELAY_SEARCH_FRAMES` of its frames, evenly spread
     (and every frame that sees the home marker): sixteen full solves of a 10-minute log cost
     23 s; ten cost-only solves, each from the last one's solution, 3-4 s."""
-    observations = _sampled(observations, home_id)
+    observations = search_sample(observations, home_id)
 
     def cost(delay_ns: int, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
         moved = retimed(observations, delay_ns, readout_ns, image_height)

@@ -100,6 +100,15 @@ class Trajectory:
         moved = [T_new_frame.compose(self.pose(i)) for i in range(len(self))]
         return Trajectory(self.t_ns, np.array([[p.x(), p.y(), p.theta()] for p in moved]), frame)
 
+    def scaled(self, factor: float) -> Trajectory:
+        """Every step's translation times ``factor``, headings kept: odometry whose wheels read
+        ``1 / factor`` of the distance travelled. With headings unchanged this is the
+        positions scaled about the first one."""
+        poses = self.poses.copy()
+        if len(self):
+            poses[:, :2] = poses[0, :2] + factor * (poses[:, :2] - poses[0, :2])
+        return Trajectory(self.t_ns, poses, self.frame)
+
     def jumps(self, max_speed_mps: float = MAX_ODOMETRY_SPEED_MPS) -> list[tuple[int, float]]:
         """Steps faster than ``max_speed_mps`` between consecutive poses, as (stamp of the pose
         after the step [ns], the step's length [m]): a visual-inertial reset or relocalisation,

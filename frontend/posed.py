@@ -30,6 +30,7 @@ from markergraph.frontend.detect import Detection
 from markergraph.frontend.observe import (
     GRAZING_RAD,
     GRAZING_SIGMA_RAD,
+    THETA_FLOOR_RAD,
     Flags,
     ObservationModel,
     corner_flags,
@@ -179,6 +180,7 @@ def observe_levelled(
         J = _jacobian(detection.corners, view, side, np.array([bearing, theta, range_m]))
         covariance = model.corner_sigma_px**2 * (J @ J.T)
         sigma_bearing, sigma_theta, sigma_range = np.sqrt(np.maximum(np.diag(covariance), 1e-12))
+        sigma_theta = math.hypot(sigma_theta, THETA_FLOOR_RAD)
         flags = {Flags.NO_DEPTH}
         if len(solutions) > 1 and solutions[1][0] < AMBIGUITY_RATIO * max(error, 1e-3):
             other = _polar(solutions[1][1], solutions[1][2], view)[1]

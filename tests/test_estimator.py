@@ -27,6 +27,7 @@ from markergraph.estimator import (
     estimate,
     estimate_frames,
     map_error,
+    odometry_scale_by_residuals,
 )
 from markergraph.estimator.ekf import MarkerEkf
 from markergraph.estimator.models import (
@@ -443,16 +444,49 @@ def test_an_odometry_jump_is_released_and_does_not_bend_the_map(noisy_run: Simul
 def test_the_delay_search_samples_a_long_log_and_keeps_the_home_markers_frames() -> None:
     """A log of 2,000 frames is searched on at most 600 of them, evenly spread, plus every frame
     that sees the home marker; a short log is searched whole."""
-    from markergraph.estimator.timing import DELAY_SEARCH_FRAMES, _sampled
+    from markergraph.estimator.timing import DELAY_SEARCH_FRAMES, search_sample
 
     observations = [
         Observation(t * 10**8, 0 if t % 97 == 0 else 1 + t % 5, 0.0, 0.3, 2.0, 1e-3, 1e-2, 1e-2)
         for t in range(2000)
     ]
-    kept = _sampled(observations, home_id=0)
+    kept = search_sample(observations, home_id=0)
     stamps = sorted({o.t_ns for o in kept})
     home = {o.t_ns for o in observations if o.marker_id == 0}
     assert home <= set(stamps)
     assert len(stamps) <= DELAY_SEARCH_FRAMES + len(home)
     assert np.diff(stamps).max() <= 4 * 10**8  # evenly spread: every 4th frame of 2,000
-    assert _sampled(observations[:500], home_id=0) == observations[:500]
+    assert search_sample(observations[:500], home_id=0) == observations[:500]
+
+
+def test_scaled_odometry_is_each_step_scaled() -> None:
+    """Scaling the positions about the first pose is the same as composing every step with its
+    translation scaled and its turn kept (exact algebra, on a drifting simulated path)."""
+    run = simulate_fast(*scenario("corridor-loop"), seed=3, duration_s=30.0)
+    odometry = Trajectory.from_samples(run.odometry)
+    scaled = odometry.scaled(0.97)
+    composed = odometry.pose(0)
+    for i in range(1, len(odometry)):
+        step = odometry.pose(i - 1).between(odometry.pose(i))
+        composed = composed.compose(gtsam.Pose2(0.97 * step.x(), 0.97 * step.y(), step.theta()))
+        assert composed.equals(scaled.pose(i), 1e-9)
+
+
+@pytest.mark.parametrize("factor", [1.0, 0.97, 1.025])
+def test_the_odometry_scale_search_finds_the_wheels_error(factor: float) -> None:
+    """Odometry whose distances read ``factor`` of the truth (no other systematic error) is
+    scaled back by SLAM's residuals to within 0.4 % of ``1 / factor``; the chosen factor, once
+    applied, is what brings the map within 2 cm."""
+    wheel = WheelErrors(scale_sigma=0.0, yaw_scale_sigma=0.0, yaw_bias_sigma=0.0)
+    run = simulate_fast(*scenario("corridor-loop"), seed=5, wheel=wheel)
+    odometry = Trajectory.from_samples(run.odometry).scaled(factor)
+    found = odometry_scale_by_residuals(
+        run.observations, odometry, run.world.home_id, run.mount.T_base_camera,
+        odometry_noise=run.odometry_noise,
+    )  # fmt: skip
+    assert found.scale == pytest.approx(1.0 / factor, abs=0.004)
+    assert len(found.scales) <= 10
+    frames = build_frames(run.observations, odometry.scaled(found.scale or 1.0), run.world.home_id,
+                          odometry_noise=run.odometry_noise)  # fmt: skip
+    estimate = estimate_frames(frames, Method.SLAM, run.mount.T_base_camera)
+    assert map_error(estimate, run.true_markers(), align=True).rmse_position_m < 0.02
