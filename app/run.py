@@ -283,7 +283,9 @@ def prepare(
     if config.values["camera.delay_ms"] is None:
         stage("choosing the camera's delay by SLAM's residuals")
     observations, delay_ns = _timed(extraction, config, odometry_noise, breaks, home_id)
-    scale = _odometry_scale(extraction, config, observations, odometry_noise, breaks, home_id)
+    scale = _odometry_scale(
+        extraction, config, observations, odometry_noise, breaks, home_id, stage
+    )
     frames = build_frames(
         observations,
         extraction.odometry.scaled(scale),
@@ -301,29 +303,32 @@ def _odometry_scale(
     noise: OdometryNoise,
     breaks: list[int],
     home_id: int | None,
+    stage: Callable[[str], None],
 ) -> float:
     """The factor the odometry's distances are multiplied by: as set, or chosen by SLAM's
     residuals (1 where they have no minimum), and said in the notes."""
     configured = config.values["odometry.scale"]
     if configured is not None:
         return float(configured)
-    chosen = odometry_scale_by_residuals(
+    stage("choosing the odometry's scale by SLAM's residuals")
+    found = odometry_scale_by_residuals(
         observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
         odometry_noise=noise, odometry_breaks=breaks, robust=config.robust,
     )  # fmt: skip
     topic = extraction.topics.odom
-    if chosen.scale is None:
+    if found.chosen is None:
         extraction.notes.append(
             f"odometry on {topic} taken at its scale: SLAM's residuals have no minimum between "
             "0.95 and 1.05 (--odometry-scale sets one)"
         )
         return 1.0
+    off = 100 * (1 / found.chosen - 1)
     extraction.notes.append(
-        f"odometry on {topic} reads {100 * (1 / chosen.scale - 1):+.2f} % of the distance: "
-        f"its steps are scaled by {chosen.scale:.4f} (chosen by SLAM's residuals over "
+        f"odometry on {topic} reads distances {abs(off):.2f} % {'long' if off > 0 else 'short'}: "
+        f"its steps are scaled by {found.chosen:.4f} (chosen by SLAM's residuals over "
         "0.95..1.05; --odometry-scale sets it)"
     )
-    return chosen.scale
+    return found.chosen
 
 
 def map_log(

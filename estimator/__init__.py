@@ -18,7 +18,7 @@ from markergraph.estimator.metrics import (
     nees,
     trajectory_error,
 )
-from markergraph.estimator.odometry_scale import OdometryScale, odometry_scale_by_residuals
+from markergraph.estimator.odometry_scale import odometry_scale_by_residuals
 from markergraph.estimator.paper import (
     Edge,
     Form,
@@ -31,6 +31,7 @@ from markergraph.estimator.paper import (
     heading,
     odometry,
 )
+from markergraph.estimator.residual_search import GridMinimum
 from markergraph.estimator.run import estimate, estimate_frames
 from markergraph.estimator.timing import (
     CameraDelay,
@@ -67,6 +68,7 @@ __all__ = [
     "Frame",
     "Frames",
     "Goal",
+    "GridMinimum",
     "MapError",
     "MarkerEstimate",
     "MarkerGraphError",
@@ -76,7 +78,6 @@ __all__ = [
     "Observation",
     "OdometryNoise",
     "OdometrySample",
-    "OdometryScale",
     "OdometryStretch",
     "OutputError",
     "PolarPose",

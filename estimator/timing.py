@@ -12,18 +12,16 @@ smears a turn.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
 
-from markergraph.estimator.frames import build_frames
 from markergraph.estimator.graph import Robust
-from markergraph.estimator.slam import slam_cost
+from markergraph.estimator.residual_search import cheapest_on_grid, search_sample, slam_cost_of
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
-    EstimationError,
     Observation,
     OdometryNoise,
 )
@@ -32,25 +30,12 @@ __all__ = [
     "CameraDelay",
     "camera_delay_by_residuals",
     "retimed",
-    "search_sample",
     "turn_rate",
     "widened_for_motion",
 ]
 
 DELAYS_S = tuple(np.arange(-0.05, 0.1001, 0.01))  # the grid searched first [s]
-DELAY_SEARCH_FRAMES = 600  # enough frames to place the cost's minimum; more only cost time
 COARSE_STRIDE = 3  # the grid is first searched at every third delay (30 ms)
-
-
-def search_sample(observations: Sequence[Observation], home_id: int | None) -> list[Observation]:
-    """The observations of at most about :data:`DELAY_SEARCH_FRAMES` frames, evenly spread,
-    plus every frame that sees ``home_id``."""
-    stamps = sorted({o.t_ns for o in observations})
-    if len(stamps) <= DELAY_SEARCH_FRAMES:
-        return list(observations)
-    kept = set(stamps[:: math.ceil(len(stamps) / DELAY_SEARCH_FRAMES)])
-    kept |= {o.t_ns for o in observations if o.marker_id == home_id}
-    return [o for o in observations if o.t_ns in kept]
 
 
 RATE_WINDOW_NS = 20_000_000  # the turn rate is the odometry's heading change over +-this
@@ -131,50 +116,21 @@ def camera_delay_by_residuals(
     """The delay, from -50 to +100 ms, under which batch SLAM's solution has the lowest cost:
     a 30 ms grid, the 10 ms grid about its best point, then a parabola through the best point
     and its neighbours; None (in ``delay_ns``) when the lowest cost is at either end of the
-    range. A long log is searched on :data:`DELAY_SEARCH_FRAMES` of its frames, evenly spread
+    range. A long log is searched on :data:`SEARCH_FRAMES` of its frames, evenly spread
     (and every frame that sees the home marker): sixteen full solves of a 10-minute log cost
     23 s; ten cost-only solves, each from the last one's solution, 3-4 s."""
     observations = search_sample(observations, home_id)
 
-    def cost(delay_ns: int, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
-        moved = retimed(observations, delay_ns, readout_ns, image_height)
-        try:
-            frames = build_frames(
-                moved,
-                odometry,
-                home_id,
-                odometry_noise=odometry_noise,
-                odometry_breaks=odometry_breaks,
-            )
-            return slam_cost(frames, T_base_camera, robust, near)
-        except EstimationError:
-            return math.inf, near
+    def cost(delay_ns: float, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
+        moved = retimed(observations, round(delay_ns), readout_ns, image_height)
+        return slam_cost_of(moved, odometry, home_id, T_base_camera, near,
+                            odometry_noise=odometry_noise, odometry_breaks=odometry_breaks,
+                            robust=robust)  # fmt: skip
 
     delays = [round(d * 1e9) for d in DELAYS_S]
-    costs: dict[int, float] = {}  # grid index -> cost
-    near: gtsam.Values | None = None  # each solve starts from the last one's solution
-
-    def solve(indices: Iterable[int]) -> None:
-        nonlocal near
-        for i in indices:
-            if 0 <= i < len(delays) and i not in costs:
-                costs[i], near = cost(delays[i], near)
-
     # Every third delay of the grid, then the grid about the best of them: the cost is smooth
     # over tens of milliseconds, and the delays far off cost the most iterations.
-    solve([*range(0, len(delays), COARSE_STRIDE), len(delays) - 1])
-    coarse_best = min(costs, key=costs.__getitem__)
-    solve(range(coarse_best - COARSE_STRIDE + 1, coarse_best + COARSE_STRIDE))
-    best = min(costs, key=costs.__getitem__)
-    solve([best - 1, best + 1])
-    tried = sorted(costs)
-    result = (tuple(delays[i] for i in tried), tuple(costs[i] for i in tried))
-    if best in (0, len(delays) - 1) or not math.isfinite(costs[best]):
-        return CameraDelay(None, *result)  # no minimum inside the range
-    chosen = delays[best]
-    c0, c1, c2 = costs[best - 1], costs[best], costs[best + 1]
-    curvature = c0 - 2 * c1 + c2
-    if math.isfinite(c0) and math.isfinite(c2) and curvature > 0:
-        step = delays[best + 1] - delays[best]
-        chosen = round(delays[best] + 0.5 * step * (c0 - c2) / curvature)
-    return CameraDelay(chosen, *result)
+    first = [*range(0, len(delays), COARSE_STRIDE), len(delays) - 1]
+    found = cheapest_on_grid(delays, cost, first, COARSE_STRIDE)
+    chosen = None if found.chosen is None else round(found.chosen)
+    return CameraDelay(chosen, tuple(map(int, found.tried)), found.costs)

@@ -444,7 +444,7 @@ def test_an_odometry_jump_is_released_and_does_not_bend_the_map(noisy_run: Simul
 def test_the_delay_search_samples_a_long_log_and_keeps_the_home_markers_frames() -> None:
     """A log of 2,000 frames is searched on at most 600 of them, evenly spread, plus every frame
     that sees the home marker; a short log is searched whole."""
-    from markergraph.estimator.timing import DELAY_SEARCH_FRAMES, search_sample
+    from markergraph.estimator.residual_search import SEARCH_FRAMES, search_sample
 
     observations = [
         Observation(t * 10**8, 0 if t % 97 == 0 else 1 + t % 5, 0.0, 0.3, 2.0, 1e-3, 1e-2, 1e-2)
@@ -454,7 +454,7 @@ def test_the_delay_search_samples_a_long_log_and_keeps_the_home_markers_frames()
     stamps = sorted({o.t_ns for o in kept})
     home = {o.t_ns for o in observations if o.marker_id == 0}
     assert home <= set(stamps)
-    assert len(stamps) <= DELAY_SEARCH_FRAMES + len(home)
+    assert len(stamps) <= SEARCH_FRAMES + len(home)
     assert np.diff(stamps).max() <= 4 * 10**8  # evenly spread: every 4th frame of 2,000
     assert search_sample(observations[:500], home_id=0) == observations[:500]
 
@@ -484,9 +484,9 @@ def test_the_odometry_scale_search_finds_the_wheels_error(factor: float) -> None
         run.observations, odometry, run.world.home_id, run.mount.T_base_camera,
         odometry_noise=run.odometry_noise,
     )  # fmt: skip
-    assert found.scale == pytest.approx(1.0 / factor, abs=0.004)
-    assert len(found.scales) <= 10
-    frames = build_frames(run.observations, odometry.scaled(found.scale or 1.0), run.world.home_id,
+    assert found.chosen == pytest.approx(1.0 / factor, abs=0.004)
+    assert len(found.tried) <= 10
+    frames = build_frames(run.observations, odometry.scaled(found.chosen or 1.0), run.world.home_id,
                           odometry_noise=run.odometry_noise)  # fmt: skip
     estimate = estimate_frames(frames, Method.SLAM, run.mount.T_base_camera)
     assert map_error(estimate, run.true_markers(), align=True).rmse_position_m < 0.02

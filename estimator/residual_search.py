@@ -1,0 +1,104 @@
+"""A setting chosen by SLAM's residuals: the value on a grid under which batch SLAM's solution
+costs least, as the camera's delay (:mod:`markergraph.estimator.timing`) and the odometry's
+scale (:mod:`markergraph.estimator.odometry_scale`) are chosen."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import gtsam
+
+from markergraph.estimator.frames import build_frames
+from markergraph.estimator.graph import Robust
+from markergraph.estimator.slam import slam_cost
+from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.types import EstimationError, Observation, OdometryNoise
+
+__all__ = ["SEARCH_FRAMES", "GridMinimum", "cheapest_on_grid", "search_sample", "slam_cost_of"]
+
+SEARCH_FRAMES = 600  # enough frames to place the cost's minimum; more only cost time
+
+# A cost of one grid value, given the solution of the value solved before it (None at first),
+# and that value's own solution.
+Cost = Callable[[float, gtsam.Values | None], tuple[float, gtsam.Values | None]]
+
+
+@dataclass(frozen=True)
+class GridMinimum:
+    """The grid value under which SLAM costs least (:func:`cheapest_on_grid`).
+
+    Attributes:
+        chosen: that value, refined by a parabola; None when the least cost is at either end
+            of the grid or infinite (the residuals cannot tell).
+        tried, costs: each value tried and SLAM's final cost with it.
+    """
+
+    chosen: float | None
+    tried: tuple[float, ...]
+    costs: tuple[float, ...]
+
+
+def search_sample(observations: Sequence[Observation], home_id: int | None) -> list[Observation]:
+    """The observations of at most about :data:`SEARCH_FRAMES` frames, evenly spread, plus
+    every frame that sees ``home_id``."""
+    stamps = sorted({o.t_ns for o in observations})
+    if len(stamps) <= SEARCH_FRAMES:
+        return list(observations)
+    kept = set(stamps[:: math.ceil(len(stamps) / SEARCH_FRAMES)])
+    kept |= {o.t_ns for o in observations if o.marker_id == home_id}
+    return [o for o in observations if o.t_ns in kept]
+
+
+def slam_cost_of(
+    observations: Sequence[Observation],
+    odometry: Trajectory,
+    home_id: int | None,
+    T_base_camera: gtsam.Pose2,
+    near: gtsam.Values | None,
+    *,
+    odometry_noise: OdometryNoise,
+    odometry_breaks: Sequence[int],
+    robust: Robust,
+) -> tuple[float, gtsam.Values | None]:
+    """Batch SLAM's final cost on these observations and odometry, and its solution (started
+    from ``near``); infinite where GTSAM cannot solve the graph."""
+    try:
+        frames = build_frames(observations, odometry, home_id, odometry_noise=odometry_noise,
+                              odometry_breaks=odometry_breaks)  # fmt: skip
+        return slam_cost(frames, T_base_camera, robust, near)
+    except EstimationError:
+        return math.inf, near
+
+
+def cheapest_on_grid(
+    grid: Sequence[float], cost: Cost, first: Iterable[int], stride: int
+) -> GridMinimum:
+    """The grid value of least cost: first at the indices ``first`` (every ``stride``-th), then
+    at the grid about the best of them, then at the best point's neighbours, and a parabola
+    through the best point and its neighbours; each solve starts from the last one's solution."""
+    costs: dict[int, float] = {}  # grid index -> cost
+    near: gtsam.Values | None = None
+
+    def solve(indices: Iterable[int]) -> None:
+        nonlocal near
+        for i in indices:
+            if 0 <= i < len(grid) and i not in costs:
+                costs[i], near = cost(grid[i], near)
+
+    solve(first)
+    coarse_best = min(costs, key=costs.__getitem__)
+    solve(range(coarse_best - stride + 1, coarse_best + stride))
+    best = min(costs, key=costs.__getitem__)
+    solve([best - 1, best + 1])
+    tried = sorted(costs)
+    values, tried_costs = tuple(grid[i] for i in tried), tuple(costs[i] for i in tried)
+    if best in (0, len(grid) - 1) or not math.isfinite(costs[best]):
+        return GridMinimum(None, values, tried_costs)
+    chosen = grid[best]
+    c0, c1, c2 = costs[best - 1], costs[best], costs[best + 1]
+    curvature = c0 - 2 * c1 + c2
+    if math.isfinite(c0) and math.isfinite(c2) and curvature > 0:
+        chosen += 0.5 * (grid[best + 1] - grid[best]) * (c0 - c2) / curvature
+    return GridMinimum(chosen, values, tried_costs)
