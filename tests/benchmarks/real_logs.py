@@ -104,7 +104,7 @@ def main() -> None:
             print(
                 f"{test} ({odometry_source}): {len(reference)} wall tags in TagSLAM's map; "
                 f"odometry model {run.odometry_source}, camera delay "
-                f"{run.camera_delay_ns / 1e6:+.1f} ms"
+                f"{run.camera_delay_ns / 1e6:+.1f} ms, odometry scale {run.odometry_scale:.4f}"
             )
             print_maps(run, reference)
             print_observations(run, path, reference)

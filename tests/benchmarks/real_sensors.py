@@ -1,6 +1,7 @@
 """A RealSense D435i on a diff-drive base, simulated: each method's marker RMSE (after a rigid
 2-D alignment) on two scenarios' ideal and realistic logs, with no remedy, each remedy alone
-and all of them, and the camera delay and depth scale each run used (README, "Real sensors").
+and all of them, and the camera delay, depth scale and odometry scale each run used (README,
+"Real sensors").
 
     python tests/benchmarks/real_sensors.py [--seconds 60] [--scenarios paper-room office]
         [--seed 3] [--each-effect]
@@ -19,12 +20,13 @@ from markergraph.datasets import scenario, write_log
 from markergraph.datasets.sensors import D435I_ON_DIFF_DRIVE, SensorEffects
 from markergraph.estimator import map_error
 
-NONE = {"camera.delay_ms": 0.0, "noise.depth_scale": 1.0}
+NONE = {"camera.delay_ms": 0.0, "noise.depth_scale": 1.0, "odometry.scale": 1.0}
 REMEDIES = {
     "no remedy": NONE,
     "delay by residuals": {**NONE, "camera.delay_ms": None},
     "depth scale from markers": {**NONE, "noise.depth_scale": "auto"},
-    "defaults (both above)": {},
+    "odometry scale by residuals": {**NONE, "odometry.scale": None},
+    "defaults (the three above)": {},
     "shutter modelled": {**NONE, "camera.readout_ms": 25.0},
     "shutter widened": {**NONE, "camera.readout_ms": 25.0, "camera.shutter": "widen"},
     "blur widened": {**NONE, "camera.exposure_ms": 15.0},
@@ -42,7 +44,8 @@ def print_runs(log: Path, remedies: dict[str, dict[str, object]]) -> None:
         measured = run.extraction.measured_depth_scale
         chosen = (
             f"delay {run.camera_delay_ns / 1e6:+5.1f} ms, depth scale "
-            f"{run.extraction.depth_scale:.4f} applied, {measured or math.nan:.4f} measured"
+            f"{run.extraction.depth_scale:.4f} applied, {measured or math.nan:.4f} measured, "
+            f"odometry scale {run.odometry_scale:.4f}"
         )
         print(f"  {remedy:<26} {rmse}  ({chosen})", flush=True)
 
