@@ -8,7 +8,6 @@ Each is an option of :class:`SensorEffects` (all off by default: the ideal senso
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -22,12 +21,12 @@ __all__ = [
     "SensorEffects",
     "black_cells_without_depth",
     "motion_smear",
-    "shutter_bands",
+    "shutter_offsets",
 ]
 
 # plumb_bob (k1, k2, p1, p2, k3) like a D435's colour camera.
 D435_DISTORTION = (0.11, -0.24, 0.0005, -0.0003, 0.09)
-_SHUTTER_BANDS = 16  # rows are rendered in this many bands, each at its own time
+_SHUTTER_RENDERS = 17  # a rolling shutter's frame is blended from renders this many times
 _BLACK_INK = 45  # grey level below which a marker's cell is black ink (walls are 70 and up)
 
 
@@ -80,15 +79,13 @@ D435I_ON_DIFF_DRIVE = SensorEffects(
 )
 
 
-def shutter_bands(height: int, readout_s: float) -> list[tuple[int, int, float]]:
-    """Row bands (first row, end row, time after the top row's capture [s]) of a rolling
-    shutter; one band at time 0 for a global shutter."""
+def shutter_offsets(readout_s: float) -> NDArray[np.float64]:
+    """The times after the top row's capture [s] at which a frame is rendered: the readout's
+    start and end and evenly between under a rolling shutter (each row is blended from the two
+    renders about its own time), once at 0 for a global shutter."""
     if readout_s <= 0:
-        return [(0, height, 0.0)]
-    edges = np.linspace(0, height, _SHUTTER_BANDS + 1).round().astype(int)
-    return [
-        (int(a), int(b), readout_s * (a + b) / 2.0 / height) for a, b in itertools.pairwise(edges)
-    ]
+        return np.zeros(1)
+    return np.linspace(0.0, readout_s, _SHUTTER_RENDERS)
 
 
 def motion_smear(image: NDArray[np.uint8], length_px: float) -> NDArray[np.uint8]:

@@ -37,7 +37,7 @@ from markergraph.datasets.sensors import (
     SensorEffects,
     black_cells_without_depth,
     motion_smear,
-    shutter_bands,
+    shutter_offsets,
 )
 from markergraph.datasets.simulate import SIMULATED_MOUNT
 from markergraph.datasets.world import World
@@ -263,32 +263,54 @@ def capture(
     rng: np.random.Generator,
     exposure: float = 1.0,
 ) -> RenderedFrame:
-    """One frame whose top row is captured at ``t_ns``, as the sensors take it: each band of rows
-    at its readout time, smeared by the turn during the exposure, depth scaled and holed."""
-    rgb = depth = None
-    drawn: set[int] = set()
-    for first, end, after_s in shutter_bands(renderer.camera.height, sensors.rolling_shutter_s):
-        t_band = t_ns + round(after_s * 1e9)
-        pose = truth.at(t_band)
+    """One frame whose top row is captured at ``t_ns``, as the sensors take it: each row at its
+    readout time, smeared by the turn during the exposure, depth scaled and holed.
+
+    Under a rolling shutter the frame is rendered at :func:`shutter_offsets` and each row blended
+    linearly from the two renders about its time (a shift of under a pixel between them blends
+    into a shifted edge), so a marker's edges are straight skewed lines, not a staircase of
+    bands; every render draws the same noise. Depth is the nearer render's row."""
+    offsets = shutter_offsets(sensors.rolling_shutter_s)
+    # One noise draw for all renders of a frame (the global shutter's single render draws from
+    # ``rng`` itself, as it always has).
+    seed = None if len(offsets) == 1 else int(rng.integers(2**63))
+    renders = []
+    for after_s in offsets:
+        t_render = t_ns + round(after_s * 1e9)
+        pose = truth.at(t_render)
         if pose is None:
-            raise ValueError(f"no true pose at {t_band} ns to render")
-        band = renderer.render(pose, rng, exposure)
+            raise ValueError(f"no true pose at {t_render} ns to render")
+        frame = renderer.render(
+            pose, rng if seed is None else np.random.default_rng(seed), exposure
+        )
         if sensors.exposure_s > 0:
             # The turn's smear (a translation's is left out: it is a fraction of it here).
-            rate = _yaw_rate(truth, t_band + round(sensors.exposure_s * 5e8))
+            rate = _yaw_rate(truth, t_render + round(sensors.exposure_s * 5e8))
             length_px = abs(rate) * sensors.exposure_s * renderer.camera.fx
-            band = RenderedFrame(motion_smear(band.rgb, length_px), band.depth_mm, band.drawn_ids)
-        if rgb is None or depth is None:
-            rgb, depth = band.rgb.copy(), band.depth_mm.copy()
-        rgb[first:end], depth[first:end] = band.rgb[first:end], band.depth_mm[first:end]
-        drawn.update(band.drawn_ids)
-    assert rgb is not None and depth is not None
+            frame = RenderedFrame(
+                motion_smear(frame.rgb, length_px), frame.depth_mm, frame.drawn_ids
+            )
+        renders.append(frame)
+    if len(renders) == 1:
+        rgb, depth = renders[0].rgb, renders[0].depth_mm.copy()
+    else:
+        height = renderer.camera.height
+        position = np.arange(height) / height * (len(renders) - 1)  # in render intervals
+        first = np.floor(position).astype(int)
+        weight = (position - first)[:, None, None]
+        stack = np.stack([r.rgb for r in renders]).astype(np.float32)
+        rows = np.arange(height)
+        blended = (1.0 - weight) * stack[first, rows] + weight * stack[first + 1, rows]
+        rgb = np.clip(np.rint(blended), 0, 255).astype(np.uint8)
+        nearer = first + (weight[:, 0, 0] >= 0.5)
+        depth = np.stack([r.depth_mm for r in renders])[nearer, rows]
     if sensors.depth_scale != 1.0:
         scaled = np.rint(depth.astype(np.float64) * sensors.depth_scale)
         depth = np.clip(scaled, 0, 65535).astype(np.uint16)
     if sensors.black_cells_without_depth:
         depth = black_cells_without_depth(rgb, depth)
-    return RenderedFrame(rgb, depth, tuple(sorted(drawn)))
+    drawn = sorted(set().union(*(r.drawn_ids for r in renders)))
+    return RenderedFrame(rgb, depth, tuple(drawn))
 
 
 def _yaw_rate(truth: Trajectory, t_ns: int, half_window_ns: int = 10_000_000) -> float:
