@@ -37,7 +37,7 @@ class FrontendConfig:
         tagslam: a TagSLAM ``tagslam.yaml`` giving tag sizes and the odometry's body on the rig.
         depth_scale: what depth reads per true metre: 1.0 trusts the depth camera; None (auto)
             applies the scale measured against the markers' known size when it is more than its
-            own error from 1 (0.2 %; it is always measured and reported: see
+            own error from 1 (0.4 %; it is always measured and reported: see
             :func:`~markergraph.frontend.pipeline.depth_scale_from_markers`).
         detector_mode: how images are searched for markers (``FAST`` finds FULL's markers and
             corners at a third to a half of its cost on a robot's frames; see
