@@ -24,6 +24,7 @@ from markergraph.estimator import (
     Method,
     Observation,
     OdometryNoise,
+    SlamInputs,
     Trajectory,
     TrajectoryError,
     build_frames,
@@ -198,11 +199,11 @@ def _timed(
     if window_s > 0:
         observations = widened_for_motion(observations, extraction.odometry, window_s)
     if v["camera.delay_ms"] is None:
-        chosen = camera_delay_by_residuals(
-            observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
-            odometry_noise=noise, odometry_breaks=breaks, robust=config.robust,
-            readout_ns=readout_ns, image_height=height,
-        )  # fmt: skip
+        mount = extraction.mount.T_base_camera
+        inputs = SlamInputs(
+            observations, extraction.odometry, home_id, mount, noise, breaks, config.robust
+        )
+        chosen = camera_delay_by_residuals(inputs, readout_ns=readout_ns, image_height=height)
         if chosen.delay_ns is None:
             delay_ns = 0
             extraction.notes.append(
@@ -312,8 +313,8 @@ def _odometry_scale(
         return float(configured)
     stage("choosing the odometry's scale by SLAM's residuals")
     found = odometry_scale_by_residuals(
-        observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
-        odometry_noise=noise, odometry_breaks=breaks, robust=config.robust,
+        SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
+                   noise, breaks, config.robust)
     )  # fmt: skip
     topic = extraction.topics.odom
     if found.chosen is None:

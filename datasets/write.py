@@ -298,9 +298,10 @@ def capture(
         position = np.arange(height) / height * (len(renders) - 1)  # in render intervals
         first = np.floor(position).astype(int)
         weight = (position - first)[:, None, None]
-        stack = np.stack([r.rgb for r in renders]).astype(np.float32)
+        stack = np.stack([r.rgb for r in renders])
         rows = np.arange(height)
-        blended = (1.0 - weight) * stack[first, rows] + weight * stack[first + 1, rows]
+        before, after = stack[first, rows].astype(np.float32), stack[first + 1, rows]
+        blended = (1.0 - weight) * before + weight * after
         rgb = np.clip(np.rint(blended), 0, 255).astype(np.uint8)
         nearer = first + (weight[:, 0, 0] >= 0.5)
         depth = np.stack([r.depth_mm for r in renders])[nearer, rows]

@@ -31,7 +31,7 @@ from markergraph.estimator.paper import (
     heading,
     odometry,
 )
-from markergraph.estimator.residual_search import GridMinimum
+from markergraph.estimator.residual_search import GridMinimum, SlamInputs
 from markergraph.estimator.run import estimate, estimate_frames
 from markergraph.estimator.timing import (
     CameraDelay,
@@ -84,6 +84,7 @@ __all__ = [
     "RejectedObservationError",
     "Robust",
     "SettingsError",
+    "SlamInputs",
     "Trajectory",
     "TrajectoryError",
     "angle_diff",

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 
@@ -16,7 +16,7 @@ from markergraph.estimator.slam import slam_cost
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import EstimationError, Observation, OdometryNoise
 
-__all__ = ["SEARCH_FRAMES", "GridMinimum", "cheapest_on_grid", "search_sample", "slam_cost_of"]
+__all__ = ["SEARCH_FRAMES", "GridMinimum", "SlamInputs", "cheapest_on_grid", "search_sample"]
 
 SEARCH_FRAMES = 600  # enough frames to place the cost's minimum; more only cost time
 
@@ -51,25 +51,39 @@ def search_sample(observations: Sequence[Observation], home_id: int | None) -> l
     return [o for o in observations if o.t_ns in kept]
 
 
-def slam_cost_of(
-    observations: Sequence[Observation],
-    odometry: Trajectory,
-    home_id: int | None,
-    T_base_camera: gtsam.Pose2,
-    near: gtsam.Values | None,
-    *,
-    odometry_noise: OdometryNoise,
-    odometry_breaks: Sequence[int],
-    robust: Robust,
-) -> tuple[float, gtsam.Values | None]:
-    """Batch SLAM's final cost on these observations and odometry, and its solution (started
-    from ``near``); infinite where GTSAM cannot solve the graph."""
-    try:
-        frames = build_frames(observations, odometry, home_id, odometry_noise=odometry_noise,
-                              odometry_breaks=odometry_breaks)  # fmt: skip
-        return slam_cost(frames, T_base_camera, robust, near)
-    except EstimationError:
-        return math.inf, near
+@dataclass(frozen=True)
+class SlamInputs:
+    """One log's batch SLAM problem, whose cost a search varies one setting of.
+
+    Attributes:
+        observations: at their capture times (for the camera delay's search: as stamped).
+        odometry, home_id, T_base_camera, odometry_noise, odometry_breaks, robust: as
+            :func:`~markergraph.estimator.frames.build_frames` and
+            :func:`~markergraph.estimator.slam.slam_cost` take them.
+    """
+
+    observations: Sequence[Observation]
+    odometry: Trajectory
+    home_id: int | None
+    T_base_camera: gtsam.Pose2
+    odometry_noise: OdometryNoise = OdometryNoise()
+    odometry_breaks: Sequence[int] = ()
+    robust: Robust = Robust.HUBER
+
+    def sampled(self) -> SlamInputs:
+        """The same problem on :func:`search_sample`'s frames."""
+        return replace(self, observations=search_sample(self.observations, self.home_id))
+
+    def cost(self, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
+        """Batch SLAM's final cost, and its solution (started from ``near``); infinite where
+        GTSAM cannot solve the graph."""
+        try:
+            frames = build_frames(self.observations, self.odometry, self.home_id,
+                                  odometry_noise=self.odometry_noise,
+                                  odometry_breaks=self.odometry_breaks)  # fmt: skip
+            return slam_cost(frames, self.T_base_camera, self.robust, near)
+        except EstimationError:
+            return math.inf, near
 
 
 def cheapest_on_grid(

@@ -18,12 +18,10 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
-from markergraph.estimator.graph import Robust
-from markergraph.estimator.residual_search import cheapest_on_grid, search_sample, slam_cost_of
+from markergraph.estimator.residual_search import SlamInputs, cheapest_on_grid
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     Observation,
-    OdometryNoise,
 )
 
 __all__ = [
@@ -102,16 +100,7 @@ class CameraDelay:
 
 
 def camera_delay_by_residuals(
-    observations: Sequence[Observation],
-    odometry: Trajectory,
-    home_id: int | None,
-    T_base_camera: gtsam.Pose2,
-    *,
-    odometry_noise: OdometryNoise = OdometryNoise(),
-    odometry_breaks: Sequence[int] = (),
-    robust: Robust = Robust.HUBER,
-    readout_ns: int = 0,
-    image_height: int = 0,
+    inputs: SlamInputs, *, readout_ns: int = 0, image_height: int = 0
 ) -> CameraDelay:
     """The delay, from -50 to +100 ms, under which batch SLAM's solution has the lowest cost:
     a 30 ms grid, the 10 ms grid about its best point, then a parabola through the best point
@@ -119,13 +108,11 @@ def camera_delay_by_residuals(
     range. A long log is searched on :data:`SEARCH_FRAMES` of its frames, evenly spread
     (and every frame that sees the home marker): sixteen full solves of a 10-minute log cost
     23 s; ten cost-only solves, each from the last one's solution, 3-4 s."""
-    observations = search_sample(observations, home_id)
+    sampled = inputs.sampled()
 
     def cost(delay_ns: float, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
-        moved = retimed(observations, round(delay_ns), readout_ns, image_height)
-        return slam_cost_of(moved, odometry, home_id, T_base_camera, near,
-                            odometry_noise=odometry_noise, odometry_breaks=odometry_breaks,
-                            robust=robust)  # fmt: skip
+        moved = retimed(sampled.observations, round(delay_ns), readout_ns, image_height)
+        return replace(sampled, observations=moved).cost(near)
 
     delays = [round(d * 1e9) for d in DELAYS_S]
     # Every third delay of the grid, then the grid about the best of them: the cost is smooth

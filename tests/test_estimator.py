@@ -22,6 +22,7 @@ from markergraph.estimator import (
     OdometrySample,
     RejectedObservationError,
     Robust,
+    SlamInputs,
     Trajectory,
     build_frames,
     estimate,
@@ -481,8 +482,8 @@ def test_the_odometry_scale_search_finds_the_wheels_error(factor: float) -> None
     run = simulate_fast(*scenario("corridor-loop"), seed=5, wheel=wheel)
     odometry = Trajectory.from_samples(run.odometry).scaled(factor)
     found = odometry_scale_by_residuals(
-        run.observations, odometry, run.world.home_id, run.mount.T_base_camera,
-        odometry_noise=run.odometry_noise,
+        SlamInputs(run.observations, odometry, run.world.home_id, run.mount.T_base_camera,
+                   run.odometry_noise)
     )  # fmt: skip
     assert found.chosen == pytest.approx(1.0 / factor, abs=0.004)
     assert len(found.tried) <= 10

@@ -205,7 +205,7 @@ def test_depth_at_an_oblique_marker_with_black_cells_is_its_centres(wall_marker)
     assert Flags.NO_DEPTH in unused.flags
 
 
-def test_depth_scale_is_the_steady_markers_median_ratio() -> None:
+def test_depth_scale_is_the_steady_markers_robust_mean_ratio() -> None:
     """Exact algebra: pairs built as depth / PnP = k with 0.3 % noise, a tenth of them 20 %
     off (depth from the wall behind), are read back as k within 0.05 %; pairs taken while the
     robot turned at 1 rad/s, 5 % off, are left out."""
