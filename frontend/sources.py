@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
+import lz4.frame
 import yaml
 import zstandard
 from mcap.data_stream import ReadDataStream
@@ -22,7 +23,6 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Chunk, MessageIndex
 from mcap.records import Message as McapMessage
-from mcap.stream_reader import breakup_chunk
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 from mcap_ros2.decoder import DecoderFactory
 
@@ -357,7 +357,7 @@ def _raw_messages(
             index = chunks[next_chunk]
             try:
                 stream.seek(index.chunk_start_offset + 1 + 8)
-                records = breakup_chunk(Chunk.read(ReadDataStream(stream)))
+                records = _chunk_messages(Chunk.read(ReadDataStream(stream)), wanted)
             except _DAMAGE as error:
                 if failures is None:
                     raise LogError(f"{file}: damaged chunk ({_why(error)})") from error
@@ -365,11 +365,8 @@ def _raw_messages(
                     failures.add(file, topic, f"a damaged chunk: {_why(error)}", n)
                 records = []
             for position, record in enumerate(records):
-                if (
-                    isinstance(record, McapMessage)
-                    and record.channel_id in wanted
-                    and (start_ns is None or record.log_time >= start_ns)
-                    and (end_ns is None or record.log_time < end_ns)
+                if (start_ns is None or record.log_time >= start_ns) and (
+                    end_ns is None or record.log_time < end_ns
                 ):
                     heapq.heappush(pending, (record.log_time, next_chunk, position, record))
             next_chunk += 1
@@ -377,6 +374,51 @@ def _raw_messages(
             record = heapq.heappop(pending)[3]
             channel = summary.channels[record.channel_id]
             yield summary.schemas.get(channel.schema_id), channel, record
+
+
+_RECORD = struct.Struct("<BQ")  # opcode, content length
+_MESSAGE = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
+_MESSAGE_OPCODE = 0x05
+
+
+def _chunk_messages(chunk: Chunk, wanted: Collection[int]) -> list[McapMessage]:
+    """The messages of the wanted channels in a chunk, in the chunk's order.
+
+    mcap's ``breakup_chunk`` parses every record through a stream object: on a robot's log
+    (ten messages a frame, raw depth) that cost 0.6 ms a frame of Python holding the GIL,
+    more than zstd's decompression (which releases it); this reads the records in place, 15x
+    cheaper. Other records (schemas and channels repeated in chunks) are passed over: the
+    summary's are used.
+
+    Raises:
+        McapError: a compression this reader lacks, or a record running past the chunk.
+        zstandard.ZstdError, RuntimeError (lz4), struct.error: damaged data.
+    """
+    if chunk.compression == "zstd":
+        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+    elif chunk.compression == "lz4":
+        data = lz4.frame.decompress(chunk.data)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        raise McapError(f"unsupported chunk compression {chunk.compression!r}")
+    found, position, size = [], 0, len(data)
+    while position < size:
+        opcode, length = _RECORD.unpack_from(data, position)
+        start, position = position + _RECORD.size, position + _RECORD.size + length
+        if position > size:
+            raise McapError(f"a record of {length} bytes runs past its chunk")
+        if opcode != _MESSAGE_OPCODE:
+            continue
+        if length < _MESSAGE.size:
+            raise McapError(f"a message record of {length} bytes")
+        channel, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, start)
+        if channel in wanted:
+            found.append(
+                McapMessage(channel, log_time, data[start + _MESSAGE.size : position],
+                            publish_time, sequence)
+            )  # fmt: skip
+    return found
 
 
 def _indexed_counts(stream: BinaryIO, summary: Any, index: Any, wanted: set[int]) -> Counter[str]:

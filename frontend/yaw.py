@@ -145,10 +145,6 @@ def _marker_object_points(marker_length_m: float) -> NDArray[np.float64]:
     )
 
 
-def _rotation(rvec: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.asarray(cv2.Rodrigues(rvec)[0], dtype=np.float64)
-
-
 def pnp_theta_sigma(
     pose: tuple[NDArray[np.float64], NDArray[np.float64]],
     camera: Camera,
@@ -165,14 +161,13 @@ def pnp_theta_sigma(
     rvec, _ = cv2.Rodrigues(R)
     _, jacobian = cv2.projectPoints(_marker_object_points(marker_length_m), rvec, t, camera.K, None)
     J = jacobian[:, :6]  # d(pixels)/d(rvec, tvec)
-    params = np.concatenate([rvec.ravel(), t])
-    gradient = np.zeros(6)
-    for k in range(6):  # theta is cheap to evaluate: central differences in the pose
-        step = np.zeros(6)
-        step[k] = 1e-6
-        ahead = pnp_theta((_rotation(params[:3] + step[:3]), params[3:] + step[3:]))
-        behind = pnp_theta((_rotation(params[:3] - step[:3]), params[3:] - step[3:]))
-        gradient[k] = math.remainder(ahead - behind, math.tau) / 2e-6
+    # theta = atan2(c_x, c_z) of the camera in the marker, c = -R^T t: its gradient in c, and
+    # c's in the pose (Rodrigues gives R's entries, row by row, in rvec).
+    c = -R.T @ t
+    d_theta_d_c = np.array([c[2], 0.0, -c[0]]) / max(c[0] ** 2 + c[2] ** 2, 1e-300)
+    d_R = cv2.Rodrigues(rvec)[1].reshape(3, 3, 3)  # [k, i, j] = dR[i, j] / d rvec[k]
+    d_c = np.hstack([-np.einsum("kji,j->ik", d_R, t), -R.T])
+    gradient = d_theta_d_c @ d_c
     try:
         variance = float(gradient @ np.linalg.solve(J.T @ J, gradient))
     except np.linalg.LinAlgError:
