@@ -257,17 +257,23 @@ def messages(
                 )
 
 
+READ_AHEAD_BATCH = 8
+
+
 def read_ahead(items: Iterator[Any], size: int = 32) -> Iterator[Any]:
     """``items``, produced by a thread of their own up to ``size`` ahead of the consumer.
 
-    Reading a log (file reads, zstd, record parsing) then overlaps decoding and detecting
-    images: zstd and OpenCV release the GIL, so one process keeps two cores busy. An error
-    raised while producing is raised here, at the item where it happened; a consumer that stops
-    early stops the thread at its next item. MCAP chunks arrive in bursts: on bench_frontend one
-    process read 374-407 frames/s holding 8 messages, 461-503 holding 32 or 64 (a few tens of MB
-    of images and depth).
+    Reading a log (file reads, zstd, record parsing; the front end decodes images there too)
+    then overlaps detecting them: zstd, the JPEG decoder and OpenCV release the GIL, so one
+    process keeps a second core busy. An error raised while producing is raised here, after the
+    items before it; a consumer that stops early stops the thread at its next batch. MCAP chunks
+    arrive in bursts: on bench_frontend one process read 374-407 frames/s holding 8 messages,
+    461-503 holding 32 or 64 (a few tens of MB of images and depth).
     """
-    buffer: queue.Queue[tuple[str, Any]] = queue.Queue(size)
+    # Items cross in batches: a lock handed between threads per item cost the consumer more
+    # than the items themselves on a log of small messages.
+    batch = max(1, min(READ_AHEAD_BATCH, size))
+    buffer: queue.Queue[tuple[str, Any]] = queue.Queue(max(1, size // batch))
     stop = threading.Event()
 
     def offer(entry: tuple[str, Any]) -> bool:
@@ -281,13 +287,19 @@ def read_ahead(items: Iterator[Any], size: int = 32) -> Iterator[Any]:
         return False
 
     def produce() -> None:
+        pending: list[Any] = []
         try:
             for item in items:
-                if not offer(("item", item)):
-                    return
+                pending.append(item)
+                if len(pending) == batch:
+                    if not offer(("items", pending)):
+                        return
+                    pending = []
+            offer(("items", pending))
             offer(("end", None))
         except BaseException as error:  # handed to the consumer, which raises it
-            offer(("error", error))
+            if offer(("items", pending)):
+                offer(("error", error))
         finally:
             close = getattr(items, "close", None)
             if close is not None:  # a generator: its files are closed here, in its thread
@@ -302,7 +314,7 @@ def read_ahead(items: Iterator[Any], size: int = 32) -> Iterator[Any]:
                 return
             if kind == "error":
                 raise value
-            yield value
+            yield from value
     finally:
         stop.set()
         thread.join()
