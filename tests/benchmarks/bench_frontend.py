@@ -9,8 +9,12 @@ with depth, detects, and computes observations; with two workers each reads and 
 own stretches of the log. Three minutes at 15 Hz, so the workers' start-up (about a second each)
 weighs as it would on a real log.
 
-Usage: python tests/benchmarks/bench_frontend.py [--profile]
-    --profile: also profile the one-process pipeline (cProfile) and print its top items.
+Each of ``--rounds`` rounds (default 3) measures both floors and the pipeline in one and two
+processes back to back; the medians of the rates and of each round's ratios are printed, since
+this machine's speed drifts by 20-30 % from minute to minute.
+
+Usage: python tests/benchmarks/bench_frontend.py [--rounds N] [--profile]
+    --profile: also profile the one-process pipeline's main thread (cProfile).
 Targets (issue 15): the fast detector keeps >= 99 % of FULL's detections and adds <= 0.05 px
 median corner error; the pipeline reaches 0.8 of its own floor in one process.
 """
@@ -20,6 +24,7 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
+import math
 import multiprocessing
 import os
 import pstats
@@ -73,10 +78,24 @@ def agreement(
     return total, recall, float(median), float(p95)
 
 
+def pipeline_rate(path: Path, workers: int) -> tuple[float, float, int]:
+    """The front end over the log: (frames/s wall-clock, frames per CPU second of this process,
+    observations). A worker's CPU time is not this process's: with workers the second is NaN."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    result = extract(path, FrontendConfig(), workers=workers)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    return (
+        result.frames / wall,
+        result.frames / cpu if workers == 1 else math.nan,
+        len(result.observations),
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profile", action="store_true", help="profile the one-process pipeline")
-    profile = parser.parse_args().profile
+    parser.add_argument("--rounds", type=int, default=3, help="measurement rounds (default 3)")
+    arguments = parser.parse_args()
     cv2.setNumThreads(1)
     print(f"cores: {os.cpu_count()}")
     with tempfile.TemporaryDirectory() as folder:
@@ -84,29 +103,64 @@ def main() -> None:
         world, route = scenario("office")
         write_log(world, route, path, seed=3, duration_s=180.0, compressed=True)
         jpegs = [bytes(m.decoded.data) for m in messages(path, [TOPIC])]
-        # Other work shares this machine: wall-clock rates say what a user gets, rates per CPU
-        # second of this process what the code costs (steadier while other processes run).
-        wall, cpu = floor_times(jpegs)
-        floor, floor_cpu = len(jpegs) / wall, len(jpegs) / cpu
-        print(
-            f"default floor (JPEG decode + detectMarkers, FULL): {floor:.0f} frames/s "
-            f"({floor_cpu:.0f} per CPU second) over {len(jpegs)}"
-        )
-        wall, cpu = floor_times(jpegs, DetectorMode.FAST)
-        fast_floor, fast_floor_cpu = len(jpegs) / wall, len(jpegs) / cpu
-        print(
-            f"fast floor (JPEG decode + FAST detector): {fast_floor:.0f} frames/s "
-            f"({fast_floor / floor:.2f}x the default floor; {fast_floor_cpu:.0f} per CPU second, "
-            f"{fast_floor_cpu / floor_cpu:.2f}x)"
-        )
         greys = [grey(jpeg) for jpeg in jpegs]
         full, fast = Detector(mode=DetectorMode.FULL), Detector(mode=DetectorMode.FAST)
         total, recall, median, p95 = agreement(
             [full.detect(g) for g in greys], [fast.detect(g) for g in greys]
         )
         print(
-            f"fast against FULL on the same frames: {100 * recall:.2f} % of {total} detections, "
-            f"corner distance median {median:.1e} px, p95 {p95:.1e} px"
+            f"fast against FULL on the same {len(jpegs)} frames: {100 * recall:.2f} % of {total} "
+            f"detections, corner distance median {median:.1e} px, p95 {p95:.1e} px"
+        )
+        del greys
+        # Other work shares this machine and its speed drifts from minute to minute: each round
+        # measures the floors and the pipeline back to back, and the ratios within a round are
+        # what compare. Wall-clock rates say what a user gets; rates per CPU second of this
+        # process what the code costs.
+        columns = ("floor", "fast floor", "1 process", "2 processes")
+        rows: list[dict[str, float]] = []
+        for round_ in range(1, arguments.rounds + 1):
+            row: dict[str, float] = {}
+            for name, mode in (("floor", DetectorMode.FULL), ("fast floor", DetectorMode.FAST)):
+                wall, cpu = floor_times(jpegs, mode)
+                row[name], row[f"{name} cpu"] = len(jpegs) / wall, len(jpegs) / cpu
+            row["1 process"], row["1 process cpu"], observations = pipeline_rate(path, 1)
+            row["2 processes"], _, _ = pipeline_rate(path, 2)
+            rows.append(row)
+            print(
+                f"round {round_}: "
+                + ", ".join(f"{name} {row[name]:.0f}" for name in columns)
+                + f" frames/s; {observations} observations"
+            )
+        median_of = {key: float(np.median([row[key] for row in rows])) for key in rows[0]}
+        ratio = {  # each round's ratio, then their median
+            (a, b): float(np.median([row[a] / row[b] for row in rows]))
+            for a in (*columns, "1 process cpu", "fast floor cpu")
+            for b in ("floor", "fast floor", "1 process", "floor cpu", "fast floor cpu")
+        }
+        print(f"medians over {len(rows)} rounds (ratios: the median of each round's ratio):")
+        print(
+            "  default floor (JPEG decode + detectMarkers, FULL): "
+            f"{median_of['floor']:.0f} frames/s"
+        )
+        print(
+            f"  fast floor (JPEG decode + FAST detector): {median_of['fast floor']:.0f} frames/s "
+            f"({ratio['fast floor', 'floor']:.2f}x the default floor; per CPU second "
+            f"{ratio['fast floor cpu', 'floor cpu']:.2f}x)"
+        )
+        print(
+            f"  pipeline, 1 process: {median_of['1 process']:.0f} frames/s "
+            f"({ratio['1 process', 'floor']:.2f} of the default floor, "
+            f"{ratio['1 process', 'fast floor']:.2f} of its own); "
+            f"{median_of['1 process cpu']:.0f} per CPU second "
+            f"({ratio['1 process cpu', 'floor cpu']:.2f} of the default floor's, "
+            f"{ratio['1 process cpu', 'fast floor cpu']:.2f} of its own)"
+        )
+        print(
+            f"  pipeline, 2 processes: {median_of['2 processes']:.0f} frames/s "
+            f"({ratio['2 processes', 'floor']:.2f} of the default floor, "
+            f"{ratio['2 processes', 'fast floor']:.2f} of its own; "
+            f"{ratio['2 processes', '1 process']:.2f}x one process)"
         )
         # What the machine gives two processes on this work: the floor loop twice at once.
         halves = [jpegs[: len(jpegs) // 2], jpegs[len(jpegs) // 2 :]]
@@ -117,35 +171,18 @@ def main() -> None:
             floor_two = len(jpegs) / (time.perf_counter() - start)
         print(
             f"default floor in two processes at once: {floor_two:.0f} frames/s "
-            f"({floor_two / floor:.2f}x: how much of a second core this machine gives now)"
+            f"({floor_two / median_of['floor']:.2f}x the median floor: how much of a second "
+            "core this machine gives)"
         )
-        rates = {}
-        for workers in (1, 2):
-            wall, cpu = time.perf_counter(), time.process_time()
-            result = extract(path, FrontendConfig(), workers=workers)
-            wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-            rates[workers] = rate = result.frames / wall
-            line = (
-                f"pipeline, {workers} process(es): {rate:.0f} frames/s ({rate / floor:.2f} of "
-                f"the default floor, {rate / fast_floor:.2f} of its own)"
-            )
-            if workers == 1:  # the workers' CPU time is not this process's
-                per_cpu = result.frames / cpu
-                line += (
-                    f"; {per_cpu:.0f} per CPU second ({per_cpu / floor_cpu:.2f} of the default "
-                    f"floor, {per_cpu / fast_floor_cpu:.2f} of its own)"
-                )
-            print(f"{line}; {len(result.observations)} observations")
-        print(f"two workers / one process: {rates[2] / rates[1]:.2f}x")
         start = time.perf_counter()
         subprocess.run([sys.executable, "-c", "import markergraph.frontend.pipeline"], check=True)
         print(f"a worker's start-up (spawn, imports): {time.perf_counter() - start:.2f} s")
-        if profile:
+        if arguments.profile:
             profiler = cProfile.Profile()
             profiler.runcall(extract, path, FrontendConfig())
             text = io.StringIO()
             pstats.Stats(profiler, stream=text).sort_stats("tottime").print_stats(15)
-            print("one-process pipeline, top items by own time (cProfile):")
+            print("one-process pipeline, main thread, top items by own time (cProfile):")
             print(text.getvalue())
 
 
