@@ -795,6 +795,37 @@ def test_theta_sigma_from_one_pnp_solve_matches_re_solving() -> None:
     assert abs(float(np.median(ratios)) - 1.0) < 0.02
 
 
+def test_theta_sigma_gradient_is_theta_differentiated() -> None:
+    """theta's sigma uses theta's analytic gradient in the pose; it equals the sigma from
+    central differences of theta itself (through Rodrigues) to 1e-6."""
+    from markergraph.frontend.yaw import _marker_object_points, pnp_pose, pnp_theta, pnp_theta_sigma
+
+    camera = Camera()
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        z = rng.uniform(0.8, 5.0)
+        rvec = np.array([0.1 * rng.standard_normal(), math.pi + rng.uniform(-1.2, 1.2), 0.05])
+        tvec = np.array([rng.uniform(-0.25, 0.25) * z, 0.1 * rng.standard_normal(), z])
+        corners = cv2.projectPoints(_marker_object_points(0.2), rvec, tvec, camera.K, None)[0]
+        pose = pnp_pose(corners.reshape(4, 2), camera, 0.2)
+        assert pose is not None
+        r, _ = cv2.Rodrigues(pose[0])
+        params = np.concatenate([r.ravel(), pose[1]])
+        gradient = np.zeros(6)
+        for k in range(6):
+            step = np.zeros(6)
+            step[k] = 1e-6
+            ahead, behind = params + step, params - step
+            gradient[k] = (
+                pnp_theta((cv2.Rodrigues(ahead[:3])[0], ahead[3:]))
+                - pnp_theta((cv2.Rodrigues(behind[:3])[0], behind[3:]))
+            ) / 2e-6
+        _, jacobian = cv2.projectPoints(_marker_object_points(0.2), r, pose[1], camera.K, None)
+        J = jacobian[:, :6]
+        expected = 0.3 * math.sqrt(gradient @ np.linalg.solve(J.T @ J, gradient))
+        assert pnp_theta_sigma(pose, camera, 0.2, 0.3) == pytest.approx(expected, rel=1e-6)
+
+
 def test_workers_auto_uses_a_second_process_only_where_it_helps(monkeypatch) -> None:
     """Auto: one process for a short log or a busy machine, one per 1,500 frames and idle core
     otherwise; a number asked for is kept, capped at the cores."""
