@@ -123,8 +123,8 @@ def robust_least_squares(
     a fifth of an SVD (``lstsq``) on a marker's few hundred depth pixels; a singular system (all
     rows on one line) falls back to ``lstsq``'s least-norm solution."""
     kept = np.ones(len(b), dtype=bool)
+    A_kept, b_kept = A, b
     for _ in range(passes):
-        A_kept, b_kept = A[kept], b[kept]
         try:
             x = np.linalg.solve(A_kept.T @ A_kept, A_kept.T @ b_kept)
         except np.linalg.LinAlgError:
@@ -132,6 +132,7 @@ def robust_least_squares(
         residual = b - A @ x
         sigma = 1.4826 * _median(np.abs(residual[kept]))
         kept = np.abs(residual) <= 3.0 * max(sigma, 1e-9)
+        A_kept, b_kept = A[kept], b[kept]
     return np.asarray(x, dtype=np.float64), np.asarray(kept, dtype=np.bool_), sigma
 
 
@@ -159,10 +160,10 @@ def _marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthMode
     """
     centre = marker_centre(corners)
     inner = centre + 0.8 * (corners - centre)
-    x0, y0 = np.floor(inner.min(axis=0)).astype(int)
-    x1, y1 = np.ceil(inner.max(axis=0)).astype(int) + 1
-    x0, y0 = max(x0, 0), max(y0, 0)
-    x1, y1 = min(x1, depth.shape[1]), min(y1, depth.shape[0])
+    (left, top), (right, bottom) = inner.min(axis=0), inner.max(axis=0)
+    x0, y0 = max(math.floor(left), 0), max(math.floor(top), 0)
+    x1 = min(math.ceil(right) + 1, depth.shape[1])
+    y1 = min(math.ceil(bottom) + 1, depth.shape[0])
     if x0 >= x1 or y0 >= y1:
         return None
     mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
@@ -175,17 +176,20 @@ def _marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthMode
     window = depth[y0:y1, x0:x1][v, u]
     metres = window.astype(np.float64) / 1000.0 if depth.dtype == np.uint16 else window
     valid = np.isfinite(metres) & (metres > 0.0) & (metres <= model.max_range_m)
-    if np.count_nonzero(valid) < MIN_PLANE_PIXELS:
-        return float(np.median(metres[valid])) if np.any(valid) else None
-    A = np.column_stack([np.ones(np.count_nonzero(valid)), u[valid] + x0 - centre[0],
-                         v[valid] + y0 - centre[1]])  # fmt: skip
-    plane, kept, _ = robust_least_squares(A, 1.0 / metres[valid], passes=2)
+    seen = metres[valid]
+    if len(seen) < MIN_PLANE_PIXELS:
+        return float(np.median(seen)) if len(seen) else None
+    A = np.empty((len(seen), 3))
+    A[:, 0] = 1.0
+    A[:, 1] = u[valid] + (x0 - centre[0])
+    A[:, 2] = v[valid] + (y0 - centre[1])
+    plane, kept, _ = robust_least_squares(A, 1.0 / seen, passes=2)
     # A plane extrapolated from a few rows or a corner of cells is not trusted beyond the
     # depths it was fitted to.
-    inside = metres[valid][kept]
+    inside = seen[kept]
     if plane[0] > 0 and inside.min() <= 1.0 / plane[0] <= inside.max():
         return float(1.0 / plane[0])
-    return float(np.median(metres[valid]))
+    return float(np.median(seen))
 
 
 def observe_detections(
