@@ -7,6 +7,7 @@ import math
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -828,18 +829,42 @@ def test_theta_sigma_gradient_is_theta_differentiated() -> None:
 
 def test_workers_auto_uses_a_second_process_only_where_it_helps(monkeypatch) -> None:
     """Auto: one process for a short log or a busy machine, one per 1,500 frames and idle core
-    otherwise; a number asked for is kept, capped at the cores."""
+    otherwise (the load average where busy cores cannot be measured); a number asked for is
+    kept, capped at the cores."""
     from markergraph.frontend import pipeline
 
     monkeypatch.setattr(pipeline, "available_cores", lambda: 2)
-    monkeypatch.setattr(pipeline.os, "getloadavg", lambda: (0.2, 0.2, 0.2))
+    monkeypatch.setattr(pipeline, "busy_cores", lambda: 0.2)
     assert pipeline.choose_workers(9000, None)[0] == 2
     assert pipeline.choose_workers(2000, None)[0] == 1  # 2,000 frames: one worker's worth
+    monkeypatch.setattr(pipeline, "busy_cores", lambda: 1.8)
+    workers, note = pipeline.choose_workers(9000, None)
+    assert workers == 1 and note is not None and "no core idle, 1.8 busy" in note
+    monkeypatch.setattr(pipeline, "busy_cores", lambda: None)
     monkeypatch.setattr(pipeline.os, "getloadavg", lambda: (1.8, 1.8, 1.8))
     workers, note = pipeline.choose_workers(9000, None)
-    assert workers == 1 and note is not None and "no core idle" in note
+    assert workers == 1 and note is not None and "load average 1.8" in note
     assert pipeline.choose_workers(100, 2) == (2, None)
     assert pipeline.choose_workers(100, 5)[0] == 2
+
+
+def test_busy_cores_sees_a_process_spinning_on_our_cores() -> None:
+    """A process spinning beside us shows as about one more busy core than before it ran."""
+    from markergraph.frontend.pipeline import available_cores, busy_cores
+
+    quiet = busy_cores(0.3)
+    if quiet is None:
+        pytest.skip("no per-core counters in /proc/stat here")
+    spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.3)  # started and spinning
+        loaded = busy_cores(0.3)
+    finally:
+        spinner.kill()
+        spinner.wait()
+    assert loaded is not None
+    assert 0.6 < loaded - quiet <= 1.1
+    assert loaded <= available_cores() + 0.05
 
 
 def test_read_ahead_yields_everything_raises_in_place_and_stops_early() -> None:
