@@ -120,8 +120,10 @@ def robust_least_squares(
     robust sigmas (1.4826 MAD) of the last fit: (x, the rows kept, that sigma).
 
     Solved through the normal equations: A has a few well-scaled columns here, and that costs
-    a fifth of an SVD (``lstsq``) on a marker's few hundred depth pixels; a singular system (all
-    rows on one line) falls back to ``lstsq``'s least-norm solution."""
+    a fifth of an SVD (``lstsq``) on a marker's few hundred depth pixels. An exactly singular
+    system falls back to ``lstsq``'s least-norm solution; a nearly singular one (a marker's
+    pixels all in one row) gives an arbitrary intercept, as ``lstsq`` did, which
+    :func:`_marker_depth` refuses when it falls outside the depths fitted."""
     kept = np.ones(len(b), dtype=bool)
     A_kept, b_kept = A, b
     for _ in range(passes):

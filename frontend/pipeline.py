@@ -212,15 +212,21 @@ def _with_images(
     """The stream, its colour messages inside ``span`` as frames with their images decoded.
     Run in the reading thread (:func:`read_ahead`), so decoding JPEG (0.7 ms a 640x480 frame,
     which releases the GIL) overlaps detection in the main thread: on bench_frontend's log the
-    reading thread then spends 1.3-1.6 ms of CPU a frame and the main thread 1.8-2.0 ms."""
-    for message in stream:
-        if message.topic == color and span.holds(message.log_time_ns):
-            try:
-                yield _Frame(message, decode_image(message))
-            except LogError as error:
-                yield _Frame(message, error)
-        else:
-            yield message
+    reading thread then spends 1.3-1.6 ms of CPU a frame and the main thread 1.8-2.0 ms.
+    Closing it closes ``stream`` (and the log's file) in the thread that closes it."""
+    try:
+        for message in stream:
+            if message.topic == color and span.holds(message.log_time_ns):
+                try:
+                    yield _Frame(message, decode_image(message))
+                except LogError as error:
+                    yield _Frame(message, error)
+            else:
+                yield message
+    finally:
+        close = getattr(stream, "close", None)
+        if close is not None:
+            close()
 
 
 class _SpanReader:
@@ -453,9 +459,9 @@ def _read_span(
 
 
 def _start_worker(parent_pid: int) -> None:
-    """In each worker: one OpenCV thread (a worker is one core; more would only contend), and a
-    watchdog that ends the worker when its parent dies (a killed run must not leave workers
-    waiting forever for work)."""
+    """In each worker: one OpenCV thread (a worker's reading and main threads already keep about
+    one and a half cores busy; more would only contend), and a watchdog that ends the worker
+    when its parent dies (a killed run must not leave workers waiting forever for work)."""
     cv2.setNumThreads(1)
 
     def watch() -> None:
@@ -481,15 +487,8 @@ def busy_cores(seconds: float = 0.2) -> float | None:
     ago, such as by a run of ours that has just ended."""
 
     def counters() -> dict[int, tuple[int, int]]:
-        """Core -> (idle and iowait, all) clock ticks since boot."""
-        ticks = {}
         with open("/proc/stat") as stat:
-            for line in stat:
-                name, *fields = line.split()
-                if name.startswith("cpu") and name[3:].isdigit():
-                    values = [int(v) for v in fields[:8]]  # user .. steal
-                    ticks[int(name[3:])] = (values[3] + values[4], sum(values))
-        return ticks
+            return core_ticks(stat.read())
 
     try:
         before = counters()
@@ -505,6 +504,18 @@ def busy_cores(seconds: float = 0.2) -> float | None:
             busy += 1.0 - idle / total
             seen += 1
     return busy if seen else None
+
+
+def core_ticks(proc_stat: str) -> dict[int, tuple[int, int]]:
+    """Each core's (idle and iowait, all) clock ticks since boot from ``/proc/stat``'s text:
+    its ``cpuN`` lines' first eight fields, user to steal (guest time is already in user)."""
+    ticks = {}
+    for line in proc_stat.splitlines():
+        name, *fields = line.split() or [""]
+        if name.startswith("cpu") and name[3:].isdigit():
+            values = [int(v) for v in fields[:8]]
+            ticks[int(name[3:])] = (values[3] + values[4], sum(values))
+    return ticks
 
 
 # A worker costs 0.3-0.7 s to spawn and import, and a few hundred frames a second repay it: below

@@ -261,14 +261,16 @@ READ_AHEAD_BATCH = 8
 
 
 def read_ahead(items: Iterator[Any], size: int = 32) -> Iterator[Any]:
-    """``items``, produced by a thread of their own up to ``size`` ahead of the consumer.
+    """``items``, produced by a thread of their own about ``size`` ahead of the consumer.
 
     Reading a log (file reads, zstd, record parsing; the front end decodes images there too)
     then overlaps detecting them: zstd, the JPEG decoder and OpenCV release the GIL, so one
-    process keeps a second core busy. An error raised while producing is raised here, after the
-    items before it; a consumer that stops early stops the thread at its next batch. MCAP chunks
-    arrive in bursts: on bench_frontend one process read 374-407 frames/s holding 8 messages,
-    461-503 holding 32 or 64 (a few tens of MB of images and depth).
+    process keeps a second core busy. Items cross in batches of :data:`READ_AHEAD_BATCH`, so
+    up to ``size`` items wait in the queue besides the batch each thread holds. An error raised
+    while producing is raised here, after the items before it; a consumer that stops early
+    stops the thread at its next batch. MCAP chunks arrive in bursts: before batching, one
+    process read 374-407 frames/s on bench_frontend holding 8 messages, 461-503 holding 32 or
+    64 (a few tens of MB of images and depth).
     """
     # Items cross in batches: a lock handed between threads per item cost the consumer more
     # than the items themselves on a log of small messages.
