@@ -521,35 +521,43 @@ def core_ticks(proc_stat: str) -> dict[int, tuple[int, int]]:
 # A worker costs 0.3-0.7 s to spawn and import, and a few hundred frames a second repay it: below
 # this many frames each, one process is as fast.
 MIN_FRAMES_PER_WORKER = 1500
+# Cores one process keeps busy: its main thread, and its reading thread's zstd and JPEG decoding
+# (bench_frontend: about 1.3 and 1.75 ms of CPU a frame in 2.1 ms).
+CORES_PER_PROCESS = 1.5
 
 
 def choose_workers(frames: int, asked: int | None) -> tuple[int, str | None]:
     """How many processes to read a log of ``frames`` colour frames with, and a note saying
     why. A number asked for is used, capped at the cores there are. ``None`` (auto) gives more
-    than one only where each has :data:`MIN_FRAMES_PER_WORKER` frames and a core that is idle
-    now, measured over a fifth of a second (:func:`busy_cores`; elsewhere the 1-minute load
-    average). On a shared 2-core machine two workers ran 0.7x one process while the second
-    core was busy; with it idle, 1.06-1.18x on bench_frontend and 1.2x on a 10-minute log."""
+    than one only where each has :data:`MIN_FRAMES_PER_WORKER` frames and
+    :data:`CORES_PER_PROCESS` idle cores now, measured over a fifth of a second
+    (:func:`busy_cores`; elsewhere the 1-minute load average): a process's reading thread
+    already keeps a second core busy, so on this 2-core machine a second process gained
+    0.81-1.18x on bench_frontend's 3-minute log (slower whenever the host held part of a core)
+    and 1.17x on a 10-minute log."""
     cores = available_cores()
     if asked is not None:
         if asked <= cores:
             return asked, None
         return cores, f"--workers {asked} capped at the {cores} cores available"
     by_length = max(1, frames // MIN_FRAMES_PER_WORKER)
-    if by_length == 1 or cores == 1:
-        return 1, f"workers: 1 (auto: {frames} frames, one worker per {MIN_FRAMES_PER_WORKER})"
+    if by_length == 1 or cores < 2 * CORES_PER_PROCESS:
+        return 1, (
+            f"workers: 1 (auto: {frames} frames, {cores} cores; a process keeps about "
+            f"{CORES_PER_PROCESS} busy, and each worker wants {MIN_FRAMES_PER_WORKER} frames)"
+        )
     busy = busy_cores()
     if busy is not None:
         measured = f"{busy:.1f} busy over 0.2 s"
     else:
         busy = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
         measured = f"by the load average {busy:.1f}"
-    idle = max(1, int(cores - busy + 0.5))
-    chosen = min(cores, idle, by_length)
-    idle_words = f"{idle} of {cores} cores idle" if busy < cores - 0.5 else "no core idle"
+    idle = max(0.0, cores - busy)
+    chosen = max(1, min(by_length, int(idle / CORES_PER_PROCESS)))
     return chosen, (
         f"workers: {chosen} (auto: {frames} frames, one worker per {MIN_FRAMES_PER_WORKER}; "
-        f"{idle_words}, {measured})"
+        f"{idle:.1f} of {cores} cores idle, {measured}; a process keeps about "
+        f"{CORES_PER_PROCESS} busy)"
     )
 
 

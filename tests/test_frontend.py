@@ -828,24 +828,30 @@ def test_theta_sigma_gradient_is_theta_differentiated() -> None:
 
 
 def test_workers_auto_uses_a_second_process_only_where_it_helps(monkeypatch) -> None:
-    """Auto: one process for a short log or a busy machine, one per 1,500 frames and idle core
-    otherwise (the load average where busy cores cannot be measured); a number asked for is
-    kept, capped at the cores."""
+    """Auto: a process per 1.5 idle cores (its reading thread keeps a second core busy) and per
+    1,500 frames: one on a 2-core machine, a short log or a busy machine (by the load average
+    where busy cores cannot be measured); a number asked for is kept, capped at the cores."""
     from markergraph.frontend import pipeline
 
-    monkeypatch.setattr(pipeline, "available_cores", lambda: 2)
     monkeypatch.setattr(pipeline, "busy_cores", lambda: 0.2)
-    assert pipeline.choose_workers(9000, None)[0] == 2
+    monkeypatch.setattr(pipeline, "available_cores", lambda: 2)
+    workers, note = pipeline.choose_workers(9000, None)
+    assert workers == 1 and note is not None and "2 cores" in note
+    monkeypatch.setattr(pipeline, "available_cores", lambda: 4)
+    assert pipeline.choose_workers(9000, None)[0] == 2  # 3.8 idle cores
     assert pipeline.choose_workers(2000, None)[0] == 1  # 2,000 frames: one worker's worth
-    monkeypatch.setattr(pipeline, "busy_cores", lambda: 1.8)
+    monkeypatch.setattr(pipeline, "available_cores", lambda: 8)
+    assert pipeline.choose_workers(9000, None)[0] == 5  # 7.8 idle cores
+    assert pipeline.choose_workers(4500, None)[0] == 3  # 1,500 frames each
+    monkeypatch.setattr(pipeline, "busy_cores", lambda: 6.2)
     workers, note = pipeline.choose_workers(9000, None)
-    assert workers == 1 and note is not None and "no core idle, 1.8 busy" in note
+    assert workers == 1 and note is not None and "1.8 of 8 cores idle, 6.2 busy" in note
     monkeypatch.setattr(pipeline, "busy_cores", lambda: None)
-    monkeypatch.setattr(pipeline.os, "getloadavg", lambda: (1.8, 1.8, 1.8))
+    monkeypatch.setattr(pipeline.os, "getloadavg", lambda: (3.5, 3.5, 3.5))
     workers, note = pipeline.choose_workers(9000, None)
-    assert workers == 1 and note is not None and "load average 1.8" in note
+    assert workers == 3 and note is not None and "load average 3.5" in note
     assert pipeline.choose_workers(100, 2) == (2, None)
-    assert pipeline.choose_workers(100, 5)[0] == 2
+    assert pipeline.choose_workers(100, 9)[0] == 8
 
 
 def test_core_ticks_read_proc_stat() -> None:
