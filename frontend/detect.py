@@ -316,6 +316,10 @@ EDGE_PASSES = 2  # each recentred on the last: noise then pulls toward the edge,
 EDGE_MAX_SHIFT_PX = 1.5  # a corner moved further means a side was occluded or cut: keep OpenCV's
 _NEXT = [1, 2, 3, 0]  # side k runs from corner k to corner k + 1
 _PREVIOUS = [3, 0, 1, 2]
+_FRACTIONS = np.linspace(*EDGE_SPAN, EDGE_POINTS)[:, None]  # where along a side
+_OFFSETS = np.arange(-EDGE_HALF_WIDTH_PX, EDGE_HALF_WIDTH_PX + 1e-9, EDGE_STEP_PX)  # across it
+_MIDDLES = (_OFFSETS[1:] + _OFFSETS[:-1]) / 2.0  # where each difference of the profile sits
+_MEDIAN = slice((EDGE_POINTS - 1) // 2, EDGE_POINTS // 2 + 1)  # the middle one or two, sorted
 
 
 def edge_refined(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -343,36 +347,48 @@ def edge_refined(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDArr
     outward = np.stack([along[..., 1], -along[..., 0]], axis=-1)
     centre = corners.mean(axis=1, keepdims=True)
     outward *= np.sign(np.sum(outward * (start - centre), axis=2, keepdims=True))
-    fractions = np.linspace(*EDGE_SPAN, EDGE_POINTS)[:, None]
-    on_side = start[:, :, None] + fractions * (end - start)[:, :, None]  # (marker, side, point, xy)
-    offsets = np.arange(-EDGE_HALF_WIDTH_PX, EDGE_HALF_WIDTH_PX + 1e-9, EDGE_STEP_PX)
-    middles = (offsets[1:] + offsets[:-1]) / 2.0  # where each difference of the profile sits
+    on_side = (
+        start[:, :, None] + _FRACTIONS * (end - start)[:, :, None]
+    )  # (marker, side, point, xy)
     rows = markers * 4 * EDGE_POINTS
     shift = np.zeros((markers, 4, EDGE_POINTS))
     for _ in range(EDGE_PASSES):
-        across = (shift[..., None] + offsets)[..., None] * outward[:, :, None, None]
-        samples = (on_side[..., None, :] + across).reshape(rows, offsets.size, 2).astype(np.float32)
+        across = (shift[..., None] + _OFFSETS)[..., None] * outward[:, :, None, None]
+        samples = (on_side[..., None, :] + across).reshape(rows, _OFFSETS.size, 2)
+        samples = samples.astype(np.float32)
         profile = cv2.remap(gray, samples[..., 0], samples[..., 1], cv2.INTER_LINEAR,
                             borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
         rise = np.clip(np.diff(profile.astype(np.float32), axis=1), 0.0, None)
         weight = rise.sum(axis=1)
-        step = (rise @ middles) / np.maximum(weight, 1e-9)
+        step = (rise @ _MIDDLES) / np.maximum(weight, 1e-9)
         shift += step.reshape(shift.shape)
     weight = weight.reshape(shift.shape)
     edge = on_side + shift[..., None] * outward[:, :, None]
-    kept = (weight > 0.25 * np.median(weight, axis=2, keepdims=True))[..., None]
+    # np.median's own machinery costs more than the rest of this step: the sorted middle.
+    median = np.sort(weight, axis=2)[..., _MEDIAN].mean(axis=2, keepdims=True)
+    kept = (weight > 0.25 * median)[..., None]
     count = kept.sum(axis=2)
     mean = (edge * kept).sum(axis=2) / np.maximum(count, 1)
     spread = (edge - mean[:, :, None]) * kept
-    _, axes = np.linalg.eigh(np.einsum("mspi,mspj->msij", spread, spread))
-    normal = axes[..., 0]  # across each side: the axis of least spread
+    # Each side's line runs along its points' axis of most spread (a 2x2 eigenproblem, solved
+    # in closed form); its normal is across it.
+    sxx, syy = np.sum(spread[..., 0] ** 2, axis=2), np.sum(spread[..., 1] ** 2, axis=2)
+    sxy = np.sum(spread[..., 0] * spread[..., 1], axis=2)
+    angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    normal = np.stack([-np.sin(angle), np.cos(angle)], axis=-1)
     offset = np.sum(normal * mean, axis=2)
-    # Corner k is where side k - 1 (into it) meets side k (out of it).
-    meeting = np.stack([normal[:, _PREVIOUS], normal], axis=2)  # (marker, corner, 2, 2)
-    at = np.stack([offset[:, _PREVIOUS], offset], axis=2)
-    solvable = np.abs(np.linalg.det(meeting)) > 1e-6
-    meeting[~solvable] = np.eye(2)
-    refined = np.linalg.solve(meeting, at[..., None])[..., 0]
+    # Corner k is where side k - 1 (into it) meets side k (out of it): Cramer's rule.
+    n_in, o_in = normal[:, _PREVIOUS], offset[:, _PREVIOUS]
+    det = n_in[..., 0] * normal[..., 1] - n_in[..., 1] * normal[..., 0]
+    solvable = np.abs(det) > 1e-6
+    det = np.where(solvable, det, 1.0)
+    refined = np.stack(
+        [
+            (o_in * normal[..., 1] - n_in[..., 1] * offset) / det,
+            (n_in[..., 0] * offset - o_in * normal[..., 0]) / det,
+        ],
+        axis=-1,
+    )
     moved = np.linalg.norm(refined - corners, axis=2).max(axis=1)
     good = (moved <= EDGE_MAX_SHIFT_PX) & solvable.all(axis=1) & (count >= 3).all(axis=(1, 2))
     return np.where(good[:, None, None], refined, corners)
