@@ -20,9 +20,7 @@ import numpy as np
 
 from markergraph.estimator.residual_search import SlamInputs, cheapest_on_grid
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import (
-    Observation,
-)
+from markergraph.estimator.types import Observation
 
 __all__ = [
     "CameraDelay",

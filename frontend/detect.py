@@ -347,9 +347,8 @@ def edge_refined(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDArr
     outward = np.stack([along[..., 1], -along[..., 0]], axis=-1)
     centre = corners.mean(axis=1, keepdims=True)
     outward *= np.sign(np.sum(outward * (start - centre), axis=2, keepdims=True))
-    on_side = (
-        start[:, :, None] + _FRACTIONS * (end - start)[:, :, None]
-    )  # (marker, side, point, xy)
+    # (marker, side, point, xy)
+    on_side = start[:, :, None] + _FRACTIONS * (end - start)[:, :, None]
     rows = markers * 4 * EDGE_POINTS
     shift = np.zeros((markers, 4, EDGE_POINTS))
     for _ in range(EDGE_PASSES):

@@ -210,7 +210,7 @@ def _with_images(
     stream: Iterator[Message], color: str | None, span: _Span
 ) -> Iterator[Message | _Frame]:
     """The stream, its colour messages inside ``span`` as frames with their images decoded.
-    Run in the reading thread (:func:`read_ahead`), so decoding JPEG (0.7 ms a 640x480 frame,
+    Run in the reading thread (:func:`read_ahead`), so decoding JPEG (0.6 ms a 640x480 frame,
     which releases the GIL) overlaps detection in the main thread: on bench_frontend's log the
     reading thread then spends 1.3-1.6 ms of CPU a frame and the main thread 1.8-2.0 ms.
     Closing it closes ``stream`` (and the log's file) in the thread that closes it."""
@@ -304,11 +304,11 @@ class _SpanReader:
 
     def _take_frame(self, frame: _Frame) -> None:
         """A colour frame inside the span."""
-        decoded = frame.message.decoded
+        decoded, t_ns = frame.message.decoded, stamp_ns(frame.message.decoded)
         self.part.extraction.frames += 1
         self.image_frame = self.image_frame or frame_id(decoded)
-        self.pairing.colour.append((stamp_ns(decoded), frame))
-        self._drain(stamp_ns(decoded))
+        self.pairing.colour.append((t_ns, frame))
+        self._drain(t_ns)
 
     def _take(self, message: Message, inside: bool) -> None:
         """One streamed message, by its role."""
@@ -532,8 +532,8 @@ def choose_workers(frames: int, asked: int | None) -> tuple[int, str | None]:
     than one only where each has :data:`MIN_FRAMES_PER_WORKER` frames and
     :data:`CORES_PER_PROCESS` idle cores now, measured over a fifth of a second
     (:func:`busy_cores`; elsewhere the 1-minute load average): a process's reading thread
-    already keeps a second core busy, so on this 2-core machine a second process gained
-    0.81-1.18x on bench_frontend's 3-minute log (slower whenever the host held part of a core)
+    already keeps a second core busy, so on this 2-core machine a second process ran 0.81-1.33x
+    one a round on bench_frontend's 3-minute log (slower whenever the host held part of a core)
     and 1.17x on a 10-minute log."""
     cores = available_cores()
     if asked is not None:

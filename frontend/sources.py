@@ -400,9 +400,9 @@ def _chunk_messages(chunk: Chunk, wanted: Collection[int]) -> list[McapMessage]:
 
     mcap's ``breakup_chunk`` parses every record through a stream object: on a robot's log
     (ten messages a frame, raw depth) that cost 0.6 ms a frame of Python holding the GIL,
-    more than zstd's decompression (which releases it); this reads the records in place, 15x
-    cheaper. Other records (schemas and channels repeated in chunks) are passed over: the
-    summary's are used.
+    more than zstd's decompression (which releases it); this reads the records in place, about
+    18x cheaper (0.09 s against 1.6 s over bench_frontend's 1,351 chunks). Other records
+    (schemas and channels repeated in chunks) are passed over: the summary's are used.
 
     Raises:
         McapError: a compression this reader lacks, or a record running past the chunk.

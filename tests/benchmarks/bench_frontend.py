@@ -141,11 +141,11 @@ def main() -> None:
                     f"one; {observations} observations"
                 )
         median_of = {key: float(np.median([row[key] for row in rows])) for key in rows[0]}
-        ratio = {  # each round's ratio, then their median
-            (a, b): float(np.median([row[a] / row[b] for row in rows]))
-            for a in (*columns, "1 process cpu", "fast floor cpu")
-            for b in ("floor", "fast floor", "1 process", "floor cpu", "fast floor cpu")
-        }
+
+        def ratio(a: str, b: str) -> float:
+            """The median over the rounds of each round's ``a / b``."""
+            return float(np.median([row[a] / row[b] for row in rows]))
+
         print(f"medians over {len(rows)} rounds (ratios: the median of each round's ratio):")
         print(
             "  default floor (JPEG decode + detectMarkers, FULL): "
@@ -153,22 +153,22 @@ def main() -> None:
         )
         print(
             f"  fast floor (JPEG decode + FAST detector): {median_of['fast floor']:.0f} frames/s "
-            f"({ratio['fast floor', 'floor']:.2f}x the default floor; per CPU second "
-            f"{ratio['fast floor cpu', 'floor cpu']:.2f}x)"
+            f"({ratio('fast floor', 'floor'):.2f}x the default floor; per CPU second "
+            f"{ratio('fast floor cpu', 'floor cpu'):.2f}x)"
         )
         print(
             f"  pipeline, 1 process: {median_of['1 process']:.0f} frames/s "
-            f"({ratio['1 process', 'floor']:.2f} of the default floor, "
-            f"{ratio['1 process', 'fast floor']:.2f} of its own); "
+            f"({ratio('1 process', 'floor'):.2f} of the default floor, "
+            f"{ratio('1 process', 'fast floor'):.2f} of its own); "
             f"{median_of['1 process cpu']:.0f} per CPU second "
-            f"({ratio['1 process cpu', 'floor cpu']:.2f} of the default floor's, "
-            f"{ratio['1 process cpu', 'fast floor cpu']:.2f} of its own)"
+            f"({ratio('1 process cpu', 'floor cpu'):.2f} of the default floor's, "
+            f"{ratio('1 process cpu', 'fast floor cpu'):.2f} of its own)"
         )
         print(
             f"  pipeline, 2 processes: {median_of['2 processes']:.0f} frames/s "
-            f"({ratio['2 processes', 'floor']:.2f} of the default floor, "
-            f"{ratio['2 processes', 'fast floor']:.2f} of its own; "
-            f"{ratio['2 processes', '1 process']:.2f}x one process)"
+            f"({ratio('2 processes', 'floor'):.2f} of the default floor, "
+            f"{ratio('2 processes', 'fast floor'):.2f} of its own; "
+            f"{ratio('2 processes', '1 process'):.2f}x one process)"
         )
         print(
             f"  the default floor in two processes at once: {median_of['second core']:.2f}x one "
