@@ -45,6 +45,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         "ground_truth": bool(run.true_markers),
         "seconds": run.seconds,
         "settings": dict(run.config.values),
+        **run.judgement.to_json(),
         "methods": {},
     }
     if run.sessions:
@@ -60,6 +61,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         ]
     for result in run.results:
         entry: dict[str, Any] = {
+            **result.judgement.to_json(),
             "markers_placed": len(result.estimate.markers),
             "links": len(result.estimate.links),
             "unplaced": {str(k): v for k, v in result.estimate.unplaced.items()},

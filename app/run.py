@@ -40,8 +40,9 @@ from markergraph.estimator import (
 from markergraph.frontend import Extraction, extract
 from markergraph.markermap import MarkerMap
 from markergraph.settings import MapConfig
+from markergraph.verdicts import Judgement, Verdict, judge_run
 
-__all__ = ["MapRun", "MethodResult", "map_log"]
+__all__ = ["MapRun", "MethodResult", "judge", "map_log"]
 
 
 @dataclass
@@ -56,6 +57,7 @@ class MethodResult:
             rigid alignment.
         trajectory_error: ATE and RPE at the estimate's stamps.
         true_path: the true base poses at the estimate's stamps, in the home marker's frame.
+        judgement: how far the estimate can be trusted, and why (:mod:`markergraph.verdicts`).
     """
 
     method: Method
@@ -65,6 +67,7 @@ class MethodResult:
     map_error_aligned: MapError | None = None
     trajectory_error: TrajectoryError | None = None
     true_path: Trajectory | None = None
+    judgement: Judgement = field(default_factory=lambda: Judgement(Verdict.OK))
 
     @property
     def label(self) -> str:
@@ -108,6 +111,8 @@ class MapRun:
         seconds: stage -> wall time.
         sessions: with several logs, each log and its trajectory in the map.
         separate: maps of logs that share no marker with this one: (their logs, the map).
+        judgement: the run's verdict: the gravest of its methods', each reason naming its
+            method (:func:`judge`).
     """
 
     log: Path
@@ -123,6 +128,19 @@ class MapRun:
     seconds: dict[str, float] = field(default_factory=dict)
     sessions: list[Any] = field(default_factory=list)
     separate: list[tuple[list[Path], MarkerMap]] = field(default_factory=list)
+    judgement: Judgement = field(default_factory=lambda: Judgement(Verdict.OK))
+
+
+def judge(run: MapRun) -> MapRun:
+    """Give the run and each of its methods a verdict from the run's own evidence."""
+    run.judgement, per_method = judge_run(
+        [result.estimate for result in run.results], run.extraction,
+        camera_delay_ns=run.camera_delay_ns, odometry_scale=run.odometry_scale,
+        settings=dict(run.config.values),
+    )  # fmt: skip
+    for result in run.results:
+        result.judgement = per_method[result.method]
+    return run
 
 
 def truth_in_home_frame(
@@ -377,8 +395,8 @@ def map_log(
         result = MethodResult(method, estimate, marker_map_of(estimate, str(log), config, heights))
         _score(result, truth, true_path)
         results.append(result)
-    return MapRun(
+    return judge(MapRun(
         Path(log), config, extraction, frames, results, truth, true_path,
         camera_delay_ns=prepared.camera_delay_ns, odometry_source=prepared.odometry_source,
         odometry_scale=prepared.odometry_scale, seconds=seconds,
-    )  # fmt: skip
+    ))  # fmt: skip

@@ -39,6 +39,7 @@ from markergraph.run import (
     MapRun,
     MethodResult,
     _score,
+    judge,
     marker_map_of,
     path_error,
     prepare,
@@ -172,7 +173,7 @@ def map_logs(
         for i, (log, extraction) in enumerate(zip(logs, extractions, strict=True))
     ]
     run.separate = _separate(solved.apart, logs, frames, mounts, config)
-    return run
+    return judge(run)
 
 
 def _separate(

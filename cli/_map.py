@@ -16,9 +16,11 @@ from markergraph.results import write_localization, write_results
 from markergraph.run import MapRun, map_log
 from markergraph.sessions import localize_log, map_logs
 from markergraph.settings import config_toml, map_config
+from markergraph.verdicts import Verdict
 
 SUMMARY = "estimate a corrected marker map from an MCAP log (default: the bundled sample)"
 DEFAULT_SAMPLE = "corridor-loop"
+EXIT_NOT_OK = 4  # --strict: a method's verdict is "suspect" or "failed"
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -41,6 +43,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--force", action="store_true", help="replace an existing result folder")
     parser.add_argument("--no-plots", action="store_true", help="skip map.png and comparison.png")
+    parser.add_argument(
+        "--strict", action="store_true",
+        help=f"exit {EXIT_NOT_OK} when a method's verdict is not ok (the folder is still written)",
+    )  # fmt: skip
     parser.add_argument(
         "--print-config",
         action="store_true",
@@ -135,6 +141,8 @@ def run(args: argparse.Namespace) -> int:
     stages.close()
     _print_summary(result, quiet=args.quiet)
     print(f"wrote {len(written)} files to {out}/")
+    if args.strict and result.judgement.verdict is not Verdict.OK:
+        return EXIT_NOT_OK
     return 0
 
 
@@ -163,6 +171,10 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
         print(line)
         for note in estimate.notes:
             print(f"  {method_result.label}: {note}")
+    for method_result in result.results:
+        judgement = method_result.judgement
+        print(f"verdict {method_result.label}: {judgement.verdict.value}", end="")
+        print("".join(f"\n  - {reason.text}" for reason in judgement.reasons))
     for reason, count in sorted(extraction.skipped.items()):
         print(f"  {count} frame(s): {reason}")
     for n, session in enumerate(result.sessions, start=1):

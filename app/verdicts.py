@@ -1,0 +1,367 @@
+"""A verdict on every estimate: ``ok``, ``suspect`` or ``failed``, each with the sentences that
+decided it, from evidence the run already has (no ground truth).
+
+The evidence, and why each check is set where it is:
+
+* **Residuals.** A GTSAM solution's squared whitened residuals sum to a chi-square with as many
+  degrees of freedom as the graph has to spare. Our sigmas are cautious (theta's by about 2.6x
+  on real rigs), so an honest solution reads well below 1; a ratio above
+  :data:`RESIDUAL_RATIO_SUSPECT` means the data disagree with the map beyond any noise the
+  model allows. A marker whose own observations' median whitened error exceeds
+  :data:`MARKER_RESIDUAL_SUSPECT` disagrees with the rest of the map. The EKF's innovations (NIS)
+  are read the same way.
+* **Methods that disagree.** Two methods' positions of a marker are compared under the sum of
+  their covariances (generous: their errors correlate). A method that disagrees with every
+  other method with covariances, beyond :data:`DISAGREEMENT_D2` and :data:`DISAGREEMENT_FLOOR_M`,
+  is suspect; when all disagree with all, no method can be singled out and each is suspect.
+  The closed form has no covariance: it is compared with the best judged method by distance,
+  against :data:`CLOSED_FORM_SHARE` of the map's size.
+* **Ellipses larger than the map.** A marker whose 95 % ellipse is longer than the whole map is
+  not located by the data: the estimate there is a guess, however well it fits.
+* **Markers left unplaced**, **an optimiser that did not converge**, **frames or odometry
+  dropped**, **searches that stopped at the end of their range** (the camera's delay, the
+  odometry's scale), and **depth against PnP** (the marker size) come from the run itself.
+
+A check that cannot be made (one method alone, no covariance) adds no reason: a verdict says
+what the evidence shows, not what it cannot see.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+from typing import Any
+
+import numpy as np
+
+from markergraph.estimator import Estimate, Method
+from markergraph.estimator.evidence import (
+    chi2_upper,
+    ellipse_semi_axes_m,
+    map_extent_m,
+    marker_disagreement,
+    residual_fit,
+)
+from markergraph.estimator.odometry_scale import SCALES
+from markergraph.estimator.timing import DELAYS_S
+from markergraph.frontend import Extraction
+
+__all__ = ["Judgement", "Reason", "Verdict", "judge_run", "worst"]
+
+RESIDUAL_RATIO_SUSPECT = 3.0  # chi2 / dof: residuals 1.7x their sigmas on average
+MARKER_RESIDUAL_SUSPECT = 3.0  # a marker's median whitened error
+DOWNWEIGHTED_SUSPECT = 0.05  # share of observation factors the robust kernel overruled
+DISAGREEMENT_D2 = 13.82  # chi-square, 2 dof, 99.9 %
+DISAGREEMENT_FLOOR_M = 0.05  # simulated covariances can be millimetres; a few cm is no fault
+CLOSED_FORM_SHARE = 0.05  # of the map's size: the closed form's chain drift we still call ok
+CLOSED_FORM_FLOOR_M = 0.25
+ELLIPSE_SIGMAS = math.sqrt(5.991)  # 95 % for 2 dof
+DROPPED_SHARE_SUSPECT = 0.10  # of colour frames
+DEPTH_MISS_SHARE_SUSPECT = 0.5  # of observations that tried depth
+
+
+class Verdict(Enum):
+    """How far an estimate can be trusted; the order is by gravity."""
+
+    OK = "ok"
+    SUSPECT = "suspect"
+    FAILED = "failed"
+
+    @property
+    def rank(self) -> int:
+        return list(Verdict).index(self)
+
+
+@dataclass(frozen=True)
+class Reason:
+    """One piece of evidence against an estimate.
+
+    Attributes:
+        verdict: the verdict it alone calls for (``suspect`` or ``failed``).
+        check: which check found it (``residuals``, ``disagreement``, ``ellipses``, ``unplaced``,
+            ``converged``, ``dropped``, ``depth``, ``odometry``, ``delay``).
+        text: a plain sentence naming the evidence and its figure.
+        figure: that figure, in the unit the sentence gives.
+    """
+
+    verdict: Verdict
+    check: str
+    text: str
+    figure: float
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """A verdict and the reasons behind it (none for ``ok``)."""
+
+    verdict: Verdict
+    reasons: tuple[Reason, ...] = ()
+
+    @classmethod
+    def of(cls, reasons: list[Reason]) -> Judgement:
+        return cls(worst(r.verdict for r in reasons), tuple(reasons))
+
+    def to_json(self) -> dict[str, Any]:
+        return {"verdict": self.verdict.value, "verdict_reasons": [r.text for r in self.reasons]}
+
+
+def worst(verdicts: Any) -> Verdict:
+    """The gravest of some verdicts (``ok`` for none)."""
+    return max(verdicts, key=lambda v: v.rank, default=Verdict.OK)
+
+
+def _suspect(check: str, figure: float, text: str) -> Reason:
+    return Reason(Verdict.SUSPECT, check, text, figure)
+
+
+def _failed(check: str, figure: float, text: str) -> Reason:
+    return Reason(Verdict.FAILED, check, text, figure)
+
+
+# --- one estimate on its own ---------------------------------------------------------------
+
+
+def _residual_reasons(estimate: Estimate) -> list[Reason]:
+    reasons = []
+    fit = residual_fit(estimate)
+    if fit is not None and fit.ratio > RESIDUAL_RATIO_SUSPECT and fit.chi2 > chi2_upper(fit.dof):
+        reasons.append(_suspect(
+            "residuals", fit.ratio,
+            f"its residuals are {fit.ratio:.1f} times the size its noise model allows (chi-square "
+            f"{fit.chi2:.0f} for {fit.dof} degrees of freedom): the data disagree with the map",
+        ))  # fmt: skip
+    if fit is not None and fit.factors and fit.downweighted / fit.factors > DOWNWEIGHTED_SUSPECT:
+        share = fit.downweighted / fit.factors
+        reasons.append(_suspect(
+            "residuals", 100 * share,
+            f"the robust kernel overruled {100 * share:.0f} % of its factors ({fit.downweighted} "
+            f"of {fit.factors})",
+        ))  # fmt: skip
+    per_marker: dict[int, list[float]] = {}
+    for r in estimate.residuals:
+        if r.kind == "observation":
+            for name in r.keys:
+                if name.startswith("m"):
+                    per_marker.setdefault(int(name[1:]), []).append(r.whitened_error)
+    bad = {i: float(np.median(e)) for i, e in per_marker.items()}
+    bad = {i: e for i, e in bad.items() if e > MARKER_RESIDUAL_SUSPECT}
+    if bad:
+        worst_id = max(bad, key=bad.__getitem__)
+        reasons.append(_suspect(
+            "residuals", bad[worst_id],
+            f"the observations of {_markers(bad)} disagree with the map (median whitened error "
+            f"{bad[worst_id]:.1f} for marker {worst_id}; 1 is honest)",
+        ))  # fmt: skip
+    if len(estimate.nis):
+        ratio = float(np.mean(estimate.nis)) / 3.0  # NIS of a 3-D innovation averages 3
+        if ratio > RESIDUAL_RATIO_SUSPECT:
+            reasons.append(_suspect(
+                "residuals", ratio,
+                f"its innovations are {ratio:.1f} times the size its noise model allows (mean "
+                f"NIS {3 * ratio:.1f} for 3): the filter's belief and the data disagree",
+            ))  # fmt: skip
+    return reasons
+
+
+def _ellipse_reasons(estimate: Estimate) -> list[Reason]:
+    extent = map_extent_m(estimate)
+    if extent <= 0:
+        return []
+    wide = {
+        i: 2 * float(ellipse_semi_axes_m(m.covariance, ELLIPSE_SIGMAS)[0])
+        for i, m in estimate.markers.items()
+        if m.covariance is not None and i != estimate.home_id
+    }
+    wide = {i: length for i, length in wide.items() if length > extent}
+    if not wide:
+        return []
+    widest = max(wide, key=wide.__getitem__)
+    return [_suspect(
+        "ellipses", wide[widest],
+        f"the 95 % ellipses of {_markers(wide)} are longer than the whole map "
+        f"({wide[widest]:.1f} m for marker {widest}, the map {extent:.1f} m across): the data "
+        "do not locate them",
+    )]  # fmt: skip
+
+
+def _placement_reasons(estimate: Estimate, seen: set[int]) -> list[Reason]:
+    reasons = []
+    if not estimate.converged:
+        reasons.append(_suspect(
+            "converged", 0.0, "its optimiser stopped before converging: the map is its last step"
+        ))  # fmt: skip
+    unplaced = sorted(seen - set(estimate.markers))
+    if unplaced:
+        placed = len(seen) - len(unplaced)
+        text = (
+            f"it placed {placed} of the {len(seen)} markers seen; {_markers(unplaced)} "
+            f"{'is' if len(unplaced) == 1 else 'are'} missing"
+        )
+        failed = placed <= 1 < len(seen)
+        reasons.append((_failed if failed else _suspect)("unplaced", float(len(unplaced)), text))
+    finite = all(
+        np.all(np.isfinite([m.T_map_marker.x(), m.T_map_marker.y(), m.T_map_marker.theta()]))
+        for m in estimate.markers.values()
+    )
+    if not finite:
+        reasons.append(_failed("converged", math.nan, "it holds non-finite marker poses"))
+    return reasons
+
+
+# --- methods against each other ------------------------------------------------------------
+
+
+def _disagreements(estimates: list[Estimate]) -> dict[Method, list[Reason]]:
+    """Each method with covariances against the others; a method that disagrees with all the
+    others is suspect (with one other, both are)."""
+    judged = [e for e in estimates if any(m.covariance is not None for m in e.markers.values())]
+    reasons: dict[Method, list[Reason]] = {e.method: [] for e in estimates}
+    if len(judged) < 2:
+        return reasons
+    apart: dict[tuple[Method, Method], tuple[int, float, float]] = {}
+    for a in judged:
+        for b in judged:
+            if a is b:
+                continue
+            worst_pair = _worst_disagreement(marker_disagreement(a, b))
+            if worst_pair is not None:
+                apart[(a.method, b.method)] = worst_pair
+    for a in judged:
+        others = [b.method for b in judged if b is not a]
+        against = [m for m in others if (a.method, m) in apart]
+        if against and len(against) == len(others):
+            marker_id, distance, d2 = max(
+                (apart[(a.method, m)] for m in against), key=lambda t: t[1]
+            )
+            names = ", ".join(m.value for m in against)
+            reasons[a.method].append(_suspect(
+                "disagreement", distance,
+                f"it puts marker {marker_id} {distance:.2f} m from where {names} "
+                f"{'puts' if len(against) == 1 else 'put'} it ({math.sqrt(d2):.0f} sigma apart)",
+            ))  # fmt: skip
+    return reasons
+
+
+def _worst_disagreement(
+    pairs: dict[int, tuple[float, float | None]],
+) -> tuple[int, float, float] | None:
+    beyond = [
+        (i, distance, d2)
+        for i, (distance, d2) in pairs.items()
+        if d2 is not None and d2 > DISAGREEMENT_D2 and distance > DISAGREEMENT_FLOOR_M
+    ]
+    return max(beyond, key=lambda t: t[1], default=None)
+
+
+def _closed_form_reasons(closed: Estimate, reference: Estimate | None) -> list[Reason]:
+    """The closed form has no covariance: it is compared with the best-judged method by the
+    distance it drifts, against a share of the map's size."""
+    if reference is None:
+        return []
+    pairs = marker_disagreement(closed, reference)
+    if not pairs:
+        return []
+    marker_id = max(pairs, key=lambda i: pairs[i][0])
+    distance = pairs[marker_id][0]
+    allowed = max(CLOSED_FORM_FLOOR_M, CLOSED_FORM_SHARE * map_extent_m(reference))
+    if distance <= allowed:
+        return []
+    return [_suspect(
+        "disagreement", distance,
+        f"it puts marker {marker_id} {distance:.2f} m from where {reference.method.value} puts it "
+        f"(its chain of single edges drifts; {allowed:.2f} m is what we call agreement here)",
+    )]  # fmt: skip
+
+
+# --- the run's own evidence ----------------------------------------------------------------
+
+
+def _input_reasons(
+    extraction: Extraction, camera_delay_ns: int, odometry_scale: float, settings: dict[str, Any]
+) -> list[Reason]:
+    reasons = []
+    read = extraction.frames + sum(extraction.skipped.values())
+    dropped = sum(extraction.skipped.values())
+    if read and dropped / read > DROPPED_SHARE_SUSPECT:
+        reasons.append(_suspect(
+            "dropped", 100 * dropped / read,
+            f"{100 * dropped / read:.0f} % of the colour frames were dropped ({dropped} of {read})",
+        ))  # fmt: skip
+    if extraction.depth_tries and extraction.depth_misses / extraction.depth_tries > (
+        DEPTH_MISS_SHARE_SUSPECT
+    ):
+        share = extraction.depth_misses / extraction.depth_tries
+        reasons.append(_suspect(
+            "depth", 100 * share,
+            f"{100 * share:.0f} % of the markers seen with depth had no valid depth on them: "
+            "their ranges rest on the marker size alone",
+        ))  # fmt: skip
+    if settings.get("camera.delay_ms") is None:
+        delay_s = camera_delay_ns * 1e-9
+        if (
+            min(DELAYS_S) - 1e-6 < delay_s < min(DELAYS_S) + 1e-6
+            or abs(delay_s - max(DELAYS_S)) < 1e-6
+        ):
+            reasons.append(_suspect(
+                "delay", 1e3 * delay_s,
+                f"the camera's delay was chosen at the end of its search ({1e3 * delay_s:+.0f} "
+                "ms): the true delay may lie beyond it (--camera-delay sets it)",
+            ))  # fmt: skip
+    if settings.get("odometry.scale") is None and odometry_scale in (min(SCALES), max(SCALES)):
+        reasons.append(_suspect(
+            "odometry", odometry_scale,
+            f"the odometry's scale was chosen at the end of its search ({odometry_scale:.2f}): "
+            "its distances may be off by more (--odometry-scale sets it)",
+        ))  # fmt: skip
+    return reasons
+
+
+def judge_run(
+    estimates: list[Estimate],
+    extraction: Extraction,
+    *,
+    camera_delay_ns: int = 0,
+    odometry_scale: float = 1.0,
+    settings: dict[str, Any] | None = None,
+) -> tuple[Judgement, dict[Method, Judgement]]:
+    """The verdict on each method's estimate and on the run.
+
+    Each method's reasons are its own and the run's (bad input harms every method); the run's
+    verdict is the gravest of its methods', with each reason naming its method.
+    """
+    seen = {o.marker_id for o in extraction.observations}
+    inputs = _input_reasons(extraction, camera_delay_ns, odometry_scale, settings or {})
+    disagreements = _disagreements(estimates)
+    own: dict[Method, list[Reason]] = {}
+    for estimate in estimates:
+        own[estimate.method] = (
+            _residual_reasons(estimate)
+            + _ellipse_reasons(estimate)
+            + _placement_reasons(estimate, seen)
+            + disagreements[estimate.method]
+        )
+    judged = [e for e in estimates if e.method is not Method.CLOSED_FORM and not own[e.method]]
+    reference = min(judged, key=lambda e: _preference(e.method), default=None)
+    for estimate in estimates:
+        if estimate.method is Method.CLOSED_FORM:
+            own[estimate.method] += _closed_form_reasons(estimate, reference)
+    per_method = {m: Judgement.of(inputs + reasons) for m, reasons in own.items()}
+    run_reasons = list(inputs) + [
+        Reason(r.verdict, r.check, f"{m.value}: {r.text}", r.figure)
+        for m, reasons in own.items()
+        for r in reasons
+    ]
+    return Judgement.of(run_reasons), per_method
+
+
+def _preference(method: Method) -> int:
+    """Which method to measure the closed form against when several are judged sound."""
+    order = [Method.SLAM, Method.ISAM2, Method.EKF, Method.MARKER_GRAPH]
+    return order.index(method) if method in order else len(order)
+
+
+def _markers(ids: Any) -> str:
+    ids = sorted(ids)
+    shown = ", ".join(map(str, ids[:6])) + (f" and {len(ids) - 6} more" if len(ids) > 6 else "")
+    return f"marker{'s' if len(ids) > 1 else ''} {shown}"
