@@ -50,7 +50,12 @@ _METHOD_COLUMNS: tuple[tuple[str, str, str | None], ...] = (
     ("ate_m", "ATE", "m"),
     ("rpe_m_per_m", "RPE", "m/m"),
 )
-_METHOD_SECTIONS = ("notes", "unplaced")  # per-method keys shown in the notes, not as columns
+_METHOD_SECTIONS = (
+    "notes",
+    "unplaced",
+    "verdict",
+    "verdict_reasons",
+)  # per-method keys shown in the notes, not as columns
 # The log table: report.json's key and its label, in this order.
 _LOG_ROWS: tuple[tuple[str, str], ...] = (
     ("log", "log"),
@@ -72,7 +77,7 @@ _LOG_ROWS: tuple[tuple[str, str], ...] = (
     ("schema", "report schema"),
 )
 # Top-level keys with a section of their own above; any other key is shown generically.
-_OWN_SECTIONS = {"methods", "notes", "settings", "seconds", "files"}
+_OWN_SECTIONS = {"methods", "notes", "settings", "seconds", "files", "verdict", "verdict_reasons"}
 # Unit suffixes of report keys: suffix, unit shown, factor to the unit shown, format.
 _UNITS: tuple[tuple[str, str, float, str], ...] = (
     ("_m_per_m", "m/m", 1.0, ".3f"),
@@ -97,7 +102,8 @@ _ACRONYMS = {
 
 _CSS = """
 :root { color-scheme: light; --ink: #1d232b; --muted: #5b6470; --line: #d8dde3;
-  --band: #f3f5f8; --accent: #1f5fa8; --warn: #8a4b00; }
+  --band: #f3f5f8; --accent: #1f5fa8; --warn: #8a4b00;
+  --ok: #2e7d32; --bad: #b3261e; }
 * { box-sizing: border-box; }
 body { margin: 0; background: #fff; color: var(--ink);
   font: 15px/1.5 system-ui, -apple-system, "Segoe UI", Roboto, "Helvetica Neue", Arial,
@@ -137,6 +143,12 @@ details { margin: 6px 0; }
 details > summary { font-weight: 600; cursor: pointer; padding: 4px 0; }
 .muted { color: var(--muted); }
 .more { color: var(--warn); font-style: italic; }
+.verdict { border: 1px solid var(--line); border-left: 6px solid var(--ok); padding: 8px 14px;
+  margin: 12px 0 20px; background: var(--band); }
+.verdict.suspect { border-left-color: var(--warn); }
+.verdict.failed { border-left-color: var(--bad); }
+.verdict .word { font-weight: 700; text-transform: uppercase; letter-spacing: 0.04em; }
+.verdict ul { margin: 4px 0; padding-left: 20px; }
 """
 
 
@@ -190,6 +202,7 @@ def render_report_page(report: Mapping[str, Any], figures: Mapping[str, bytes]) 
     body = [
         f"<h1>{_esc(title)}</h1>",
         f'<p class="lead">{_esc(_lead(report))}</p>',
+        _verdict_section(report),
         _methods_section(report),
         _notes_section(report),
         _figures_section(figures),
@@ -230,6 +243,40 @@ def _lead(report: Mapping[str, Any]) -> str:
             else "no ground truth in the log: counts only"
         )
     return "; ".join(parts)
+
+
+_VERDICT_WORDS = {
+    "ok": "nothing in the run's own evidence speaks against it",
+    "suspect": "the evidence below speaks against it: check before you rely on it",
+    "failed": "do not use it",
+}
+
+
+def _verdict_section(report: Mapping[str, Any]) -> str:
+    """The run's verdict first, then each method's with its reasons: what a reader must see
+    before any figure."""
+    verdict = report.get("verdict")
+    if verdict not in _VERDICT_WORDS:
+        return ""
+    methods = report.get("methods") if isinstance(report.get("methods"), Mapping) else {}
+    rows = []
+    for label, entry in methods.items():
+        if not isinstance(entry, Mapping) or entry.get("verdict") not in _VERDICT_WORDS:
+            continue
+        reasons = "".join(
+            f"<li>{_esc(str(r))}</li>" for r in _as_list(entry.get("verdict_reasons"))
+        )
+        rows.append(
+            f"<li><b>{_esc(str(label))}</b>: {_esc(str(entry['verdict']))}"
+            + (f"<ul>{reasons}</ul>" if reasons else "")
+            + "</li>"
+        )
+    return (
+        f'<section class="verdict {_esc(str(verdict))}" id="verdict"><p><span class="word">'
+        f"{_esc(str(verdict))}</span>: {_esc(_VERDICT_WORDS[str(verdict)])}.</p>"
+        + (f"<ul>{''.join(rows)}</ul>" if rows else "")
+        + "</section>"
+    )
 
 
 def _methods_section(report: Mapping[str, Any]) -> str:

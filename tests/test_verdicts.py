@@ -1,0 +1,222 @@
+"""Verdicts: each check's evidence against exact algebra or the simulator's truth, and each
+reason raised by the fault it names and by nothing on a clean run."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import Counter
+
+import gtsam
+import numpy as np
+import pytest
+from scipy import stats
+
+from markergraph.datasets import scenario, simulate_fast
+from markergraph.estimator import Estimate, MarkerEstimate, Method, Trajectory, estimate
+from markergraph.estimator.evidence import (
+    chi2_upper,
+    marker_disagreement,
+    position_covariance,
+    residual_fit,
+)
+from markergraph.estimator.odometry_scale import SCALES
+from markergraph.estimator.timing import DELAYS_S
+from markergraph.frontend import Extraction
+from markergraph.frontend.camera import CameraMount
+from markergraph.frontend.topics import TopicChoice
+from markergraph.verdicts import Verdict, judge_run
+
+SEED = 7
+METHODS = (Method.SLAM, Method.ISAM2, Method.EKF, Method.MARKER_GRAPH, Method.CLOSED_FORM)
+
+
+@pytest.fixture(scope="module")
+def clean():
+    """A simulated paper room whose noise is what the estimators assume: every method's
+    estimate, and the run's observations as an extraction."""
+    world, route = scenario("paper-room")
+    run = simulate_fast(world, route, SEED, duration_s=90.0)
+    estimates = {
+        m: estimate(run.observations, run.odometry, m, T_base_camera=run.mount.T_base_camera,
+                    odometry_noise=run.odometry_noise, home_id=world.home_id)
+        for m in METHODS
+    }  # fmt: skip
+    extraction = Extraction(
+        run.observations,
+        Trajectory.from_samples(run.odometry),
+        None,
+        CameraMount(),
+        TopicChoice(None, None, None, "/odom", None),
+        frames=len(run.frame_t_ns),
+    )
+    return run, estimates, extraction
+
+
+def judged(estimates, extraction, **kwargs):
+    run_judgement, per_method = judge_run(list(estimates.values()), extraction, **kwargs)
+    return run_judgement, per_method
+
+
+def checks(judgement) -> set[str]:
+    return {reason.check for reason in judgement.reasons}
+
+
+def test_chi2_upper_matches_scipy() -> None:
+    """Wilson-Hilferty's 99.9 % quantile is within 1 % of the exact one at 10 dof and 0.2 %
+    from 48 up."""
+    for dof, tolerance in ((10, 1e-2), (48, 2e-3), (300, 2e-3), (1296, 2e-3), (20_000, 2e-3)):
+        exact = stats.chi2.ppf(0.999, dof)
+        assert chi2_upper(dof) == pytest.approx(exact, rel=tolerance)
+
+
+def test_disagreement_is_the_mahalanobis_length_under_the_summed_covariances() -> None:
+    """Exact algebra: a marker 0.3 m apart along x, each estimate's position sigma 0.1 m
+    along its own axes (one turned 90 degrees), is 0.3 / sqrt(0.02) apart."""
+    cov_a = np.diag([0.01, 0.04, 0.001])  # its x is the map's x
+    cov_b = np.diag([0.04, 0.01, 0.001])  # turned 90 deg: its y is the map's x
+    a = _estimate({1: (gtsam.Pose2(1.0, 2.0, 0.0), cov_a)})
+    b = _estimate({1: (gtsam.Pose2(1.3, 2.0, math.pi / 2), cov_b)})
+    distance, d2 = marker_disagreement(a, b)[1]
+    assert distance == pytest.approx(0.3, abs=1e-12)
+    np.testing.assert_allclose(position_covariance(math.pi / 2, cov_b), np.diag([0.01, 0.04]),
+                               atol=1e-15)  # fmt: skip
+    assert d2 == pytest.approx(0.09 / 0.02, rel=1e-12)
+
+
+def test_honest_noise_gives_residuals_inside_their_chi_square_range(clean) -> None:
+    """With the simulator's noise equal to the model's, SLAM's chi-square per degree of
+    freedom lies within its 99.9 % range (and far below the suspect line)."""
+    _, estimates, _ = clean
+    fit = residual_fit(estimates[Method.SLAM])
+    assert fit is not None and fit.dof > 500
+    low, high = stats.chi2.ppf([0.0005, 0.9995], fit.dof) / fit.dof
+    # The odometry steps between keyframes are nearly but not exactly linear: allow 20 %.
+    assert 0.8 * low < fit.ratio < 1.2 * high
+
+
+def test_clean_run_every_method_ok(clean) -> None:
+    """On a clean run no check fires: every method's verdict is ok (no crying wolf)."""
+    _, estimates, extraction = clean
+    run_judgement, per_method = judged(estimates, extraction)
+    assert {m: j.verdict for m, j in per_method.items()} == dict.fromkeys(METHODS, Verdict.OK), [
+        r.text for j in per_method.values() for r in j.reasons
+    ]
+    assert run_judgement.verdict is Verdict.OK
+
+
+def test_residuals_flag_odometry_that_disagrees_with_the_observations(clean) -> None:
+    """Odometry read 20 % long against the same observations: SLAM's residuals exceed their
+    range (2.0 times, against 0.9 with the true odometry) and say so with the figure."""
+    run, _, extraction = clean
+    long_odometry = [
+        dataclasses.replace(s, x=1.2 * s.x, y=1.2 * s.y) for s in run.odometry
+    ]  # the route starts at the origin: scaling positions scales every step
+    slam = estimate(run.observations, long_odometry, Method.SLAM,
+                    T_base_camera=run.mount.T_base_camera, odometry_noise=run.odometry_noise,
+                    home_id=run.world.home_id)  # fmt: skip
+    _, per_method = judged({Method.SLAM: slam}, extraction)
+    reasons = [r for r in per_method[Method.SLAM].reasons if r.check == "residuals"]
+    assert per_method[Method.SLAM].verdict is Verdict.SUSPECT and reasons
+    assert reasons[0].figure > 1.8 and "times the size its noise model allows" in reasons[0].text
+
+
+def test_a_method_apart_from_the_others_is_named(clean) -> None:
+    """One marker of the marker graph moved 2 m: the marker graph alone is suspect, naming
+    that marker and the distance; the methods that agree stay ok."""
+    _, estimates, extraction = clean
+    moved = dict(estimates)
+    graph = estimates[Method.MARKER_GRAPH]
+    marker_id = max(graph.markers)
+    markers = dict(graph.markers)
+    T = markers[marker_id].T_map_marker
+    markers[marker_id] = dataclasses.replace(
+        markers[marker_id], T_map_marker=gtsam.Pose2(T.x() + 2.0, T.y(), T.theta())
+    )
+    moved[Method.MARKER_GRAPH] = dataclasses.replace(graph, markers=markers)
+    _, per_method = judged(moved, extraction)
+    assert per_method[Method.MARKER_GRAPH].verdict is Verdict.SUSPECT
+    reason = next(r for r in per_method[Method.MARKER_GRAPH].reasons if r.check == "disagreement")
+    assert f"marker {marker_id}" in reason.text and reason.figure == pytest.approx(2.0, abs=0.2)
+    for method in (Method.SLAM, Method.ISAM2, Method.EKF):
+        assert "disagreement" not in checks(per_method[method])
+
+
+def test_ellipses_longer_than_the_map_are_flagged(clean) -> None:
+    """A covariance inflated to 100 m sigma makes an ellipse longer than the 6 m room."""
+    _, estimates, extraction = clean
+    slam = estimates[Method.SLAM]
+    marker_id = max(slam.markers)
+    markers = dict(slam.markers)
+    markers[marker_id] = dataclasses.replace(
+        markers[marker_id], covariance=np.diag([1e4, 1e4, 1.0])
+    )
+    _, per_method = judged({Method.SLAM: dataclasses.replace(slam, markers=markers)}, extraction)
+    reason = next(r for r in per_method[Method.SLAM].reasons if r.check == "ellipses")
+    assert reason.figure == pytest.approx(2 * 100 * math.sqrt(5.991), rel=1e-6)
+
+
+def test_unplaced_markers_are_suspect_and_only_home_is_failed(clean) -> None:
+    """A marker missing: suspect, naming it; only the home marker placed: failed."""
+    _, estimates, extraction = clean
+    slam = estimates[Method.SLAM]
+    assert len(slam.markers) >= 3
+    missing = max(slam.markers)
+    fewer = {i: m for i, m in slam.markers.items() if i != missing}
+    _, per_method = judged({Method.SLAM: dataclasses.replace(slam, markers=fewer)}, extraction)
+    reason = next(r for r in per_method[Method.SLAM].reasons if r.check == "unplaced")
+    assert per_method[Method.SLAM].verdict is Verdict.SUSPECT and reason.figure == 1
+    assert f"marker {missing} is missing" in reason.text
+    home_only = {slam.home_id: slam.markers[slam.home_id]}
+    _, per_method = judged({Method.SLAM: dataclasses.replace(slam, markers=home_only)}, extraction)
+    assert per_method[Method.SLAM].verdict is Verdict.FAILED
+
+
+def test_closed_form_drift_beyond_its_share_of_the_map_is_flagged(clean) -> None:
+    """The closed form has no covariance: one marker 1 m from SLAM's (over 5 % of the room
+    and the 0.25 m floor) makes it suspect; as it came out of the clean run it is ok."""
+    _, estimates, extraction = clean
+    closed = estimates[Method.CLOSED_FORM]
+    marker_id = max(closed.markers)
+    markers = dict(closed.markers)
+    T = estimates[Method.SLAM].markers[marker_id].T_map_marker
+    markers[marker_id] = dataclasses.replace(
+        markers[marker_id], T_map_marker=gtsam.Pose2(T.x(), T.y() + 1.0, T.theta())
+    )
+    pair = {Method.SLAM: estimates[Method.SLAM],
+            Method.CLOSED_FORM: dataclasses.replace(closed, markers=markers)}  # fmt: skip
+    _, per_method = judged(pair, extraction)
+    reason = next(r for r in per_method[Method.CLOSED_FORM].reasons if r.check == "disagreement")
+    assert (
+        reason.figure == pytest.approx(1.0, abs=1e-9) and "from where slam puts it" in reason.text
+    )
+
+
+def test_searches_at_the_end_of_their_range_and_dropped_frames_are_reasons(clean) -> None:
+    """A delay or a scale chosen at its grid's end, or a fifth of the frames dropped, make every
+    method suspect with the figure; set by hand, the bound is no evidence."""
+    _, estimates, extraction = clean
+    slam_only = {Method.SLAM: estimates[Method.SLAM]}
+    delay_ns = round(max(DELAYS_S) * 1e9)
+    _, per_method = judged(slam_only, extraction, camera_delay_ns=delay_ns,
+                           odometry_scale=min(SCALES))  # fmt: skip
+    assert {"delay", "odometry"} <= checks(per_method[Method.SLAM])
+    _, per_method = judged(slam_only, extraction, camera_delay_ns=delay_ns,
+                           odometry_scale=min(SCALES),
+                           settings={"camera.delay_ms": 100.0, "odometry.scale": 0.95})  # fmt: skip
+    assert per_method[Method.SLAM].verdict is Verdict.OK
+    dropping = dataclasses.replace(
+        extraction, skipped=Counter({"undecodable": extraction.frames // 4})
+    )
+    _, per_method = judged(slam_only, dropping)
+    reason = next(r for r in per_method[Method.SLAM].reasons if r.check == "dropped")
+    assert reason.figure == pytest.approx(20.0, abs=0.1)
+
+
+def _estimate(markers: dict[int, tuple[gtsam.Pose2, np.ndarray]]) -> Estimate:
+    return Estimate(
+        Method.SLAM,
+        min(markers),
+        {i: MarkerEstimate(i, T, cov, 10) for i, (T, cov) in markers.items()},
+        Trajectory.from_samples([], "map"),
+    )
