@@ -8,8 +8,9 @@ The evidence, and why each check is set where it is:
   on real rigs), so an honest solution reads 1 or below (0.07 on the bundled sample); a ratio
   above :data:`RESIDUAL_RATIO_SUSPECT` and beyond the chi-square's 99.9 % quantile means the
   data disagree with the map beyond any noise the model allows (odometry 20 % long against
-  the observations reads 2.0 in the simulated paper room). A marker whose own observations' median whitened error exceeds
-  :data:`MARKER_RESIDUAL_SUSPECT` disagrees with the rest of the map. The EKF's innovations (NIS)
+  the observations reads 2.0 in the simulated paper room). A marker whose own observations'
+  median whitened error exceeds :data:`MARKER_RESIDUAL_SUSPECT` disagrees with the rest of the
+  map. The EKF's innovations (NIS)
   are read the same way.
 * **Methods that disagree.** Two methods' positions of a marker are compared under the sum of
   their covariances (generous: their errors correlate). A method that disagrees with every
