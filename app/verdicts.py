@@ -283,8 +283,7 @@ def _input_reasons(
     extraction: Extraction, camera_delay_ns: int, odometry_scale: float, settings: dict[str, Any]
 ) -> list[Reason]:
     reasons = []
-    read = extraction.frames + sum(extraction.skipped.values())
-    dropped = sum(extraction.skipped.values())
+    read, dropped = extraction.frames, sum(extraction.skipped.values())  # frames counts them
     if read and dropped / read > DROPPED_SHARE_SUSPECT:
         reasons.append(_suspect(
             "dropped", 100 * dropped / read,

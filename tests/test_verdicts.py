@@ -4,15 +4,21 @@ reason raised by the fault it names and by nothing on a clean run."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from collections import Counter
+from pathlib import Path
+from typing import Any
 
 import gtsam
 import numpy as np
 import pytest
 from scipy import stats
 
-from markergraph.datasets import scenario, simulate_fast
+from markergraph.cli import main
+from markergraph.cli._map import EXIT_NOT_OK
+from markergraph.datasets import scenario, simulate_fast, write_log
+from markergraph.datasets.rewrite import rewrite_log
 from markergraph.estimator import Estimate, MarkerEstimate, Method, Trajectory, estimate
 from markergraph.estimator.evidence import (
     chi2_upper,
@@ -206,7 +212,7 @@ def test_searches_at_the_end_of_their_range_and_dropped_frames_are_reasons(clean
                            settings={"camera.delay_ms": 100.0, "odometry.scale": 0.95})  # fmt: skip
     assert per_method[Method.SLAM].verdict is Verdict.OK
     dropping = dataclasses.replace(
-        extraction, skipped=Counter({"undecodable": extraction.frames // 4})
+        extraction, skipped=Counter({"undecodable": extraction.frames // 5})
     )
     _, per_method = judged(slam_only, dropping)
     reason = next(r for r in per_method[Method.SLAM].reasons if r.check == "dropped")
@@ -220,3 +226,47 @@ def _estimate(markers: dict[int, tuple[gtsam.Pose2, np.ndarray]]) -> Estimate:
         {i: MarkerEstimate(i, T, cov, 10) for i, (T, cov) in markers.items()},
         Trajectory.from_samples([], "map"),
     )
+
+
+# --- through the command line ----------------------------------------------------------------
+
+COLOR = "/camera/camera/color/image_raw/compressed"
+
+
+@pytest.fixture(scope="module")
+def small_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """20 s of the paper room at 5 Hz: 100 JPEG frames, three markers, ground truth."""
+    path = tmp_path_factory.mktemp("log") / "room.mcap"
+    world, route = scenario("paper-room")
+    write_log(world, route, path, seed=3, duration_s=20.0, compressed=True, frame_hz=5.0)
+    return path
+
+
+def test_cli_prints_verdicts_and_strict_exits_4_only_when_not_ok(small_log, tmp_path, capsys):
+    """The clean log: SLAM ok in the summary, report.json and report.html, and --strict exits 0.
+    A quarter of its colour frames undecodable: every method suspect with the share dropped,
+    the folder still written, and --strict exits 4."""
+    code = main(["map", str(small_log), "--out", str(tmp_path / "clean"), "--no-plots",
+                 "--strict"])  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0 and "verdict slam: ok" in out
+    report = json.loads((tmp_path / "clean" / "report.json").read_text())
+    assert report["verdict"] == "ok" and report["methods"]["slam"]["verdict"] == "ok"
+    page = (tmp_path / "clean" / "report.html").read_text()
+    assert page.index('id="verdict"') < page.index('id="summary"')
+
+    def corrupt(topic: str, index: int, decoded: Any) -> Any:
+        if topic == COLOR and index % 4 == 1:
+            decoded.data = b"\x55" * 64
+        return decoded
+
+    damaged = tmp_path / "damaged.mcap"
+    rewrite_log(small_log, damaged, corrupt)
+    code = main(["map", str(damaged), "--out", str(tmp_path / "damaged"), "--no-plots",
+                 "--strict"])  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == EXIT_NOT_OK and "verdict slam: suspect" in out
+    report = json.loads((tmp_path / "damaged" / "report.json").read_text())
+    reason = report["methods"]["slam"]["verdict_reasons"][0]
+    assert "25 % of the colour frames were dropped (25 of 100)" in reason
+    assert report["verdict"] == "suspect" and report["verdict_reasons"] == [reason]
