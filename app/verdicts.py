@@ -20,8 +20,8 @@ The evidence, and why each check is set where it is:
   against :data:`CLOSED_FORM_SHARE` of the map's size.
 * **Ellipses larger than the map.** A marker whose 95 % ellipse is longer than the whole map is
   not located by the data: the estimate there is a guess, however well it fits.
-* **Markers left unplaced**, **an optimiser that did not converge**, **frames or odometry
-  dropped**, **searches that stopped at the end of their range** (the camera's delay, the
+* **Markers left unplaced**, **an optimiser that did not converge**, **frames that do not
+  decode**, **searches that stopped at the end of their range** (the camera's delay, the
   odometry's scale), and **depth against PnP** (the marker size) come from the run itself.
 
 A check that cannot be made (one method alone, no covariance) adds no reason: a verdict says
@@ -59,7 +59,7 @@ DISAGREEMENT_FLOOR_M = 0.05  # simulated covariances can be millimetres; a few c
 CLOSED_FORM_SHARE = 0.05  # of the map's size: the closed form's chain drift we still call ok
 CLOSED_FORM_FLOOR_M = 0.25
 ELLIPSE_SIGMAS = math.sqrt(5.991)  # 95 % for 2 dof
-DROPPED_SHARE_SUSPECT = 0.10  # of colour frames
+DROPPED_SHARE_SUSPECT = 0.10  # of colour frames that do not decode
 DEPTH_MISS_SHARE_SUSPECT = 0.5  # of observations that tried depth
 
 
@@ -128,10 +128,13 @@ def _residual_reasons(estimate: Estimate) -> list[Reason]:
     reasons = []
     fit = residual_fit(estimate)
     if fit is not None and fit.ratio > RESIDUAL_RATIO_SUSPECT and fit.chi2 > chi2_upper(fit.dof):
+        largest = max(estimate.residuals, key=lambda r: r.whitened_error)
         reasons.append(_suspect(
             "residuals", fit.ratio,
             f"its residuals are {fit.ratio:.1f} times the size its noise model allows (chi-square "
-            f"{fit.chi2:.0f} for {fit.dof} degrees of freedom): the data disagree with the map",
+            f"{fit.chi2:.0f} for {fit.dof} degrees of freedom; the largest, {largest.kind} "
+            f"{'-'.join(largest.keys)}, {largest.whitened_error:.0f} sigma): the data disagree "
+            "with the map",
         ))  # fmt: skip
     if fit is not None and fit.factors and fit.downweighted / fit.factors > DOWNWEIGHTED_SUSPECT:
         share = fit.downweighted / fit.factors
@@ -283,11 +286,14 @@ def _input_reasons(
     extraction: Extraction, camera_delay_ns: int, odometry_scale: float, settings: dict[str, Any]
 ) -> list[Reason]:
     reasons = []
-    read, dropped = extraction.frames, sum(extraction.skipped.values())  # frames counts them
+    # Damage only: frames skipped by design (a camera without calibration, frames used without
+    # depth) are not evidence against the map.
+    read, dropped = extraction.frames, extraction.undecodable_frames
     if read and dropped / read > DROPPED_SHARE_SUSPECT:
         reasons.append(_suspect(
             "dropped", 100 * dropped / read,
-            f"{100 * dropped / read:.0f} % of the colour frames were dropped ({dropped} of {read})",
+            f"{100 * dropped / read:.0f} % of the colour frames do not decode ({dropped} of "
+            f"{read})",
         ))  # fmt: skip
     if extraction.depth_tries and extraction.depth_misses / extraction.depth_tries > (
         DEPTH_MISS_SHARE_SUSPECT
@@ -295,8 +301,9 @@ def _input_reasons(
         share = extraction.depth_misses / extraction.depth_tries
         reasons.append(_suspect(
             "depth", 100 * share,
-            f"{100 * share:.0f} % of the markers seen with depth had no valid depth on them: "
-            "their ranges rest on the marker size alone",
+            f"{100 * share:.0f} % of the markers seen with depth had no usable depth on them "
+            "(none valid, or too far from the marker's distance by its size): their ranges rest "
+            "on the marker size alone",
         ))  # fmt: skip
     if settings.get("camera.delay_ms") is None:
         delay_s = camera_delay_ns * 1e-9

@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -211,9 +210,7 @@ def test_searches_at_the_end_of_their_range_and_dropped_frames_are_reasons(clean
                            odometry_scale=min(SCALES),
                            settings={"camera.delay_ms": 100.0, "odometry.scale": 0.95})  # fmt: skip
     assert per_method[Method.SLAM].verdict is Verdict.OK
-    dropping = dataclasses.replace(
-        extraction, skipped=Counter({"undecodable": extraction.frames // 5})
-    )
+    dropping = dataclasses.replace(extraction, undecodable_frames=extraction.frames // 5)
     _, per_method = judged(slam_only, dropping)
     reason = next(r for r in per_method[Method.SLAM].reasons if r.check == "dropped")
     assert reason.figure == pytest.approx(20.0, abs=0.1)
@@ -268,5 +265,5 @@ def test_cli_prints_verdicts_and_strict_exits_4_only_when_not_ok(small_log, tmp_
     assert code == EXIT_NOT_OK and "verdict slam: suspect" in out
     report = json.loads((tmp_path / "damaged" / "report.json").read_text())
     reason = report["methods"]["slam"]["verdict_reasons"][0]
-    assert "25 % of the colour frames were dropped (25 of 100)" in reason
+    assert "25 % of the colour frames do not decode (25 of 100)" in reason
     assert report["verdict"] == "suspect" and report["verdict_reasons"] == [reason]

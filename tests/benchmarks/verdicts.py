@@ -34,6 +34,7 @@ import numpy as np
 
 from markergraph.datasets import scenario
 from markergraph.datasets.rewrite import rewrite_log
+from markergraph.datasets.samples import SAMPLES, sample_log
 from markergraph.estimator.evidence import position_covariance
 
 CHI2_95_2DOF = 5.991
@@ -91,6 +92,8 @@ TRAPS = (
 
 
 def simulate(name: str, seed: int, seconds: float, work: Path) -> Path:
+    if seconds == 0:  # the bundled sample, rendered once into the cache
+        return sample_log(name)
     log = work / f"{name}-{seed}-{seconds:.0f}s.mcap"
     if not log.exists():
         command = ["markergraph", "simulate", "--scenario", name, "--seed", str(seed), "--out",
@@ -135,7 +138,8 @@ def main() -> None:
     args = parser.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="markergraph-verdicts-"))
     work.mkdir(parents=True, exist_ok=True)
-    clean = list(CLEAN) + ([("corridor-loop", 1, 470.0)] if args.full else [])
+    sample = ("corridor-loop", SAMPLES["corridor-loop"][1], 0.0)
+    clean = [sample, *CLEAN] + ([("corridor-loop", 1, 470.0)] if args.full else [])
 
     print("clean logs (--method all): each method's verdict, marker RMSE in the home frame")
     covered: dict[str, list[int]] = {}
