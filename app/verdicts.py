@@ -18,6 +18,8 @@ The evidence, and why each check is set where it is:
   is suspect; when all disagree with all, no method can be singled out and each is suspect.
   The closed form has no covariance: it is compared with the best judged method by distance,
   against :data:`CLOSED_FORM_SHARE` of the map's size.
+* **Markers that face away.** A camera sees a marker's face only from in front of it: a marker
+  the estimated path saw from behind in most of its sightings has its yaw turned round.
 * **Ellipses larger than the map.** A marker whose 95 % ellipse is longer than the whole map is
   not located by the data: the estimate there is a guess, however well it fits.
 * **Markers left unplaced**, **an optimiser that did not converge**, **frames that do not
@@ -37,10 +39,11 @@ from typing import Any
 
 import numpy as np
 
-from markergraph.estimator import Estimate, Method
+from markergraph.estimator import Estimate, Method, Observation
 from markergraph.estimator.evidence import (
     chi2_upper,
     ellipse_semi_axes_m,
+    facing_away,
     map_extent_m,
     marker_disagreement,
     residual_fit,
@@ -59,6 +62,8 @@ DISAGREEMENT_FLOOR_M = 0.05  # simulated covariances can be millimetres; a few c
 CLOSED_FORM_SHARE = 0.05  # of the map's size: the closed form's chain drift we still call ok
 CLOSED_FORM_FLOOR_M = 0.25
 ELLIPSE_SIGMAS = math.sqrt(5.991)  # 95 % for 2 dof
+BEHIND_SHARE = 0.5  # a marker seen from behind its face in most of its sightings faces away
+BEHIND_MIN_SIGHTINGS = 3
 DROPPED_SHARE_SUSPECT = 0.10  # of colour frames that do not decode
 DEPTH_MISS_SHARE_SUSPECT = 0.5  # of observations that tried depth
 
@@ -82,7 +87,7 @@ class Reason:
     Attributes:
         verdict: the verdict it alone calls for (``suspect`` or ``failed``).
         check: which check found it (``residuals``, ``disagreement``, ``ellipses``, ``unplaced``,
-            ``converged``, ``dropped``, ``depth``, ``odometry``, ``delay``).
+            ``converged``, ``facing``, ``dropped``, ``depth``, ``odometry``, ``delay``).
         text: a plain sentence naming the evidence and its figure.
         figure: that figure, in the unit the sentence gives.
     """
@@ -214,6 +219,32 @@ def _placement_reasons(estimate: Estimate, seen: set[int]) -> list[Reason]:
     return reasons
 
 
+def _facing_reasons(
+    estimate: Estimate, observations: list[Observation], camera_x_m: float
+) -> list[Reason]:
+    """Markers the robot saw from behind their face: their yaw is turned round. Most of the
+    map's markers so: the map's yaws are not to be used (failed)."""
+    sightings = facing_away(estimate, observations, camera_x_m)
+    away = {
+        i: behind / n
+        for i, (behind, n) in sightings.items()
+        if n >= BEHIND_MIN_SIGHTINGS and behind / n > BEHIND_SHARE
+    }
+    if not away:
+        return []
+    judged = sum(n >= BEHIND_MIN_SIGHTINGS for _, n in sightings.values())
+    share = min(away.values())
+    one = len(away) == 1
+    text = (
+        f"{_markers(away)} {'faces' if one else 'face'} away from where the robot saw "
+        f"{'it' if one else 'them'} (seen from behind {'its' if one else 'their'} face in at "
+        f"least {100 * share:.0f} % of the sightings): {'its yaw is' if one else 'their yaws are'} "
+        "turned round"
+    )
+    grave = _failed if 2 * len(away) > judged else _suspect
+    return [grave("facing", float(len(away)), text)]
+
+
 # --- methods against each other ------------------------------------------------------------
 
 
@@ -339,6 +370,7 @@ def judge_run(
     verdict is the gravest of its methods', with each reason naming its method.
     """
     seen = {o.marker_id for o in extraction.observations}
+    camera_x_m = extraction.mount.T_base_camera.x()
     inputs = _input_reasons(extraction, camera_delay_ns, odometry_scale, settings or {})
     disagreements = _disagreements(estimates)
     own: dict[Method, list[Reason]] = {}
@@ -347,6 +379,7 @@ def judge_run(
             _residual_reasons(estimate)
             + _ellipse_reasons(estimate)
             + _placement_reasons(estimate, seen)
+            + _facing_reasons(estimate, extraction.observations, camera_x_m)
             + disagreements[estimate.method]
         )
     judged = [e for e in estimates if e.method is not Method.CLOSED_FORM and not own[e.method]]

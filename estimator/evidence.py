@@ -1,6 +1,7 @@
 """What an estimate says about its own trustworthiness, without ground truth: its residuals
-against their chi-square range, the size of its marker ellipses against the map, and how far two
-estimates of the same markers lie apart against their covariances.
+against their chi-square range, the size of its marker ellipses against the map, how far two
+estimates of the same markers lie apart against their covariances, and whether the robot was in
+front of each marker it saw.
 
 These are figures, not judgements; :mod:`markergraph.verdicts` turns them into a verdict.
 """
@@ -14,12 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.types import Estimate
+from markergraph.estimator.types import Estimate, Observation
 
 __all__ = [
     "ResidualFit",
     "chi2_upper",
     "ellipse_semi_axes_m",
+    "facing_away",
     "map_extent_m",
     "marker_disagreement",
     "position_covariance",
@@ -27,6 +29,7 @@ __all__ = [
 ]
 
 _FACTOR_DIM = 3  # every factor markergraph builds (observation, odometry, edge, prior) is 3-D
+_NEAREST_POSE_NS = 500_000_000  # an observation further than this from every pose is not judged
 
 
 @dataclass(frozen=True)
@@ -119,3 +122,40 @@ def marker_disagreement(a: Estimate, b: Estimate) -> dict[int, tuple[float, floa
             d2 = math.inf
         result[marker_id] = (distance, d2)
     return result
+
+
+def facing_away(
+    estimate: Estimate, observations: list[Observation], T_base_camera_x_m: float = 0.0
+) -> dict[int, tuple[int, int]]:
+    """For each placed marker: (its observations from behind its face, its observations with an
+    estimated robot pose), the pose taken at the nearest stamp of the estimate's trajectory.
+
+    A camera sees a marker's printed face only from in front of it, so with the marker's +x the
+    normal into the room, the camera lies at positive x in the marker's frame. A marker seen
+    from behind in most of its observations has its yaw turned round (or the path is wrong).
+
+    Args:
+        T_base_camera_x_m: the camera's offset ahead of the base [m]: its position is taken on
+            the base's heading line (a few centimetres beside it change nothing here).
+    """
+    trajectory = estimate.trajectory
+    if not len(trajectory):
+        return {}
+    counts: dict[int, list[int]] = {}
+    for obs in observations:
+        marker = estimate.markers.get(obs.marker_id)
+        if marker is None:
+            continue
+        i = int(np.clip(np.searchsorted(trajectory.t_ns, obs.t_ns), 1, len(trajectory) - 1))
+        i -= abs(int(trajectory.t_ns[i - 1]) - obs.t_ns) <= abs(int(trajectory.t_ns[i]) - obs.t_ns)
+        if abs(int(trajectory.t_ns[i]) - obs.t_ns) > _NEAREST_POSE_NS:
+            continue
+        x, y, yaw = trajectory.poses[i]
+        camera = np.array([x, y]) + T_base_camera_x_m * np.array([math.cos(yaw), math.sin(yaw)])
+        T = marker.T_map_marker
+        # The camera's x in the marker's frame: along the marker's normal.
+        in_front = (camera - T.translation()) @ np.array([math.cos(T.theta()), math.sin(T.theta())])
+        tally = counts.setdefault(obs.marker_id, [0, 0])
+        tally[0] += bool(in_front < 0.0)
+        tally[1] += 1
+    return {i: (behind, n) for i, (behind, n) in counts.items()}

@@ -147,6 +147,32 @@ def test_a_method_apart_from_the_others_is_named(clean) -> None:
         assert "disagreement" not in checks(per_method[method])
 
 
+def test_markers_turned_round_face_away_from_the_path(clean) -> None:
+    """Every marker's yaw turned by 180 degrees (the path kept): the robot saw each from behind
+    its face, and the map fails; one marker turned: suspect, naming it."""
+    _, estimates, extraction = clean
+    slam = estimates[Method.SLAM]
+
+    def turned(ids) -> Estimate:
+        markers = {
+            i: dataclasses.replace(m, T_map_marker=gtsam.Pose2(
+                m.T_map_marker.x(), m.T_map_marker.y(), m.T_map_marker.theta() + math.pi))
+            if i in ids else m
+            for i, m in slam.markers.items()
+        }  # fmt: skip
+        return dataclasses.replace(slam, markers=markers)
+
+    _, per_method = judged({Method.SLAM: turned(set(slam.markers))}, extraction)
+    reason = next(r for r in per_method[Method.SLAM].reasons if r.check == "facing")
+    assert per_method[Method.SLAM].verdict is Verdict.FAILED
+    assert reason.figure == len(slam.markers) and "100 % of the sightings" in reason.text
+    one = max(slam.markers)
+    _, per_method = judged({Method.SLAM: turned({one})}, extraction)
+    reason = next(r for r in per_method[Method.SLAM].reasons if r.check == "facing")
+    assert per_method[Method.SLAM].verdict is Verdict.SUSPECT
+    assert reason.text.startswith(f"marker {one} faces away")
+
+
 def test_ellipses_longer_than_the_map_are_flagged(clean) -> None:
     """A covariance inflated to 100 m sigma makes an ellipse longer than the 6 m room."""
     _, estimates, extraction = clean
