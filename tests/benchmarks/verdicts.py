@@ -1,6 +1,7 @@
 """Can a user tell a right map from a wrong one? Traps and clean logs through `markergraph map`.
 
-Every log is rendered by `markergraph simulate`; each trap is one of them with one fault put in
+Every log is rendered by the simulator (ideal, or with a D435i's effects on a differential
+drive); each trap is one of them with one fault put in
 (or one wrong flag); each is mapped by the command a user runs, in its own process, and scored
 against the simulator's truth. It prints:
 
@@ -32,19 +33,23 @@ from typing import Any
 import gtsam
 import numpy as np
 
-from markergraph.datasets import scenario
+from markergraph.datasets import scenario, write_log
 from markergraph.datasets.rewrite import rewrite_log
 from markergraph.datasets.samples import SAMPLES, sample_log
+from markergraph.datasets.sensors import D435I_ON_DIFF_DRIVE, SensorEffects
 from markergraph.estimator.evidence import position_covariance
 
 CHI2_95_2DOF = 5.991
 RIGHT_WITHIN_M = 0.05  # a trap's map is right when it is this close to the clean map's error
-CLEAN = (  # scenario, seed, seconds: seeds no test or tuning used
-    ("paper-room", 21, 60.0),
-    ("office", 22, 60.0),
-    ("corridor-loop", 23, 90.0),
+CLEAN = (  # scenario, seed, seconds, a D435i's effects: seeds no test or tuning used
+    ("paper-room", 21, 60.0, False),
+    ("office", 22, 60.0, False),
+    ("corridor-loop", 23, 90.0, False),
+    ("paper-room", 24, 60.0, True),
+    ("office", 25, 60.0, True),
+    ("warehouse", 26, 90.0, True),
 )
-TRAP_LOG = ("paper-room", 21, 60.0)  # the clean log the traps are made from
+TRAP_LOG = ("paper-room", 21, 60.0, False)  # the clean log the traps are made from
 
 
 @dataclass(frozen=True)
@@ -91,14 +96,16 @@ TRAPS = (
 )
 
 
-def simulate(name: str, seed: int, seconds: float, work: Path) -> Path:
-    if seconds == 0:  # the bundled sample, rendered once into the cache
+def simulate(name: str, seed: int, seconds: float | None, d435i: bool, work: Path) -> Path:
+    """A rendered log (``seconds`` None: the whole route; 0: the bundled sample)."""
+    if seconds == 0:
         return sample_log(name)
-    log = work / f"{name}-{seed}-{seconds:.0f}s.mcap"
+    length = "whole" if seconds is None else f"{seconds:.0f}s"
+    log = work / f"{name}-{seed}-{length}{'-d435i' if d435i else ''}.mcap"
     if not log.exists():
-        command = ["markergraph", "simulate", "--scenario", name, "--seed", str(seed), "--out",
-                   str(log), "--compressed", "--duration", str(seconds)]  # fmt: skip
-        subprocess.run(command, check=True, capture_output=True)
+        world, route = scenario(name)
+        effects = D435I_ON_DIFF_DRIVE if d435i else SensorEffects()
+        write_log(world, route, log, seed, duration_s=seconds, compressed=True, sensors=effects)
     return log
 
 
@@ -138,14 +145,14 @@ def main() -> None:
     args = parser.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="markergraph-verdicts-"))
     work.mkdir(parents=True, exist_ok=True)
-    sample = ("corridor-loop", SAMPLES["corridor-loop"][1], 0.0)
-    clean = [sample, *CLEAN] + ([("corridor-loop", 1, 470.0)] if args.full else [])
+    sample = ("corridor-loop", SAMPLES["corridor-loop"][1], 0.0, False)
+    clean = [sample, *CLEAN] + ([("corridor-loop", 1, None, False)] if args.full else [])
 
     print("clean logs (--method all): each method's verdict, marker RMSE in the home frame")
     covered: dict[str, list[int]] = {}
     clean_error: dict[Path, float] = {}
-    for name, seed, seconds in clean:
-        log = simulate(name, seed, seconds, work)
+    for name, seed, seconds, d435i in clean:
+        log = simulate(name, seed, seconds, d435i, work)
         out = work / f"map-{log.stem}"
         code, error, report = map_log(log, out, "--method", "all")
         if report is None:
