@@ -9,9 +9,9 @@ The evidence, and why each check is set where it is:
   above :data:`RESIDUAL_RATIO_SUSPECT` and beyond the chi-square's 99.9 % quantile means the
   data disagree with the map beyond any noise the model allows (odometry 20 % long against
   the observations reads 2.0 in the simulated paper room). A marker whose own observations'
-  median whitened error exceeds :data:`MARKER_RESIDUAL_SUSPECT` disagrees with the rest of the
-  map. The EKF's innovations (NIS)
-  are read the same way.
+  median whitened error exceeds :data:`MARKER_RESIDUAL_SUSPECT` and stands out from the other
+  markers' (:data:`MARKER_STANDS_OUT`) disagrees with the rest of the map. The EKF's
+  innovations (NIS) are read the same way.
 * **Methods that disagree.** Two methods' positions of a marker are compared under the sum of
   their covariances (generous: their errors correlate). A method that disagrees with every
   other method with covariances, beyond :data:`DISAGREEMENT_D2` and :data:`DISAGREEMENT_FLOOR_M`,
@@ -56,7 +56,8 @@ __all__ = ["Judgement", "Reason", "Verdict", "judge_run", "worst"]
 
 RESIDUAL_RATIO_SUSPECT = 1.5  # chi2 / dof: honest noise reads 1, our cautious sigmas below
 MARKER_RESIDUAL_SUSPECT = 3.0  # a marker's median whitened error
-DOWNWEIGHTED_SUSPECT = 0.05  # share of observation factors the robust kernel overruled
+MARKER_STANDS_OUT = 1.5  # ... and this times the median over the markers' medians
+DOWNWEIGHTED_SUSPECT = 0.05  # share of observations (or links) the robust kernel overruled
 DISAGREEMENT_D2 = 13.82  # chi-square, 2 dof, 99.9 %
 DISAGREEMENT_FLOOR_M = 0.05  # simulated covariances can be millimetres; a few cm is no fault
 CLOSED_FORM_SHARE = 0.05  # of the map's size: the closed form's chain drift we still call ok
@@ -141,12 +142,14 @@ def _residual_reasons(estimate: Estimate) -> list[Reason]:
             f"{'-'.join(largest.keys)}, {largest.whitened_error:.0f} sigma): the data disagree "
             "with the map",
         ))  # fmt: skip
-    if fit is not None and fit.factors and fit.downweighted / fit.factors > DOWNWEIGHTED_SUSPECT:
-        share = fit.downweighted / fit.factors
+    measured = [r for r in estimate.residuals if r.kind in ("observation", "edge")]
+    overruled = sum(r.downweighted for r in measured)
+    if measured and overruled / len(measured) > DOWNWEIGHTED_SUSPECT:
+        share = overruled / len(measured)
         reasons.append(_suspect(
             "residuals", 100 * share,
-            f"the robust kernel overruled {100 * share:.0f} % of its factors ({fit.downweighted} "
-            f"of {fit.factors})",
+            f"the robust kernel overruled {100 * share:.0f} % of its observations ({overruled} "
+            f"of {len(measured)})",
         ))  # fmt: skip
     per_marker: dict[int, list[float]] = {}
     for r in estimate.residuals:
@@ -154,8 +157,13 @@ def _residual_reasons(estimate: Estimate) -> list[Reason]:
             for name in r.keys:
                 if name.startswith("m"):
                     per_marker.setdefault(int(name[1:]), []).append(r.whitened_error)
-    bad = {i: float(np.median(e)) for i, e in per_marker.items()}
-    bad = {i: e for i, e in bad.items() if e > MARKER_RESIDUAL_SUSPECT}
+    medians = {i: float(np.median(e)) for i, e in per_marker.items()}
+    # A marker stands out from the rest, not just a map whose every residual is large (that is
+    # the whole solution's reason, above): its own median beyond the line and half again the
+    # markers' typical one.
+    typical = float(np.median(list(medians.values()))) if medians else 0.0
+    line = max(MARKER_RESIDUAL_SUSPECT, MARKER_STANDS_OUT * typical)
+    bad = {i: e for i, e in medians.items() if e > line}
     if bad:
         worst_id = max(bad, key=bad.__getitem__)
         reasons.append(_suspect(

@@ -40,13 +40,11 @@ class ResidualFit:
         chi2: the sum of squared whitened residuals (twice the graph's error).
         dof: residual dimensions less estimated dimensions (what ``chi2`` should average).
         factors: how many factors the sum is over.
-        downweighted: how many of them a robust kernel weighed below a quarter.
     """
 
     chi2: float
     dof: int
     factors: int
-    downweighted: int
 
     @property
     def ratio(self) -> float:
@@ -67,7 +65,7 @@ def residual_fit(estimate: Estimate) -> ResidualFit | None:
     if dof <= 0:
         return None
     chi2 = float(sum(r.whitened_error**2 for r in residuals))
-    return ResidualFit(chi2, dof, len(residuals), sum(r.downweighted for r in residuals))
+    return ResidualFit(chi2, dof, len(residuals))
 
 
 def chi2_upper(dof: int, z: float = 3.090232306167813) -> float:

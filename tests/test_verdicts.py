@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,14 @@ from markergraph.cli import main
 from markergraph.cli._map import EXIT_NOT_OK
 from markergraph.datasets import scenario, simulate_fast, write_log
 from markergraph.datasets.rewrite import rewrite_log
-from markergraph.estimator import Estimate, MarkerEstimate, Method, Trajectory, estimate
+from markergraph.estimator import (
+    Estimate,
+    MarkerEstimate,
+    Method,
+    Robust,
+    Trajectory,
+    estimate,
+)
 from markergraph.estimator.evidence import (
     chi2_upper,
     marker_disagreement,
@@ -124,6 +132,60 @@ def test_residuals_flag_odometry_that_disagrees_with_the_observations(clean) -> 
     reasons = [r for r in per_method[Method.SLAM].reasons if r.check == "residuals"]
     assert per_method[Method.SLAM].verdict is Verdict.SUSPECT and reasons
     assert reasons[0].figure > 1.8 and "times the size its noise model allows" in reasons[0].text
+
+
+def test_one_markers_biased_observations_are_named_by_its_residuals(clean) -> None:
+    """Every range to one marker read twice as long (its size given as twice what is printed):
+    its observations stand out from the others' and the reason names it; the whole solution's
+    residuals and the EKF's innovations exceed their chi-square too."""
+    run, _, extraction = clean
+    counts = Counter(o.marker_id for o in run.observations)
+    biased_id = max(counts, key=counts.__getitem__)
+    biased = [
+        dataclasses.replace(o, range_m=2.0 * o.range_m) if o.marker_id == biased_id else o
+        for o in run.observations
+    ]
+    found = {
+        m: estimate(biased, run.odometry, m, T_base_camera=run.mount.T_base_camera,
+                    odometry_noise=run.odometry_noise, home_id=run.world.home_id)
+        for m in (Method.SLAM, Method.EKF)
+    }  # fmt: skip
+    _, per_method = judged(found, extraction)
+    texts = [r.text for r in per_method[Method.SLAM].reasons if r.check == "residuals"]
+    assert any(t.startswith("its residuals are") for t in texts), texts
+    assert any(f"the observations of marker {biased_id} disagree" in t for t in texts), texts
+    ekf = [r for r in per_method[Method.EKF].reasons if r.check == "residuals"]
+    assert any("innovations" in r.text and r.figure > 1.5 for r in ekf), ekf
+
+
+def test_robust_kernel_overruling_many_factors_is_a_reason(clean) -> None:
+    """A fifth of the observations replaced by garbage ranges: the Huber kernel overrules
+    most of them, and the share is the reason's figure."""
+    run, _, extraction = clean
+    rng = np.random.default_rng(SEED)
+    garbage = [
+        dataclasses.replace(o, range_m=float(rng.uniform(0.5, 6.0))) if rng.random() < 0.2 else o
+        for o in run.observations
+    ]
+    slam = estimate(garbage, run.odometry, Method.SLAM, T_base_camera=run.mount.T_base_camera,
+                    odometry_noise=run.odometry_noise, home_id=run.world.home_id,
+                    robust=Robust.HUBER)  # fmt: skip
+    _, per_method = judged({Method.SLAM: slam}, extraction)
+    overruled = [r for r in per_method[Method.SLAM].reasons if "overruled" in r.text]
+    assert overruled and 10.0 < overruled[0].figure <= 20.0
+
+
+def test_an_optimiser_that_stopped_and_depth_that_misses_are_reasons(clean) -> None:
+    """Not converged: suspect, saying so. Depth found on no marker in over half the tries:
+    suspect, with the share."""
+    _, estimates, extraction = clean
+    stopped = dataclasses.replace(estimates[Method.SLAM], converged=False)
+    _, per_method = judged({Method.SLAM: stopped}, extraction)
+    assert checks(per_method[Method.SLAM]) == {"converged"}
+    missing = dataclasses.replace(extraction, depth_tries=200, depth_misses=150)
+    _, per_method = judged({Method.SLAM: estimates[Method.SLAM]}, missing)
+    reason = next(r for r in per_method[Method.SLAM].reasons if r.check == "depth")
+    assert reason.figure == pytest.approx(75.0)
 
 
 def test_a_method_apart_from_the_others_is_named(clean) -> None:
