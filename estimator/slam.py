@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter, deque
 from functools import partial
@@ -20,6 +21,7 @@ from markergraph.estimator.graph import (
     read_residuals,
 )
 from markergraph.estimator.links import (
+    MAX_LINK_SIGMA_THETA_RAD,
     components,
     describe_disconnected,
     link_counts,
@@ -403,8 +405,9 @@ def solve_marker_graph(
     if unlinked:
         total = sum(len(f.observations) for f in frames.frames)
         notes.append(
-            f"{unlinked} of {total} observations end no link: their theta was not measured "
-            "(grazing or tiny views), and a link turns on the theta at each end"
+            f"{unlinked} of {total} observations end no link: their theta's sigma is over "
+            f"{math.degrees(MAX_LINK_SIGMA_THETA_RAD):.0f} deg (grazing views), and a link "
+            "turns on the theta at each end"
         )
     unplaced = {
         i: "no chain of links reaches the home marker"

@@ -504,8 +504,8 @@ GRAZING_RAD = math.radians(60.0)  # the front end's grazing limit (frontend.obse
 
 def test_marker_graph_makes_no_link_on_an_unmeasured_theta(noisy_run: SimulatedRun) -> None:
     """Grazing views as the rendered front end reports them (theta mirrored, sigma 90 deg) end
-    no link, so the marker graph stays on the truth; linked, they put it 12-13 m off with every
-    whitened residual small, as on the rendered corridor."""
+    no link, so the marker graph stays on the truth (0.16 m here); linked, they put it 9.3 m
+    off, as they put the rendered corridor's 5.2 m off."""
     run = noisy_run
     grazing = [abs(o.theta) > GRAZING_RAD for o in run.observations]
     observations = [
