@@ -11,10 +11,12 @@ from markergraph.datasets.route import WheelErrors
 from markergraph.datasets.scenarios import scenario
 from markergraph.datasets.simulate import ObservationNoise, SimulatedRun, simulate_fast
 from markergraph.estimator import (
+    ELLIPSE_95_D2,
     Form,
     Method,
     OdometryNoise,
     build_frames,
+    ellipse_coverage,
     estimate_frames,
     map_error,
     nees,
@@ -36,6 +38,10 @@ class StudyRow:
             localised on its nearest marker in each frame).
         mean_nees: the run's average NEES of the robot pose (EKF only, else NaN).
         seconds: the method's run time.
+        markers_checked, markers_inside_95: markers (home aside) whose covariance was checked
+            against the truth, and how many of them lie inside their 95 % position ellipse
+            (:func:`~markergraph.estimator.metrics.ellipse_coverage`; 0 and 0 for the closed
+            form, which has no covariance).
     """
 
     scenario: str
@@ -48,6 +54,8 @@ class StudyRow:
     rpe_m_per_m: float
     mean_nees: float
     seconds: float
+    markers_checked: int = 0
+    markers_inside_95: int = 0
 
 
 DEFAULT_METHODS: tuple[tuple[Method, Form], ...] = (
@@ -76,6 +84,7 @@ def _row(
             mean_nees = float(
                 np.mean(nees(result.trajectory.poses, result.trajectory_covariance, true_path))
             )
+    coverage = ellipse_coverage(result, truth)
     label = method.value if method is not Method.CLOSED_FORM else f"{method.value}/{form.value}"
     return StudyRow(
         name,
@@ -88,6 +97,8 @@ def _row(
         rpe,
         mean_nees,
         sum(result.timings_s.values()),
+        len(coverage.d2),
+        int(np.sum(coverage.d2 <= ELLIPSE_95_D2)),
     )
 
 
@@ -122,7 +133,8 @@ def drift_study(
 
 
 def summarise(rows: list[StudyRow]) -> dict[tuple[str, str], dict[str, float]]:
-    """(scenario, method) -> the mean of each figure over seeds."""
+    """(scenario, method) -> the mean of each figure over seeds, and ``ellipse_coverage``: the
+    share of every checked marker over the seeds inside its 95 % ellipse (NaN with none)."""
     groups: dict[tuple[str, str], list[StudyRow]] = {}
     for row in rows:
         groups.setdefault((row.scenario, row.method), []).append(row)
@@ -135,7 +147,12 @@ def summarise(rows: list[StudyRow]) -> dict[tuple[str, str], dict[str, float]]:
         "mean_nees",
         "seconds",
     )
-    return {
+    summary = {
         key: {f: float(np.mean([getattr(r, f) for r in group])) for f in figures}
         for key, group in groups.items()
     }
+    for key, group in groups.items():
+        checked = sum(r.markers_checked for r in group)
+        inside = sum(r.markers_inside_95 for r in group)
+        summary[key]["ellipse_coverage"] = inside / checked if checked else float("nan")
+    return summary

@@ -11,9 +11,12 @@ from markergraph.estimator.frames import Frame, Frames, build_frames
 from markergraph.estimator.graph import Robust
 from markergraph.estimator.heights import MarkerHeight, marker_heights
 from markergraph.estimator.metrics import (
+    ELLIPSE_95_D2,
+    EllipseCoverage,
     MapError,
     TrajectoryError,
     chi2_interval,
+    ellipse_coverage,
     map_error,
     nees,
     trajectory_error,
@@ -58,9 +61,11 @@ from markergraph.estimator.types import (
 )
 
 __all__ = [
+    "ELLIPSE_95_D2",
     "ODOMETRY_NOISE",
     "CameraDelay",
     "Edge",
+    "EllipseCoverage",
     "Estimate",
     "EstimationError",
     "FactorResidual",
@@ -95,6 +100,7 @@ __all__ = [
     "edge_from_observation",
     "edge_from_pose2",
     "edge_to_pose2",
+    "ellipse_coverage",
     "estimate",
     "estimate_frames",
     "fit_odometry_noise",

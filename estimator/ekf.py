@@ -40,6 +40,12 @@ __all__ = ["MarkerEkf", "solve_ekf"]
 # The robot's prior before its first observation of home: effectively unknown.
 UNKNOWN_VARIANCE = 100.0
 
+# The iterated update's linearisations: it stops once a step would move the touched entries
+# less than LINEARISATION_STEP (m, rad), far below any sigma; Gauss-Newton converges
+# quadratically, so the step it lands on is good to about its square.
+MAX_LINEARISATIONS = 10
+LINEARISATION_STEP = 1e-6
+
 
 def _wrapped_residual(z: NDArray[np.float64], hx: NDArray[np.float64]) -> NDArray[np.float64]:
     """Innovation with the two angles (bearing, theta) wrapped to (-pi, pi]."""
@@ -114,14 +120,51 @@ class MarkerEkf:
         self.kf._I = np.eye(n + 3)  # filterpy's dense update needs it the state's size
         self.index[obs.marker_id] = n
 
-    def _jacobian(
-        self, marker_id: int
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Predicted measurement, and H over the 3 robot columns and the marker's 3 (or none)."""
-        z, H_robot, H_marker = ekf_observation(
-            self.robot, self.marker(marker_id), self.T_base_camera
-        )
-        return z, H_robot, H_marker
+    def _model(
+        self, x: NDArray[np.float64], marker_id: int, columns: list[int]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Predicted (bearing, theta, range) at ``x`` (the touched entries, robot first) and H
+        over those ``columns``."""
+        marker = x[3:6] if len(columns) > 3 else np.zeros(3)  # home is the map frame itself
+        z, H_robot, H_marker = ekf_observation(x[:3], marker, self.T_base_camera)
+        return z, np.hstack([H_robot, H_marker])[:, : len(columns)]
+
+    def _linearised(
+        self,
+        z: NDArray[np.float64],
+        R: NDArray[np.float64],
+        marker_id: int,
+        columns: list[int],
+        at_prior: tuple[NDArray[np.float64], NDArray[np.float64]],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The iterated EKF's measurement model: H at the posterior of this update, and the
+        prediction carried from there back to the prior by H, so that the ordinary update with
+        them lands on that posterior (Bell and Cathey's Gauss-Newton view of the IEKF).
+
+        Range and bearing bend with the robot's yaw; after a long stretch of odometry its yaw is
+        uncertain by degrees and one linearisation at the prior misplaces the update. On the
+        bundled 5 Hz corridor sample that left the map 0.33 m off (SLAM 0.19 m) while the
+        filter's covariance still matched SLAM's: 5 of 11 true markers outside its 95 %
+        ellipses. Iterated, 0.19 m and 11 of 11. Only the touched entries move the model, and
+        their update needs only their block of P, so each iteration costs O(1).
+
+        Args:
+            at_prior: the model (prediction, H) at the prior, where the iterations start.
+        """
+        prior = self.kf.x[columns, 0]
+        P_touched = self.kf.P[np.ix_(columns, columns)]
+        point, (predicted, H) = prior, at_prior
+        for _ in range(MAX_LINEARISATIONS):
+            S = H @ P_touched @ H.T + R
+            offset = _wrap_yaws(prior - point)
+            innovation = _wrapped_residual(z.reshape(3), predicted) - H @ offset
+            new_point = prior + P_touched @ H.T @ np.linalg.solve(S, innovation)
+            # The update with H at ``point`` lands on ``new_point``: once they agree, done.
+            if np.max(np.abs(_wrap_yaws(new_point - point))) < LINEARISATION_STEP:
+                break
+            point = new_point
+            predicted, H = self._model(point, marker_id, columns)
+        return predicted + H @ _wrap_yaws(prior - point), H
 
     def update(self, obs: Observation, dense: bool = False) -> None:
         """Fuse one observation; a marker seen for the first time joins the state instead.
@@ -138,48 +181,62 @@ class MarkerEkf:
         if obs.marker_id != self.home_id:
             i = self.index[obs.marker_id]
             columns += [i, i + 1, i + 2]
+        # The innovation against the prior, before any iteration: what NIS is defined on.
+        at_prior = self._model(self.kf.x[columns, 0], obs.marker_id, columns)
+        predicted, H = at_prior
+        y = _wrapped_residual(z.reshape(3), predicted)
+        S = H @ self.kf.P[np.ix_(columns, columns)] @ H.T + R
+        hx, H = self._linearised(z, R, obs.marker_id, columns, at_prior)
         if dense:
-            self._dense_update(z, R, obs.marker_id, columns)
+            self._dense_update(z, R, hx, H, columns)
         else:
-            self._sparse_update(z, R, obs.marker_id, columns)
-        y = self.kf.y.reshape(3)
+            self._sparse_update(z, R, hx, H, columns)
+        self.kf.y, self.kf.S = y.reshape(3, 1), S
         self.innovations.append(y.copy())
-        self.nis.append(float(y @ np.linalg.solve(self.kf.S, y)))
+        self.nis.append(float(y @ np.linalg.solve(S, y)))
         # Every yaw (rows 2, 5, 8, ...) moved with the update; keep them in (-pi, pi].
         self.kf.x[2::3, 0] = wrap_array(self.kf.x[2::3, 0])
 
     def _dense_update(
-        self, z: NDArray[np.float64], R: NDArray[np.float64], marker_id: int, columns: list[int]
+        self,
+        z: NDArray[np.float64],
+        R: NDArray[np.float64],
+        hx: NDArray[np.float64],
+        H: NDArray[np.float64],
+        columns: list[int],
     ) -> None:
-        def H_of(x: NDArray[np.float64]) -> NDArray[np.float64]:
-            _, H_robot, H_marker = self._jacobian(marker_id)
-            H = np.zeros((3, self.kf.dim_x))
-            H[:, :3] = H_robot
-            if len(columns) > 3:
-                H[:, columns[3:]] = H_marker
-            return H
-
-        def hx(x: NDArray[np.float64]) -> NDArray[np.float64]:
-            return self._jacobian(marker_id)[0].reshape(3, 1)
-
-        self.kf.update(z, H_of, hx, R=R, residual=_wrapped_residual)
+        H_full = np.zeros((3, self.kf.dim_x))
+        H_full[:, columns] = H
+        self.kf.update(
+            z, lambda x: H_full, lambda x: hx.reshape(3, 1), R=R, residual=_wrapped_residual
+        )
 
     def _sparse_update(
-        self, z: NDArray[np.float64], R: NDArray[np.float64], marker_id: int, columns: list[int]
+        self,
+        z: NDArray[np.float64],
+        R: NDArray[np.float64],
+        hx: NDArray[np.float64],
+        H: NDArray[np.float64],
+        columns: list[int],
     ) -> None:
-        predicted, H_robot, H_marker = self._jacobian(marker_id)
-        H = np.hstack([H_robot, H_marker])[:, : len(columns)]
         P = self.kf.P
         PHt = P[:, columns] @ H.T  # (n, 3): only the touched columns of P take part
         S = H @ PHt[columns, :] + R
         K = np.linalg.solve(S, PHt.T).T  # S is symmetric: K = PHt S^-1
-        y = _wrapped_residual(z, predicted.reshape(3, 1))
+        y = _wrapped_residual(z, hx.reshape(3, 1))
         self.kf.x += K @ y
         # P - K S K^T = P - PHt S^-1 PHt^T: a rank-3 downdate, the optimal-gain form of
         # filterpy's Joseph update; quadratic in the state size instead of cubic.
         P -= K @ PHt.T
-        self.kf.y, self.kf.S, self.kf.K, self.kf.z = y, S, K, z
+        self.kf.K, self.kf.z = K, z
         self.kf.x_post, self.kf.P_post = self.kf.x.copy(), P.copy()
+
+
+def _wrap_yaws(touched: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A difference of touched entries (robot, then maybe a marker) with its yaws wrapped."""
+    wrapped = touched.copy()
+    wrapped[2::3] = wrap_array(wrapped[2::3])
+    return wrapped
 
 
 def solve_ekf(frames: Frames, T_base_camera: gtsam.Pose2) -> Estimate:

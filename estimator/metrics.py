@@ -15,10 +15,13 @@ from markergraph.estimator.angles import angle_diff, wrap_array
 from markergraph.estimator.types import Estimate
 
 __all__ = [
+    "ELLIPSE_95_D2",
+    "EllipseCoverage",
     "MapError",
     "TrajectoryError",
     "align_rigid_2d",
     "chi2_interval",
+    "ellipse_coverage",
     "map_error",
     "nees",
     "trajectory_error",
@@ -195,3 +198,55 @@ def chi2_interval(dof: float, confidence: float = 0.95) -> tuple[float, float]:
         dof * (1.0 - 2.0 / (9.0 * dof) - _Z_975 * spread) ** 3,
         dof * (1.0 - 2.0 / (9.0 * dof) + _Z_975 * spread) ** 3,
     )
+
+
+# The 95 % quantile of chi-square with 2 dof, -2 ln(0.05): a 2-D Gaussian's 95 % ellipse.
+ELLIPSE_95_D2 = -2.0 * math.log(0.05)
+
+
+@dataclass(frozen=True)
+class EllipseCoverage:
+    """How many true markers lie inside an estimate's 95 % position ellipses.
+
+    Attributes:
+        marker_ids: (N,) the markers checked: estimated with a covariance, known to the truth,
+            and not the home marker (the map frame itself, exact by definition).
+        d2: (N,) each one's squared Mahalanobis distance of the true position from the
+            estimated one under its 2x2 position covariance (2 dof).
+        share: the fraction with ``d2`` at most :data:`ELLIPSE_95_D2` (NaN with none checked);
+            0.95 for honest covariances, over many markers.
+        sigma_max_m: (N,) the semi-major axis of each 1-sigma ellipse [m]: with ``share`` it
+            tells honest ellipses from ones too wide to be of use.
+    """
+
+    marker_ids: NDArray[np.int64]
+    d2: NDArray[np.float64]
+    share: float
+    sigma_max_m: NDArray[np.float64]
+
+
+def ellipse_coverage(estimate: Estimate, truth: Mapping[int, gtsam.Pose2]) -> EllipseCoverage:
+    """Which true markers fall inside the estimate's 95 % position ellipses.
+
+    The covariance is GTSAM's (tangent space at the estimated pose, perturbed on the right), so
+    the position error is taken in the estimated marker's frame before it is whitened.
+
+    Args:
+        estimate: markers with covariances (those without are skipped).
+        truth: marker id -> true ``T_map_marker`` in the estimate's map frame (home's frame).
+    """
+    ids, d2, sigma_max = [], [], []
+    for marker_id in sorted(set(estimate.markers) & set(truth)):
+        marker = estimate.markers[marker_id]
+        if marker.covariance is None or marker_id == estimate.home_id:
+            continue
+        error_local = marker.T_map_marker.rotation().unrotate(
+            gtsam.Point2(*(truth[marker_id].translation() - marker.T_map_marker.translation()))
+        )
+        position_covariance = marker.covariance[:2, :2]
+        ids.append(marker_id)
+        d2.append(float(error_local @ np.linalg.solve(position_covariance, error_local)))
+        sigma_max.append(math.sqrt(float(np.linalg.eigvalsh(position_covariance)[-1])))
+    d2_array = np.array(d2)
+    share = float(np.mean(d2_array <= ELLIPSE_95_D2)) if d2 else float("nan")
+    return EllipseCoverage(np.array(ids, dtype=np.int64), d2_array, share, np.array(sigma_max))

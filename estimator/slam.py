@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter, deque
 from functools import partial
@@ -20,9 +21,11 @@ from markergraph.estimator.graph import (
     read_residuals,
 )
 from markergraph.estimator.links import (
+    MAX_LINK_SIGMA_THETA_RAD,
     components,
     describe_disconnected,
     link_counts,
+    linkable,
     measure_links,
 )
 from markergraph.estimator.trajectory import Trajectory
@@ -193,6 +196,7 @@ def _solved_estimate(
     converged: bool,
     timings: dict[str, float],
     unplaced: dict[int, str] | None = None,
+    observations_unlinked: int | None = None,
 ) -> Estimate:
     """The Estimate of a solved factor graph: markers with their joint marginals, the
     trajectory, residuals, links and notes, and the graph and solution themselves."""
@@ -212,6 +216,7 @@ def _solved_estimate(
         graph=graph,
         values=result,
         pose_graph=partial(builder.pose_graph, result),
+        observations_unlinked=observations_unlinked,
     )
     timings["marginals"] = time.perf_counter() - start
     estimate.timings_s = timings
@@ -370,10 +375,11 @@ def _localise_on_markers(
     frames: Frames, values: gtsam.Values, placed: set[int], T_base_camera: gtsam.Pose2
 ) -> Trajectory:
     """The robot in each frame, from its nearest placed marker: the marker graph keeps no
-    robot poses, so this is how the paper's robot localises on the map."""
+    robot poses, so this is how the paper's robot localises on the map. Only observations whose
+    theta was measured place it: the robot's heading is the marker's yaw turned by theta."""
     t_ns, rows = [], []
     for frame in frames.frames:
-        seen = [o for o in frame.observations if o.marker_id in placed]
+        seen = [o for o in frame.observations if o.marker_id in placed and linkable(o)]
         if not seen:
             continue
         nearest = min(seen, key=lambda o: o.range_m)
@@ -395,6 +401,14 @@ def solve_marker_graph(
     groups = components(marker_ids, links)
     placed = next(group for group in groups if frames.home_id in group)
     notes = frames.notes + describe_disconnected(groups, frames.home_id)
+    unlinked = sum(not linkable(o) for f in frames.frames for o in f.observations)
+    if unlinked:
+        total = sum(len(f.observations) for f in frames.frames)
+        notes.append(
+            f"{unlinked} of {total} observations end no link: their theta's sigma is over "
+            f"{math.degrees(MAX_LINK_SIGMA_THETA_RAD):.0f} deg (grazing views), and a link "
+            "turns on the theta at each end"
+        )
     unplaced = {
         i: "no chain of links reaches the home marker"
         for group in groups
@@ -433,4 +447,5 @@ def solve_marker_graph(
         converged=converged,
         timings=timings,
         unplaced=unplaced,
+        observations_unlinked=unlinked,
     )

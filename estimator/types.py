@@ -268,6 +268,9 @@ class Estimate:
             the closed form and the EKF); robot poses in it are the camera's.
         pose_graph: makes the same solution as a plain pose graph of base poses and markers
             (``GraphBuilder.pose_graph``: g2o's form), or None.
+        observations_unlinked: the marker graph's observations that end no link because
+            their theta was not measured (:func:`~markergraph.estimator.links.linkable`); None
+            for the other methods.
     """
 
     method: Method
@@ -286,3 +289,4 @@ class Estimate:
     graph: gtsam.NonlinearFactorGraph | None = None
     values: gtsam.Values | None = None
     pose_graph: Callable[[], tuple[gtsam.NonlinearFactorGraph, gtsam.Values]] | None = None
+    observations_unlinked: int | None = None

@@ -13,8 +13,10 @@ import pytest
 from markergraph.datasets import ObservationNoise, WheelErrors, scenario, simulate_fast
 from markergraph.datasets.simulate import SimulatedRun
 from markergraph.estimator import (
+    ELLIPSE_95_D2,
     Estimate,
     Form,
+    MarkerEstimate,
     MarkerGraphError,
     Method,
     Observation,
@@ -25,12 +27,14 @@ from markergraph.estimator import (
     SlamInputs,
     Trajectory,
     build_frames,
+    ellipse_coverage,
     estimate,
     estimate_frames,
     map_error,
     odometry_scale_by_residuals,
 )
 from markergraph.estimator.ekf import MarkerEkf
+from markergraph.estimator.links import measure_links
 from markergraph.estimator.models import (
     compose_covariance,
     ekf_marker_init,
@@ -491,3 +495,110 @@ def test_the_odometry_scale_search_finds_the_wheels_error(factor: float) -> None
                           odometry_noise=run.odometry_noise)  # fmt: skip
     estimate = estimate_frames(frames, Method.SLAM, run.mount.T_base_camera)
     assert map_error(estimate, run.true_markers(), align=True).rmse_position_m < 0.02
+
+
+# --- observations whose theta the front end could not measure --------------------------------
+
+GRAZING_RAD = math.radians(60.0)  # the front end's grazing limit (frontend.observe.GRAZING_RAD)
+
+
+def test_marker_graph_makes_no_link_on_an_unmeasured_theta(noisy_run: SimulatedRun) -> None:
+    """Grazing views as the rendered front end reports them (theta mirrored, sigma 90 deg) end
+    no link, so the marker graph stays on the truth (0.16 m here); linked, they put it 9.3 m
+    off, as they put the rendered corridor's 5.2 m off."""
+    run = noisy_run
+    grazing = [abs(o.theta) > GRAZING_RAD for o in run.observations]
+    observations = [
+        replace(o, theta=-o.theta, sigma_theta=math.pi / 2) if g else o
+        for o, g in zip(run.observations, grazing, strict=True)
+    ]
+    assert 0.3 < np.mean(grazing) < 0.6  # as on the rendered corridor (1592 of 2627)
+    result = estimate(
+        observations, run.odometry, Method.MARKER_GRAPH, T_base_camera=run.mount.T_base_camera,
+        odometry_noise=run.odometry_noise, home_id=run.world.home_id, robust=Robust.HUBER,
+    )  # fmt: skip
+    truth = run.true_markers()
+    assert result.observations_unlinked == sum(grazing)
+    assert len(result.markers) == len(truth)
+    assert map_error(result, truth).rmse_position_m < 0.5
+    coverage = ellipse_coverage(result, truth)
+    assert coverage.share >= 0.8
+    assert coverage.sigma_max_m.max() < 0.5  # ellipses of use, not metres wide
+
+
+def test_marker_graph_links_are_consistent_with_the_truth(noisy_run: SimulatedRun) -> None:
+    """Each measured link's error against the true T_a_b, whitened by its covariance, is
+    chi-square(3) on average: the covariance says how far a link may be wrong."""
+    run = noisy_run
+    frames = build_frames(run.observations, run.odometry, 0, odometry_noise=run.odometry_noise)
+    truth = run.true_markers()
+    squared = []
+    for link in measure_links(frames, run.mount.T_base_camera):
+        T_true = truth[link.marker_a].between(truth[link.marker_b])
+        error = gtsam.Pose2.Logmap(T_true.between(link.T_a_b))
+        squared.append(float(error @ np.linalg.solve(link.covariance, error)))
+    assert len(squared) > 10
+    # Errors of one hand-over's two observations correlate through the simulator's noise: loose.
+    assert 0.3 < np.mean(squared) < 6.0
+
+
+# --- the iterated EKF update --------------------------------------------------------------------
+
+
+def test_iterated_ekf_update_lands_on_the_gauss_newton_optimum() -> None:
+    """With the robot's yaw uncertain by 10 deg, one update equals the minimum of prior plus
+    observation (Gauss-Newton to convergence) to 1e-9, where one linearisation misses it."""
+    rng = np.random.default_rng(3)
+    ekf = MarkerEkf(MOUNT, 0, np.array([-2.0, 0.5, 0.2]))
+    ekf.kf.P = np.diag([0.05, 0.05, math.radians(10.0) ** 2])
+    obs = random_observation(rng)
+    obs = replace(obs, marker_id=0, bearing=0.1, range_m=2.0)
+    prior, P = ekf.robot.copy(), ekf.kf.P.copy()
+    R = np.diag([obs.sigma_bearing**2, obs.sigma_theta**2, obs.sigma_range**2])
+    z = np.array([obs.bearing, obs.theta, obs.range_m])
+    x = prior.copy()
+    for _ in range(50):  # Gauss-Newton on ||x - prior||_P^2 + ||z - h(x)||_R^2
+        predicted, H, _ = ekf_observation(x, np.zeros(3), MOUNT)
+        y = z - predicted
+        y[:2] = np.arctan2(np.sin(y[:2]), np.cos(y[:2]))
+        information = np.linalg.inv(P) + H.T @ np.linalg.solve(R, H)
+        gradient = H.T @ np.linalg.solve(R, y) - np.linalg.solve(P, x - prior)
+        x = x + np.linalg.solve(information, gradient)
+    one_step = MarkerEkf(MOUNT, 0, prior)
+    one_step.kf.P = P.copy()
+    predicted, H, _ = ekf_observation(prior, np.zeros(3), MOUNT)
+    y = z - predicted
+    y[:2] = np.arctan2(np.sin(y[:2]), np.cos(y[:2]))
+    linear = prior + P @ H.T @ np.linalg.solve(H @ P @ H.T + R, y)
+    ekf.update(obs)
+    np.testing.assert_allclose(ekf.robot, x, atol=EXACT_ALGEBRA)
+    assert np.max(np.abs(linear[:2] - x[:2])) > 1e-4  # the single linearisation is off
+
+
+# --- covariance coverage ----------------------------------------------------------------------
+
+
+def test_ellipse_coverage_whitens_the_error_in_the_markers_frame() -> None:
+    """d^2 of a known offset under a known covariance, the error turned into the marker's frame
+    first; the share counts d^2 up to chi-square(2)'s 95 % point; home and markers without a
+    covariance are left out."""
+    covariance = np.diag([0.04, 0.01, 0.001])  # 0.2 m along the marker's x, 0.1 m across
+    markers = {
+        0: MarkerEstimate(0, gtsam.Pose2(), np.zeros((3, 3)), 10),
+        1: MarkerEstimate(1, gtsam.Pose2(1.0, 0.0, math.pi / 2), covariance, 10),
+        2: MarkerEstimate(2, gtsam.Pose2(0.0, 2.0, 0.0), covariance, 10),
+        3: MarkerEstimate(3, gtsam.Pose2(5.0, 5.0, 0.0), None, 10),
+    }
+    result = Estimate(Method.SLAM, 0, markers, Trajectory(np.zeros(0, np.int64), np.zeros((0, 3))))
+    truth = {
+        0: gtsam.Pose2(),
+        1: gtsam.Pose2(1.2, 0.0, math.pi / 2),  # 0.2 m along map x: across the marker, 2 sigma
+        2: gtsam.Pose2(0.5, 2.0, 0.0),  # 0.5 m along the marker's x: 2.5 sigma
+        3: gtsam.Pose2(),
+    }
+    coverage = ellipse_coverage(result, truth)
+    np.testing.assert_array_equal(coverage.marker_ids, [1, 2])
+    np.testing.assert_allclose(coverage.d2, [4.0, 6.25], rtol=EXACT_ALGEBRA)
+    assert coverage.share == 0.5
+    np.testing.assert_allclose(coverage.sigma_max_m, [0.2, 0.2], rtol=EXACT_ALGEBRA)
+    np.testing.assert_allclose(ELLIPSE_95_D2, 5.991464547107979, rtol=EXACT_ALGEBRA)

@@ -31,17 +31,19 @@ def main() -> None:
     )
     header = (
         f"{'scenario':<14} {'method':<20} {'marker RMSE':>11} {'aligned':>8} "
-        f"{'yaw RMSE':>9} {'ATE':>7} {'RPE/m':>7} {'NEES':>6} {'time':>7}"
+        f"{'yaw RMSE':>9} {'ATE':>7} {'RPE/m':>7} {'NEES':>6} {'in 95%':>6} {'time':>7}"
     )
     print(header)
     for (name, method), f in summary.items():
         nees_text = "" if math.isnan(f["mean_nees"]) else f"{f['mean_nees']:.2f}"
         ate = "" if math.isnan(f["ate_m"]) else f"{f['ate_m']:.3f}"
         rpe = "" if math.isnan(f["rpe_m_per_m"]) else f"{f['rpe_m_per_m']:.3f}"
+        inside = "" if math.isnan(f["ellipse_coverage"]) else f"{100 * f['ellipse_coverage']:.0f}%"
         print(
             f"{name:<14} {method:<20} {f['marker_rmse_m']:>9.3f} m"
             f" {f['marker_rmse_aligned_m']:>8.3f}"
             f" {math.degrees(f['marker_yaw_rmse_rad']):>7.2f}° {ate:>7} {rpe:>7} {nees_text:>6}"
+            f" {inside:>6}"
             f" {f['seconds']:>6.2f}s"
         )
     for name in args.scenarios:
