@@ -53,6 +53,7 @@ from markergraph.estimator.types import (
     OdometryNoise,
     OdometrySample,
     OutputError,
+    Placement,
     RejectedObservationError,
     SettingsError,
 )
@@ -80,6 +81,7 @@ __all__ = [
     "OdometrySample",
     "OdometryStretch",
     "OutputError",
+    "Placement",
     "PolarPose",
     "RejectedObservationError",
     "Robust",

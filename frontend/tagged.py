@@ -27,7 +27,13 @@ from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import frame_id, stamp_ns
 from markergraph.frontend.detections import detections_of
-from markergraph.frontend.posed import MAX_ATTITUDE_GAP_NS, LevelledCamera, observe_levelled
+from markergraph.frontend.posed import (
+    MAX_ATTITUDE_GAP_NS,
+    DropReason,
+    LevelledCamera,
+    LevelledFrame,
+    observe_levelled_frame,
+)
 from markergraph.frontend.rig import Pose3, read_camera_poses, read_kalibr_cameras, read_tagslam
 from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, messages
 from markergraph.frontend.tf import (
@@ -39,7 +45,39 @@ from markergraph.frontend.tf import (
 )
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
 
-__all__ = ["DetectionLog", "read_detection_log"]
+__all__ = ["DetectionLog", "MarkerDetections", "read_detection_log"]
+
+
+@dataclass(frozen=True, slots=True)
+class MarkerDetections:
+    """How one marker's detections fared on their way to observations.
+
+    Attributes:
+        marker_id: the marker.
+        detections: its detections by cameras with an intrinsics and a mount, with attitude.
+        off_wall: of them, dropped because the normal read more than 45 deg from horizontal.
+        no_pose: of them, dropped because PnP found no pose.
+        rewound: of them, read with their corners reversed (see :mod:`posed`).
+        off_wall_elevation_rad: the median elevation of the normal in the off-wall drops [rad]
+            (NaN without any).
+    """
+
+    marker_id: int
+    detections: int
+    off_wall: int
+    no_pose: int
+    rewound: int
+    off_wall_elevation_rad: float
+
+    @property
+    def dropped(self) -> int:
+        """Detections that gave no observation."""
+        return self.off_wall + self.no_pose
+
+    @property
+    def left_out(self) -> bool:
+        """Whether the marker is out of the 2-D map: every detection of it was dropped."""
+        return self.detections > 0 and self.dropped == self.detections
 
 
 @dataclass
@@ -54,6 +92,7 @@ class DetectionLog:
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     ids_left_out: Counter[int] = field(default_factory=Counter)
+    marker_detections: dict[int, MarkerDetections] = field(default_factory=dict)
 
 
 @dataclass
@@ -190,7 +229,9 @@ class _Reader:
         for t_ns, p, R_world_body in self.poses:
             self.log.odometry.append(OdometrySample(t_ns, *planar_pose(p, R_world_body, forward)))
         allowed = self.config.allowed_ids
-        left_out: dict[int, str] = {}
+        frames: list[LevelledFrame] = []
+        detections_by_topic: Counter[str] = Counter()
+        rewound_by_topic: Counter[str] = Counter()
         for frame in self.frames:
             self.log.frames += 1
             if frame.topic not in views:
@@ -214,11 +255,87 @@ class _Reader:
                     d.marker_id for d in detections if d.marker_id not in allowed
                 )
                 detections = [d for d in detections if d.marker_id in allowed]
-            observations, dropped = observe_levelled(detections, view, model, frame.t_ns)
-            self.log.observations += observations
-            left_out.update(dropped)
-        for marker_id, reason in sorted(left_out.items()):
-            self.log.notes.append(f"marker {marker_id} left out of the 2-D map: {reason}")
+            levelled = observe_levelled_frame(detections, view, model, frame.t_ns)
+            self.log.observations += levelled.observations
+            frames.append(levelled)
+            detections_by_topic[frame.topic] += len(detections)
+            rewound_by_topic[frame.topic] += len(levelled.rewound)
+        self.log.marker_detections = _tally(frames)
+        self.log.notes += _drop_notes(self.log.marker_detections)
+        for topic, rewound in rewound_by_topic.items():
+            if rewound:
+                self.log.notes.append(
+                    f"{rewound:,} of {detections_by_topic[topic]:,} detections on {topic} had "
+                    "their corners wound the other way round (the tag would face away from the "
+                    "camera, its yaw 180 deg off): read in reverse"
+                )
+
+
+def _tally(frames: list[LevelledFrame]) -> dict[int, MarkerDetections]:
+    """Each marker's detections, drops and reversed corners over the frames."""
+    seen: Counter[int] = Counter()
+    no_pose: Counter[int] = Counter()
+    rewound: Counter[int] = Counter()
+    elevations: dict[int, list[float]] = {}
+    for frame in frames:
+        seen.update(o.marker_id for o in frame.observations)
+        seen.update(d.marker_id for d in frame.dropped)
+        rewound.update(frame.rewound)
+        for d in frame.dropped:
+            if d.reason is DropReason.OFF_WALL:
+                elevations.setdefault(d.marker_id, []).append(d.elevation_rad)
+            else:
+                no_pose[d.marker_id] += 1
+    return {
+        i: MarkerDetections(
+            i,
+            seen[i],
+            len(elevations.get(i, [])),
+            no_pose[i],
+            rewound[i],
+            float(np.median(elevations[i])) if i in elevations else math.nan,
+        )
+        for i in sorted(seen)
+    }
+
+
+def _drop_notes(counts: dict[int, MarkerDetections]) -> list[str]:
+    """What was dropped of each marker, and whether that leaves it out of the map."""
+    notes = []
+    for c in counts.values():
+        if not c.dropped:
+            continue
+        elevation = f"{abs(math.degrees(c.off_wall_elevation_rad)):.0f} deg from horizontal"
+        if c.left_out and c.off_wall == c.detections:
+            every = (
+                "its one detection has"
+                if c.detections == 1
+                else (f"every one of its {c.detections:,} detections has")
+            )
+            notes.append(
+                f"marker {c.marker_id} left out of the 2-D map: {every} its normal {elevation} "
+                "(median; a floor or ceiling tag)"
+            )
+            continue
+        parts = []
+        if c.off_wall:
+            parts.append(
+                f"{c.off_wall:,} with the normal {elevation}"
+                + (" (median)" if c.off_wall > 1 else "")
+            )
+        if c.no_pose:
+            parts.append(f"{c.no_pose:,} without a PnP pose")
+        if c.left_out:
+            notes.append(
+                f"marker {c.marker_id} left out of the 2-D map: every one of its "
+                f"{c.detections:,} detections dropped ({', '.join(parts)})"
+            )
+        else:
+            notes.append(
+                f"{c.dropped:,} of {c.detections:,} detections of marker {c.marker_id} dropped "
+                f"({', '.join(parts)}); the marker is mapped from the rest"
+            )
+    return notes
 
 
 def read_detection_log(
