@@ -22,6 +22,7 @@ them with the identity mount whatever camera saw them:
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 from enum import Enum
 
@@ -50,9 +51,12 @@ __all__ = [
     "Dropped",
     "LevelledCamera",
     "LevelledFrame",
+    "MarkerDetections",
+    "drop_notes",
     "levelled_view",
     "observe_levelled",
     "observe_levelled_frame",
+    "tally_detections",
 ]
 
 WALL_TILT_RAD = math.radians(45.0)
@@ -291,3 +295,102 @@ def observe_levelled(
         else:
             reasons[d.marker_id] = d.reason.value
     return frame.observations, reasons
+
+
+@dataclass(frozen=True, slots=True)
+class MarkerDetections:
+    """How one marker's detections fared on their way to observations.
+
+    Attributes:
+        marker_id: the marker.
+        detections: its detections by cameras with an intrinsics and a mount, with attitude.
+        off_wall: of them, dropped because the normal read more than 45 deg from horizontal.
+        no_pose: of them, dropped because PnP found no pose.
+        rewound: of them, read with their corners reversed (the module docstring says why).
+        off_wall_elevation_rad: the median elevation of the normal in the off-wall drops [rad]
+            (NaN without any).
+    """
+
+    marker_id: int
+    detections: int
+    off_wall: int
+    no_pose: int
+    rewound: int
+    off_wall_elevation_rad: float
+
+    @property
+    def dropped(self) -> int:
+        """Detections that gave no observation."""
+        return self.off_wall + self.no_pose
+
+    @property
+    def left_out(self) -> bool:
+        """Whether the marker is out of the 2-D map: every detection of it was dropped."""
+        return self.detections > 0 and self.dropped == self.detections
+
+
+def tally_detections(frames: list[LevelledFrame]) -> dict[int, MarkerDetections]:
+    """Each marker's detections, drops and reversed corners over the frames."""
+    seen: Counter[int] = Counter()
+    no_pose: Counter[int] = Counter()
+    rewound: Counter[int] = Counter()
+    elevations: dict[int, list[float]] = {}
+    for frame in frames:
+        seen.update(o.marker_id for o in frame.observations)
+        seen.update(d.marker_id for d in frame.dropped)
+        rewound.update(frame.rewound)
+        for d in frame.dropped:
+            if d.reason is DropReason.OFF_WALL:
+                elevations.setdefault(d.marker_id, []).append(d.elevation_rad)
+            else:
+                no_pose[d.marker_id] += 1
+    return {
+        i: MarkerDetections(
+            i,
+            seen[i],
+            len(elevations.get(i, [])),
+            no_pose[i],
+            rewound[i],
+            float(np.median(elevations[i])) if i in elevations else math.nan,
+        )
+        for i in sorted(seen)
+    }
+
+
+def drop_notes(counts: dict[int, MarkerDetections]) -> list[str]:
+    """What was dropped of each marker, and whether that leaves it out of the map."""
+    notes = []
+    for c in counts.values():
+        if not c.dropped:
+            continue
+        elevation = f"{abs(math.degrees(c.off_wall_elevation_rad)):.0f} deg from horizontal"
+        if c.left_out and c.off_wall == c.detections:
+            every = (
+                "its one detection has"
+                if c.detections == 1
+                else (f"every one of its {c.detections:,} detections has")
+            )
+            notes.append(
+                f"marker {c.marker_id} left out of the 2-D map: {every} its normal {elevation} "
+                "(median; a floor or ceiling tag)"
+            )
+            continue
+        parts = []
+        if c.off_wall:
+            parts.append(
+                f"{c.off_wall:,} with the normal {elevation}"
+                + (" (median)" if c.off_wall > 1 else "")
+            )
+        if c.no_pose:
+            parts.append(f"{c.no_pose:,} without a PnP pose")
+        if c.left_out:
+            notes.append(
+                f"marker {c.marker_id} left out of the 2-D map: every one of its "
+                f"{c.detections:,} detections dropped ({', '.join(parts)})"
+            )
+        else:
+            notes.append(
+                f"{c.dropped:,} of {c.detections:,} detections of marker {c.marker_id} dropped "
+                f"({', '.join(parts)}); the marker is mapped from the rest"
+            )
+    return notes

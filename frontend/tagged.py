@@ -29,10 +29,12 @@ from markergraph.frontend.decode import frame_id, stamp_ns
 from markergraph.frontend.detections import detections_of
 from markergraph.frontend.posed import (
     MAX_ATTITUDE_GAP_NS,
-    DropReason,
     LevelledCamera,
     LevelledFrame,
+    MarkerDetections,
+    drop_notes,
     observe_levelled_frame,
+    tally_detections,
 )
 from markergraph.frontend.rig import Pose3, read_camera_poses, read_kalibr_cameras, read_tagslam
 from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, messages
@@ -45,39 +47,7 @@ from markergraph.frontend.tf import (
 )
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
 
-__all__ = ["DetectionLog", "MarkerDetections", "read_detection_log"]
-
-
-@dataclass(frozen=True, slots=True)
-class MarkerDetections:
-    """How one marker's detections fared on their way to observations.
-
-    Attributes:
-        marker_id: the marker.
-        detections: its detections by cameras with an intrinsics and a mount, with attitude.
-        off_wall: of them, dropped because the normal read more than 45 deg from horizontal.
-        no_pose: of them, dropped because PnP found no pose.
-        rewound: of them, read with their corners reversed (see :mod:`posed`).
-        off_wall_elevation_rad: the median elevation of the normal in the off-wall drops [rad]
-            (NaN without any).
-    """
-
-    marker_id: int
-    detections: int
-    off_wall: int
-    no_pose: int
-    rewound: int
-    off_wall_elevation_rad: float
-
-    @property
-    def dropped(self) -> int:
-        """Detections that gave no observation."""
-        return self.off_wall + self.no_pose
-
-    @property
-    def left_out(self) -> bool:
-        """Whether the marker is out of the 2-D map: every detection of it was dropped."""
-        return self.detections > 0 and self.dropped == self.detections
+__all__ = ["DetectionLog", "read_detection_log"]
 
 
 @dataclass
@@ -92,6 +62,7 @@ class DetectionLog:
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     ids_left_out: Counter[int] = field(default_factory=Counter)
+    # marker id -> how its detections fared (a verdict's evidence; Extraction lacks the field)
     marker_detections: dict[int, MarkerDetections] = field(default_factory=dict)
 
 
@@ -260,8 +231,8 @@ class _Reader:
             frames.append(levelled)
             detections_by_topic[frame.topic] += len(detections)
             rewound_by_topic[frame.topic] += len(levelled.rewound)
-        self.log.marker_detections = _tally(frames)
-        self.log.notes += _drop_notes(self.log.marker_detections)
+        self.log.marker_detections = tally_detections(frames)
+        self.log.notes += drop_notes(self.log.marker_detections)
         for topic, rewound in rewound_by_topic.items():
             if rewound:
                 self.log.notes.append(
@@ -269,73 +240,6 @@ class _Reader:
                     "their corners wound the other way round (the tag would face away from the "
                     "camera, its yaw 180 deg off): read in reverse"
                 )
-
-
-def _tally(frames: list[LevelledFrame]) -> dict[int, MarkerDetections]:
-    """Each marker's detections, drops and reversed corners over the frames."""
-    seen: Counter[int] = Counter()
-    no_pose: Counter[int] = Counter()
-    rewound: Counter[int] = Counter()
-    elevations: dict[int, list[float]] = {}
-    for frame in frames:
-        seen.update(o.marker_id for o in frame.observations)
-        seen.update(d.marker_id for d in frame.dropped)
-        rewound.update(frame.rewound)
-        for d in frame.dropped:
-            if d.reason is DropReason.OFF_WALL:
-                elevations.setdefault(d.marker_id, []).append(d.elevation_rad)
-            else:
-                no_pose[d.marker_id] += 1
-    return {
-        i: MarkerDetections(
-            i,
-            seen[i],
-            len(elevations.get(i, [])),
-            no_pose[i],
-            rewound[i],
-            float(np.median(elevations[i])) if i in elevations else math.nan,
-        )
-        for i in sorted(seen)
-    }
-
-
-def _drop_notes(counts: dict[int, MarkerDetections]) -> list[str]:
-    """What was dropped of each marker, and whether that leaves it out of the map."""
-    notes = []
-    for c in counts.values():
-        if not c.dropped:
-            continue
-        elevation = f"{abs(math.degrees(c.off_wall_elevation_rad)):.0f} deg from horizontal"
-        if c.left_out and c.off_wall == c.detections:
-            every = (
-                "its one detection has"
-                if c.detections == 1
-                else (f"every one of its {c.detections:,} detections has")
-            )
-            notes.append(
-                f"marker {c.marker_id} left out of the 2-D map: {every} its normal {elevation} "
-                "(median; a floor or ceiling tag)"
-            )
-            continue
-        parts = []
-        if c.off_wall:
-            parts.append(
-                f"{c.off_wall:,} with the normal {elevation}"
-                + (" (median)" if c.off_wall > 1 else "")
-            )
-        if c.no_pose:
-            parts.append(f"{c.no_pose:,} without a PnP pose")
-        if c.left_out:
-            notes.append(
-                f"marker {c.marker_id} left out of the 2-D map: every one of its "
-                f"{c.detections:,} detections dropped ({', '.join(parts)})"
-            )
-        else:
-            notes.append(
-                f"{c.dropped:,} of {c.detections:,} detections of marker {c.marker_id} dropped "
-                f"({', '.join(parts)}); the marker is mapped from the rest"
-            )
-    return notes
 
 
 def read_detection_log(
