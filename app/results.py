@@ -4,6 +4,7 @@ written whole or not at all."""
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -71,6 +72,11 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
                 result.estimate, [s.frames for s in run.sessions] or run.frames
             ),
         }
+        if result.estimate.placements:  # the closed form: how each marker was reached
+            entry["placements"] = {
+                str(i): {k: v for k, v in asdict(p).items() if k != "marker_id"}
+                for i, p in result.estimate.placements.items()
+            }
         if result.map_error is not None:
             entry["marker_rmse_m"] = result.map_error.rmse_position_m
             entry["marker_yaw_rmse_rad"] = result.map_error.rmse_yaw_rad

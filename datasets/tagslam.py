@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bz2
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator import Observation, OdometrySample, Trajectory
+from markergraph.estimator import MapError, Observation, OdometrySample, Trajectory
+from markergraph.estimator.angles import angle_diff
+from markergraph.estimator.metrics import align_rigid_2d
 from markergraph.frontend import messages
 from markergraph.frontend.decode import stamp_ns
 from markergraph.frontend.posed import WALL_TILT_RAD
@@ -24,6 +27,7 @@ from markergraph.frontend.rig import Pose3, read_camera_poses, read_tagslam
 from markergraph.frontend.tf import planar_pose, rotation_of
 
 __all__ = [
+    "aligned_errors",
     "observation_errors",
     "odometry_and_reference",
     "reference_wall_tags",
@@ -56,7 +60,12 @@ def settings_for(folder: Path, **extra: Any) -> dict[str, Any]:
 
 def reference_wall_tags(bag: Path) -> dict[int, gtsam.Pose2]:
     """TagSLAM's final tag poses whose normal is within 45 degrees of horizontal, as 2-D poses
-    (x along the normal) in its map."""
+    in its map, in markergraph's convention (x along the normal into the room).
+
+    TagSLAM's tag frame has its z axis out of the print, toward whoever can see it (every tag
+    of recording 21 agrees with markergraph's normal to within a degree): that z, projected
+    on the floor, is our x.
+    """
     last = {}
     for message in messages(bag, ["/tf"]):
         for transform in message.decoded.transforms:
@@ -71,6 +80,33 @@ def reference_wall_tags(bag: Path) -> dict[int, gtsam.Pose2]:
             t = transform.translation
             tags[int(name[4:])] = gtsam.Pose2(t.x, t.y, math.atan2(normal[1], normal[0]))
     return tags
+
+
+def aligned_errors(
+    poses: Mapping[int, gtsam.Pose2], reference: Mapping[int, gtsam.Pose2]
+) -> MapError:
+    """Each marker's position and yaw error against TagSLAM's map after the rigid 2-D alignment
+    fitted on the positions alone (so a yaw turned round shows as 180 degrees, not aligned away),
+    for any id -> pose map (an ``Estimate``'s markers, a ``map.json``'s)."""
+    ids = np.array(sorted(set(poses) & set(reference)), dtype=np.int64)
+    if ids.size < 2:
+        raise ValueError(f"{ids.size} markers in common with the reference: no 2-D alignment")
+    ours = [poses[int(i)] for i in ids]
+    theirs = [reference[int(i)] for i in ids]
+    T = align_rigid_2d(
+        np.array([[p.x(), p.y()] for p in ours]), np.array([[p.x(), p.y()] for p in theirs])
+    )
+    aligned = [T.compose(p) for p in ours]
+    position = np.array(
+        [np.hypot(a.x() - b.x(), a.y() - b.y()) for a, b in zip(aligned, theirs, strict=True)]
+    )
+    yaw = np.array(
+        [abs(angle_diff(a.theta(), b.theta())) for a, b in zip(aligned, theirs, strict=True)]
+    )
+    return MapError(
+        ids, position, yaw, float(np.sqrt(np.mean(position**2))),
+        float(np.sqrt(np.mean(yaw**2))), True,
+    )  # fmt: skip
 
 
 def odometry_and_reference(folder: Path, into: Path) -> tuple[Trajectory, Trajectory]:

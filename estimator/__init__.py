@@ -56,6 +56,7 @@ from markergraph.estimator.types import (
     OdometryNoise,
     OdometrySample,
     OutputError,
+    Placement,
     RejectedObservationError,
     SettingsError,
 )
@@ -85,6 +86,7 @@ __all__ = [
     "OdometrySample",
     "OdometryStretch",
     "OutputError",
+    "Placement",
     "PolarPose",
     "RejectedObservationError",
     "Robust",

@@ -28,6 +28,7 @@ __all__ = [
     "OdometryNoise",
     "OdometrySample",
     "OutputError",
+    "Placement",
     "RejectedObservationError",
     "SettingsError",
 ]
@@ -229,6 +230,33 @@ class MarkerLink:
 
 
 @dataclass(frozen=True, slots=True)
+class Placement:
+    """How the closed form reached a marker: the marker it had last localised on, and how far
+    and how long it dead-reckoned from there before this marker's first usable view.
+
+    Attributes:
+        marker_id: the marker placed.
+        from_marker: the placed marker the robot was localised on (the home marker's own
+            placement names itself).
+        dead_reckoned_m: odometry path length from that localisation to the placing view [m].
+        dead_reckoned_s: time between them [s].
+        t_ns: the placing view's stamp [ns].
+        sigma_theta_rad: theta's sigma in that view [rad]; above the usual gate when this
+            marker had no better view.
+        backward: placed running back in time from the first localisation (the marker was seen
+            only before the robot first localised).
+    """
+
+    marker_id: int
+    from_marker: int
+    dead_reckoned_m: float
+    dead_reckoned_s: float
+    t_ns: int
+    sigma_theta_rad: float
+    backward: bool = False
+
+
+@dataclass(frozen=True, slots=True)
 class FactorResidual:
     """One factor's whitened error after optimisation.
 
@@ -257,6 +285,7 @@ class Estimate:
         residuals: per-factor whitened errors (empty for methods without factors).
         links: which markers are linked and by how many measurements.
         unplaced: marker id -> why it could not be placed.
+        placements: marker id -> how the closed form reached it (empty for other methods).
         timings_s: stage name -> seconds.
         converged: False when an optimiser stopped without converging (the estimate is its last).
         trajectory_covariance: (N, 3, 3) robot pose covariances where the method keeps them
@@ -280,6 +309,7 @@ class Estimate:
     residuals: list[FactorResidual] = field(default_factory=list)
     links: list[MarkerLink] = field(default_factory=list)
     unplaced: dict[int, str] = field(default_factory=dict)
+    placements: dict[int, Placement] = field(default_factory=dict)
     timings_s: dict[str, float] = field(default_factory=dict)
     converged: bool = True
     trajectory_covariance: NDArray[np.float64] | None = None

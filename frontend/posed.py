@@ -12,13 +12,19 @@ them with the identity mount whatever camera saw them:
 - sigmas: the corners' noise carried through PnP by a numerical Jacobian (correlations
   dropped), and widened to cover IPPE's second solution when the two are alike;
 - markers whose normal is more than 45 degrees from horizontal (ceiling, floor) are not on a
-  wall: they are left out, and said so.
+  wall: those detections are dropped, each with the elevation its normal read;
+- a marker is printed on one side only, so the camera that saw it is in front of it: corners
+  wound the other way round (a detector listing them clockwise where the reader expected
+  counter-clockwise) give a pose facing away from the camera, every yaw 180 degrees off; such
+  corners are read in reverse, and counted.
 """
 
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
+from enum import Enum
 
 import cv2
 import numpy as np
@@ -41,9 +47,16 @@ __all__ = [
     "LEVEL_TOLERANCE_RAD",
     "MAX_ATTITUDE_GAP_NS",
     "WALL_TILT_RAD",
+    "DropReason",
+    "Dropped",
     "LevelledCamera",
+    "LevelledFrame",
+    "MarkerDetections",
+    "drop_notes",
     "levelled_view",
     "observe_levelled",
+    "observe_levelled_frame",
+    "tally_detections",
 ]
 
 WALL_TILT_RAD = math.radians(45.0)
@@ -79,6 +92,44 @@ def _square(side_m: float) -> NDArray[np.float64]:
     return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
 
 
+class DropReason(Enum):
+    """Why one detection gave no observation."""
+
+    NO_POSE = "PnP found no pose"
+    OFF_WALL = "its normal is more than 45 deg from horizontal"
+
+
+@dataclass(frozen=True, slots=True)
+class Dropped:
+    """One detection that gave no observation.
+
+    Attributes:
+        marker_id: the detected marker.
+        reason: why.
+        elevation_rad: its normal's angle above the horizontal plane [rad] (OFF_WALL), else NaN.
+    """
+
+    marker_id: int
+    reason: DropReason
+    elevation_rad: float = math.nan
+
+
+@dataclass(frozen=True, slots=True)
+class LevelledFrame:
+    """What one frame's detections gave.
+
+    Attributes:
+        observations: one per detection kept.
+        dropped: one per detection dropped.
+        rewound: ids of the detections whose corners were read in reverse (their winding as
+            listed made the marker face away from the camera).
+    """
+
+    observations: list[Observation]
+    dropped: list[Dropped]
+    rewound: list[int]
+
+
 def _solutions(
     corners_px: NDArray[np.float64], view: LevelledCamera, side_m: float
 ) -> list[tuple[float, NDArray[np.float64], NDArray[np.float64]]]:
@@ -94,6 +145,26 @@ def _solutions(
         t = np.asarray(tvecs[i], dtype=np.float64).ravel()
         found.append((float(np.ravel(errors)[i]), np.asarray(R, dtype=np.float64), t))
     return sorted(found, key=lambda s: s[0])
+
+
+def _faces_camera(
+    R_optical_marker: NDArray[np.float64], t_optical_marker: NDArray[np.float64]
+) -> bool:
+    """Whether the marker's front (its z axis, out of the print) points toward the camera."""
+    return float(R_optical_marker[:, 2] @ t_optical_marker) < 0.0
+
+
+def _wound_solutions(
+    corners_px: NDArray[np.float64], view: LevelledCamera, side_m: float
+) -> tuple[NDArray[np.float64], list[tuple[float, NDArray[np.float64], NDArray[np.float64]]], bool]:
+    """(corners in the winding that faces the camera, IPPE's solutions for them, whether they
+    were reversed). Reversing the list mirrors the square, which turns its normal round and
+    only rotates it in its own plane otherwise."""
+    solutions = _solutions(corners_px, view, side_m)
+    if not solutions or _faces_camera(solutions[0][1], solutions[0][2]):
+        return corners_px, solutions, False
+    reversed_px = corners_px[::-1].copy()
+    return reversed_px, _solutions(reversed_px, view, side_m), True
 
 
 def _polar(
@@ -154,30 +225,27 @@ def _jacobian(
     return J
 
 
-def observe_levelled(
+def observe_levelled_frame(
     detections: list[Detection], view: LevelledCamera, model: ObservationModel, t_ns: int
-) -> tuple[list[Observation], dict[int, str]]:
-    """Observations of detected markers from their full pose, in the level frame.
-
-    Returns:
-        (observations, marker id -> why it was left out).
-    """
-    observations, left_out = [], {}
+) -> LevelledFrame:
+    """Observations of detected markers from their full pose, in the level frame, and what was
+    dropped or read in reverse (see the module docstring)."""
+    observations, dropped, rewound = [], [], []
     camera = view.camera
     for detection in detections:
         side = model.length_of(detection.marker_id)
-        solutions = _solutions(detection.corners, view, side)
+        corners, solutions, reversed_ = _wound_solutions(detection.corners, view, side)
         if not solutions:
-            left_out[detection.marker_id] = "PnP found no pose"
+            dropped.append(Dropped(detection.marker_id, DropReason.NO_POSE))
             continue
+        if reversed_:
+            rewound.append(detection.marker_id)
         error, R, t = solutions[0]
         bearing, theta, range_m, elevation, height_m = _polar(R, t, view)
         if abs(elevation) > WALL_TILT_RAD:
-            left_out[detection.marker_id] = (
-                f"not on a wall: its normal is {math.degrees(elevation):+.0f} deg from horizontal"
-            )
+            dropped.append(Dropped(detection.marker_id, DropReason.OFF_WALL, elevation))
             continue
-        J = _jacobian(detection.corners, view, side, np.array([bearing, theta, range_m]))
+        J = _jacobian(corners, view, side, np.array([bearing, theta, range_m]))
         covariance = model.corner_sigma_px**2 * (J @ J.T)
         sigma_bearing, sigma_theta, sigma_range = np.sqrt(np.maximum(np.diag(covariance), 1e-12))
         sigma_theta = math.hypot(sigma_theta, THETA_FLOOR_RAD)
@@ -189,7 +257,6 @@ def observe_levelled(
         if abs(theta) > GRAZING_RAD:
             flags.add(Flags.GRAZING)
             sigma_theta = max(sigma_theta, GRAZING_SIGMA_RAD)
-        corners = detection.corners
         flags |= corner_flags(corners, camera)
         observations.append(
             Observation(
@@ -206,4 +273,124 @@ def observe_levelled(
                 height_m=height_m,
             )
         )
-    return observations, left_out
+    return LevelledFrame(observations, dropped, rewound)
+
+
+def observe_levelled(
+    detections: list[Detection], view: LevelledCamera, model: ObservationModel, t_ns: int
+) -> tuple[list[Observation], dict[int, str]]:
+    """:func:`observe_levelled_frame` for one frame of images.
+
+    Returns:
+        (observations, marker id -> why a detection of it was dropped in this frame).
+    """
+    frame = observe_levelled_frame(detections, view, model, t_ns)
+    reasons = {}
+    for d in frame.dropped:
+        if d.reason is DropReason.OFF_WALL:
+            reasons[d.marker_id] = (
+                f"not on a wall: its normal read {math.degrees(d.elevation_rad):+.0f} deg from "
+                "horizontal in one frame"
+            )
+        else:
+            reasons[d.marker_id] = d.reason.value
+    return frame.observations, reasons
+
+
+@dataclass(frozen=True, slots=True)
+class MarkerDetections:
+    """How one marker's detections fared on their way to observations.
+
+    Attributes:
+        marker_id: the marker.
+        detections: its detections by cameras with an intrinsics and a mount, with attitude.
+        off_wall: of them, dropped because the normal read more than 45 deg from horizontal.
+        no_pose: of them, dropped because PnP found no pose.
+        rewound: of them, read with their corners reversed (the module docstring says why).
+        off_wall_elevation_rad: the median elevation of the normal in the off-wall drops [rad]
+            (NaN without any).
+    """
+
+    marker_id: int
+    detections: int
+    off_wall: int
+    no_pose: int
+    rewound: int
+    off_wall_elevation_rad: float
+
+    @property
+    def dropped(self) -> int:
+        """Detections that gave no observation."""
+        return self.off_wall + self.no_pose
+
+    @property
+    def left_out(self) -> bool:
+        """Whether the marker is out of the 2-D map: every detection of it was dropped."""
+        return self.detections > 0 and self.dropped == self.detections
+
+
+def tally_detections(frames: list[LevelledFrame]) -> dict[int, MarkerDetections]:
+    """Each marker's detections, drops and reversed corners over the frames."""
+    seen: Counter[int] = Counter()
+    no_pose: Counter[int] = Counter()
+    rewound: Counter[int] = Counter()
+    elevations: dict[int, list[float]] = {}
+    for frame in frames:
+        seen.update(o.marker_id for o in frame.observations)
+        seen.update(d.marker_id for d in frame.dropped)
+        rewound.update(frame.rewound)
+        for d in frame.dropped:
+            if d.reason is DropReason.OFF_WALL:
+                elevations.setdefault(d.marker_id, []).append(d.elevation_rad)
+            else:
+                no_pose[d.marker_id] += 1
+    return {
+        i: MarkerDetections(
+            i,
+            seen[i],
+            len(elevations.get(i, [])),
+            no_pose[i],
+            rewound[i],
+            float(np.median(elevations[i])) if i in elevations else math.nan,
+        )
+        for i in sorted(seen)
+    }
+
+
+def drop_notes(counts: dict[int, MarkerDetections]) -> list[str]:
+    """What was dropped of each marker, and whether that leaves it out of the map."""
+    notes = []
+    for c in counts.values():
+        if not c.dropped:
+            continue
+        elevation = f"{abs(math.degrees(c.off_wall_elevation_rad)):.0f} deg from horizontal"
+        if c.left_out and c.off_wall == c.detections:
+            every = (
+                "its one detection has"
+                if c.detections == 1
+                else (f"every one of its {c.detections:,} detections has")
+            )
+            notes.append(
+                f"marker {c.marker_id} left out of the 2-D map: {every} its normal {elevation} "
+                "(median; a floor or ceiling tag)"
+            )
+            continue
+        parts = []
+        if c.off_wall:
+            parts.append(
+                f"{c.off_wall:,} with the normal {elevation}"
+                + (" (median)" if c.off_wall > 1 else "")
+            )
+        if c.no_pose:
+            parts.append(f"{c.no_pose:,} without a PnP pose")
+        if c.left_out:
+            notes.append(
+                f"marker {c.marker_id} left out of the 2-D map: every one of its "
+                f"{c.detections:,} detections dropped ({', '.join(parts)})"
+            )
+        else:
+            notes.append(
+                f"{c.dropped:,} of {c.detections:,} detections of marker {c.marker_id} dropped "
+                f"({', '.join(parts)}); the marker is mapped from the rest"
+            )
+    return notes

@@ -27,7 +27,15 @@ from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import frame_id, stamp_ns
 from markergraph.frontend.detections import detections_of
-from markergraph.frontend.posed import MAX_ATTITUDE_GAP_NS, LevelledCamera, observe_levelled
+from markergraph.frontend.posed import (
+    MAX_ATTITUDE_GAP_NS,
+    LevelledCamera,
+    LevelledFrame,
+    MarkerDetections,
+    drop_notes,
+    observe_levelled_frame,
+    tally_detections,
+)
 from markergraph.frontend.rig import Pose3, read_camera_poses, read_kalibr_cameras, read_tagslam
 from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, messages
 from markergraph.frontend.tf import (
@@ -54,6 +62,8 @@ class DetectionLog:
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     ids_left_out: Counter[int] = field(default_factory=Counter)
+    # marker id -> how its detections fared (a verdict's evidence; Extraction lacks the field)
+    marker_detections: dict[int, MarkerDetections] = field(default_factory=dict)
 
 
 @dataclass
@@ -190,7 +200,9 @@ class _Reader:
         for t_ns, p, R_world_body in self.poses:
             self.log.odometry.append(OdometrySample(t_ns, *planar_pose(p, R_world_body, forward)))
         allowed = self.config.allowed_ids
-        left_out: dict[int, str] = {}
+        frames: list[LevelledFrame] = []
+        detections_by_topic: Counter[str] = Counter()
+        rewound_by_topic: Counter[str] = Counter()
         for frame in self.frames:
             self.log.frames += 1
             if frame.topic not in views:
@@ -214,11 +226,20 @@ class _Reader:
                     d.marker_id for d in detections if d.marker_id not in allowed
                 )
                 detections = [d for d in detections if d.marker_id in allowed]
-            observations, dropped = observe_levelled(detections, view, model, frame.t_ns)
-            self.log.observations += observations
-            left_out.update(dropped)
-        for marker_id, reason in sorted(left_out.items()):
-            self.log.notes.append(f"marker {marker_id} left out of the 2-D map: {reason}")
+            levelled = observe_levelled_frame(detections, view, model, frame.t_ns)
+            self.log.observations += levelled.observations
+            frames.append(levelled)
+            detections_by_topic[frame.topic] += len(detections)
+            rewound_by_topic[frame.topic] += len(levelled.rewound)
+        self.log.marker_detections = tally_detections(frames)
+        self.log.notes += drop_notes(self.log.marker_detections)
+        for topic, rewound in rewound_by_topic.items():
+            if rewound:
+                self.log.notes.append(
+                    f"{rewound:,} of {detections_by_topic[topic]:,} detections on {topic} had "
+                    "their corners wound the other way round (the tag would face away from the "
+                    "camera, its yaw 180 deg off): read in reverse"
+                )
 
 
 def read_detection_log(

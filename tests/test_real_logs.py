@@ -5,6 +5,8 @@ chain, mapped with no settings beyond the marker sizes and the dictionary."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 import subprocess
 import sys
@@ -26,10 +28,14 @@ from markergraph.estimator import (
     odometry_nees,
     odometry_stretches,
 )
+from markergraph.estimator.closed_form import solve_closed_form
 from markergraph.frontend import messages
 from markergraph.frontend.detections import DETECTION_DEFINITIONS
 from markergraph.frontend.rig import read_camera_poses, read_kalibr_cameras, read_tagslam
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, quaternion_from_matrix
+from markergraph.frontend.sources import log_topics
+from markergraph.frontend.tagged import DetectionLog, read_detection_log
+from markergraph.frontend.topics import choose_topics
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "tagslam-test" / "tests"
 pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data/tagslam-test is absent")
@@ -40,6 +46,14 @@ CLOSED_FORM_RMSE_21_M = 0.08  # 4.8 cm
 TWO_TAGS_RMSE_22_M = 0.01  # 0.4 cm
 TWO_TAGS_YAW_22_RAD = math.radians(2.0)  # 0.3 deg
 SLAM_RMSE_21_M = 0.03  # 1.2 cm measured over 22 wall tags
+SLAM_YAW_21_RAD = math.radians(1.0)  # 0.3 deg
+MARKER_GRAPH_YAW_21_RAD = math.radians(1.5)  # 0.5 deg
+CLOSED_FORM_YAW_21_RAD = math.radians(8.0)  # 5.7 deg from home 2
+# From a home first seen 237 frames in (marker 15), the walk runs back in time for the markers
+# seen before it: 2.6 cm and 0.9 deg measured, every one of the 22 placed (11 before).
+CLOSED_FORM_LATE_HOME_RMSE_M = 0.05
+CLOSED_FORM_LATE_HOME_YAW_RAD = math.radians(2.0)
+CLI_YAW_21_RAD = math.radians(1.5)  # each tag's yaw in map.json, 0.5 deg at most measured
 
 
 def unpacked(test: str, name: str, folder: Path) -> Path:
@@ -65,6 +79,24 @@ def errors(run: mg.MapRun, reference: dict[int, gtsam.Pose2]) -> dict[str, float
     }
 
 
+def yaw_errors(run: mg.MapRun, reference: dict[int, gtsam.Pose2]) -> dict[str, float]:
+    """Each method's yaw RMSE after the 2-D alignment fitted on positions alone."""
+    return {
+        r.label: tagslam.aligned_errors(
+            {i: m.T_map_marker for i, m in r.estimate.markers.items()}, reference
+        ).rmse_yaw_rad
+        for r in run.results
+    }
+
+
+def detection_log(test: str, bags: Path, **extra: Any) -> DetectionLog:
+    """A recording's detections as the front end reads them, with each marker's counts."""
+    log = unpacked(test, "tag_detections", bags)
+    config = settings(test, **extra).frontend
+    topics = log_topics(log)
+    return read_detection_log(log, config, choose_topics(log, topics, config), topics)
+
+
 def test_stairs_recording_maps_to_tagslams_map(bags: Path) -> None:
     """Test 21 (a hand-held T265 with VIO up a staircase): every wall tag TagSLAM mapped is
     mapped, the floor tag is left out and said so, and SLAM, the marker graph and the closed
@@ -73,12 +105,88 @@ def test_stairs_recording_maps_to_tagslams_map(bags: Path) -> None:
         "marker_size": 0.16}))  # fmt: skip
     reference = reference_wall_tags(unpacked("test_21", "reference", bags))
     assert len(reference) == 22
-    assert set(run.results[0].estimate.markers) == set(reference)
-    assert any("marker 6 left out of the 2-D map: not on a wall" in n for n in run.extraction.notes)
-    rmse = errors(run, reference)
+    for result in run.results:
+        assert set(result.estimate.markers) == set(reference), result.label
+    rmse, yaw = errors(run, reference), yaw_errors(run, reference)
     assert rmse["slam"] < SLAM_RMSE_21_M and rmse["isam2"] < SLAM_RMSE_21_M
     assert rmse["marker-graph"] < MARKER_GRAPH_RMSE_21_M
     assert rmse["closed-form"] < CLOSED_FORM_RMSE_21_M
+    assert yaw["slam"] < SLAM_YAW_21_RAD and yaw["isam2"] < SLAM_YAW_21_RAD
+    assert yaw["ekf"] < SLAM_YAW_21_RAD
+    assert yaw["marker-graph"] < MARKER_GRAPH_YAW_21_RAD
+    assert yaw["closed-form"] < CLOSED_FORM_YAW_21_RAD
+    placements = next(r for r in run.results if r.label == "closed-form").estimate.placements
+    assert set(placements) == set(reference)
+    assert placements[run.frames.home_id].from_marker == run.frames.home_id
+
+
+def test_stairs_recording_counts_each_markers_drops(bags: Path) -> None:
+    """Test 21's detections per marker: the floor tag (6) has every one of its 13 detections
+    dropped for a normal near vertical, so it alone is left out; every wall tag keeps all of
+    its detections and none had to be read with its corners reversed."""
+    log = detection_log("test_21", bags, marker_size=0.16)
+    counts = log.marker_detections
+    reference = reference_wall_tags(unpacked("test_21", "reference", bags))
+    assert set(counts) == set(reference) | {6}
+    floor = counts[6]
+    assert floor.left_out and floor.detections == floor.off_wall == 13 and floor.no_pose == 0
+    assert abs(floor.off_wall_elevation_rad) > math.radians(80)
+    for marker_id in reference:
+        assert counts[marker_id].dropped == 0 and not counts[marker_id].left_out
+    assert sum(c.rewound for c in counts.values()) == 0
+    assert sum(c.detections for c in counts.values()) == len(log.observations) + 13
+
+
+def test_closed_form_from_a_late_home_places_every_marker_slam_places(bags: Path) -> None:
+    """Test 21 with home marker 15, first seen 237 frames into the walk: the closed form used
+    to start there and place 11 of the 22 markers SLAM places (those seen before were never
+    seen while localised). It now also walks back in time from that first fix and places
+    every one, each with the marker it came from and how far it dead-reckoned."""
+    run = mg.map_log(unpacked("test_21", "tag_detections", bags), settings("test_21", **{
+        "marker_size": 0.16, "home": 15}))  # fmt: skip
+    reference = reference_wall_tags(unpacked("test_21", "reference", bags))
+    by_label = {r.label: r.estimate for r in run.results}
+    closed_form = by_label["closed-form"]
+    assert run.frames.home_id == 15 and run.frames.home_frame > 200
+    assert set(closed_form.markers) == set(by_label["slam"].markers) == set(reference)
+    error = tagslam.aligned_errors(
+        {i: m.T_map_marker for i, m in closed_form.markers.items()}, reference
+    )
+    assert error.rmse_position_m < CLOSED_FORM_LATE_HOME_RMSE_M
+    assert error.rmse_yaw_rad < CLOSED_FORM_LATE_HOME_YAW_RAD
+    placements = closed_form.placements
+    assert set(placements) == set(reference)
+    backward = {i for i, p in placements.items() if p.backward}
+    assert backward and all(placements[i].t_ns < run.frames.frames[237].t_ns for i in backward)
+    for p in placements.values():
+        assert p.from_marker in closed_form.markers and p.dead_reckoned_m >= 0.0
+    assert max(p.dead_reckoned_m for p in placements.values()) > 0.1
+
+
+def test_closed_form_uses_a_markers_best_views_when_none_is_sharp(bags: Path) -> None:
+    """Test 21's frames with every theta sigma set to 12 deg (as an ambiguous PnP on a fisheye
+    rig gives): past the 10 deg gate, the closed form used to place only the home marker. Now
+    each marker's gate is its own best view: every marker is placed, as near TagSLAM's map as
+    from the real sigmas (which the gate thins), and each placement says how uncertain its
+    view was."""
+    run = mg.map_log(unpacked("test_21", "tag_detections", bags), settings("test_21", **{
+        "marker_size": 0.16, "method": "closed-form"}))  # fmt: skip
+    sharp = run.results[0].estimate
+    blurred_sigma = math.radians(12.0)
+    frames = dataclasses.replace(run.frames, frames=[
+        dataclasses.replace(f, observations=tuple(
+            dataclasses.replace(o, sigma_theta=blurred_sigma) for o in f.observations))
+        for f in run.frames.frames
+    ])  # fmt: skip
+    blurred = solve_closed_form(frames, gtsam.Pose2())
+    assert set(blurred.markers) == set(sharp.markers) and len(blurred.markers) == 22
+    reference = reference_wall_tags(unpacked("test_21", "reference", bags))
+    error = tagslam.aligned_errors(
+        {i: m.T_map_marker for i, m in blurred.markers.items()}, reference
+    )
+    assert error.rmse_position_m < CLOSED_FORM_RMSE_21_M
+    assert error.rmse_yaw_rad < CLOSED_FORM_YAW_21_RAD
+    assert all(p.sigma_theta_rad == blurred_sigma for p in blurred.placements.values())
 
 
 def test_outdoor_recording_and_tagslams_odometry_convention(bags: Path) -> None:
@@ -95,12 +203,15 @@ def test_outdoor_recording_and_tagslams_odometry_convention(bags: Path) -> None:
     assert any("camera stamps taken as they are" in note for note in run.extraction.notes)
     slam = map_error(run.results[0].estimate, reference, align=True)
     assert slam.rmse_yaw_rad < TWO_TAGS_YAW_22_RAD
+    for label, yaw_rad in yaw_errors(run, reference).items():  # 0.3-0.8 deg measured
+        assert yaw_rad < TWO_TAGS_YAW_22_RAD, label
 
 
-def ros2_mcap_of_test_21(bag: Path, target: Path) -> None:
+def ros2_mcap_of_test_21(bag: Path, target: Path, clockwise: bool = False) -> None:
     """The recording as a ROS 2 robot would log it: apriltag_ros's detection arrays (Point[4]
     corners), fisheye camera_info, 3-D odometry, and a /tf_static chain from the odometry's
-    body through the rig to the camera's optical frame."""
+    body through the rig to the camera's optical frame. ``clockwise``: each tag's corners listed
+    the other way round, as a detector that follows OpenCV's order publishes them."""
     folder = DATA / "test_21"
     cam0 = next(c for c in read_kalibr_cameras(folder / "cameras.yaml") if c.name == "cam0")
     T_rig_cam0 = read_camera_poses(folder / "camera_poses.yaml")["cam0"]
@@ -180,7 +291,8 @@ def ros2_mcap_of_test_21(bag: Path, target: Path) -> None:
             detections = [
                 {"family": "tag36h11", "id": int(tag.id), "hamming": 0, "goodness": 0.0,
                  "decision_margin": 50.0, "centre": {"x": tag.center.x, "y": tag.center.y},
-                 "corners": [{"x": p.x, "y": p.y} for p in tag.corners],
+                 "corners": [{"x": p.x, "y": p.y}
+                             for p in (tag.corners[::-1] if clockwise else tag.corners)],
                  "homography": [0.0] * 9}
                 for tag in m.apriltags
             ]  # fmt: skip
@@ -195,13 +307,19 @@ def ros2_mcap_of_test_21(bag: Path, target: Path) -> None:
         writer.finish()
 
 
-def test_ros2_mcap_with_fisheye_info_and_tf_chain_needs_no_rig_files(bags, tmp_path) -> None:
+@pytest.mark.parametrize("clockwise", [False, True], ids=["apriltag-order", "opencv-order"])
+def test_ros2_mcap_with_fisheye_info_and_tf_chain_needs_no_rig_files(
+    bags: Path, tmp_path: Path, clockwise: bool
+) -> None:
     """The stairs recording as a ROS 2 MCAP: `markergraph map` finds the detections by type,
     their fisheye camera_info by namespace and the camera's mount through a two-link
     /tf_static chain from the odometry's child frame, with only the tag sizes and dictionary
-    set, and maps as the ROS 1 bag with its rig files does."""
+    set, and maps as the ROS 1 bag with its rig files does. map.json's yaws agree with
+    TagSLAM's tags after the alignment fitted on positions, whichever way the detector wound
+    the corners (listed clockwise they used to put every yaw 180 deg off, and SLAM's yaw
+    error measured -179.7 deg with positions still right)."""
     log = tmp_path / "stairs.mcap"
-    ros2_mcap_of_test_21(unpacked("test_21", "tag_detections", bags), log)
+    ros2_mcap_of_test_21(unpacked("test_21", "tag_detections", bags), log, clockwise)
     sizes = [f"{i}=0.1" for i in range(100, 109)]
     run = subprocess.run(
         [sys.executable, "-m", "markergraph.cli", "map", str(log), "--marker-size", "0.16",
@@ -213,15 +331,14 @@ def test_ros2_mcap_with_fisheye_info_and_tf_chain_needs_no_rig_files(bags, tmp_p
     marker_map = mg.MarkerMap.load(tmp_path / "map" / "map.json")
     reference = reference_wall_tags(unpacked("test_21", "reference", bags))
     assert set(marker_map.markers) == set(reference)
-    ours = np.array([[m.T_map_marker.x(), m.T_map_marker.y()] for m in marker_map.markers.values()])
-    theirs = np.array([[reference[i].x(), reference[i].y()] for i in marker_map.markers])
-    # Rigid 2-D alignment (Kabsch), then the RMSE of the tag positions.
-    a, b = ours - ours.mean(axis=0), theirs - theirs.mean(axis=0)
-    u, _, vt = np.linalg.svd(a.T @ b)
-    d = np.sign(np.linalg.det(u @ vt))
-    R = (u @ np.diag([1.0, d]) @ vt).T
-    rmse = float(np.sqrt(np.mean(np.sum((a @ R.T - b) ** 2, axis=1))))
-    assert rmse < SLAM_RMSE_21_M
+    error = tagslam.aligned_errors(
+        {i: m.T_map_marker for i, m in marker_map.markers.items()}, reference
+    )
+    assert error.rmse_position_m < SLAM_RMSE_21_M
+    assert np.max(error.yaw_rad) < CLI_YAW_21_RAD
+    report = json.loads((tmp_path / "map" / "report.json").read_text())
+    rewound = [n for n in report["notes"] if "corners wound the other way round" in n]
+    assert len(rewound) == (1 if clockwise else 0)
 
 
 @pytest.mark.parametrize("stretch_m", [0.5, 1.0])
