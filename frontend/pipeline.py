@@ -39,6 +39,7 @@ from markergraph.frontend.decode import (
     stamp_ns,
 )
 from markergraph.frontend.detect import Detector, DetectorMode
+from markergraph.frontend.inputs import CameraJudgement, judge_camera_info, odd_stamps
 from markergraph.frontend.observe import Flags, observe_detections, robust_least_squares
 from markergraph.frontend.posed import (
     LEVEL_TOLERANCE_RAD,
@@ -74,7 +75,6 @@ from markergraph.frontend.topics import (
 
 __all__ = ["Extraction", "available_cores", "extract"]
 
-MAX_WAITING_FRAMES = 30
 MAX_ATTITUDES = 64  # the latest odometry attitudes kept to level frames with
 SPANS_PER_WORKER = 4  # stretches of the log per worker: balances load, moves the progress bar
 
@@ -106,6 +106,15 @@ class Extraction:
             ranges from depth are divided by it.
         measured_depth_scale: what the markers' known size measured it to be, if enough
             markers were seen with depth.
+        dropped_odometry_samples: odometry samples dropped as corrupt or with stamps their
+            neighbours contradict (see ``notes``).
+        worst_odometry_stamp_offset_s: the largest distance between a dropped odometry stamp
+            and where the other stamps put it [s]; 0 when none was dropped for its stamp.
+        frames_dropped_by_stamp: colour frames whose stamp their neighbours contradict; their
+            observations are dropped.
+        camera_infos_set_aside: camera_info messages not believed (see
+            ``camera_info_reasons``), of ``camera_infos_judged``.
+        camera_info_reasons: why they were set aside -> how many.
     """
 
     observations: list[Observation]
@@ -129,6 +138,12 @@ class Extraction:
     depth_ratios: list[tuple[int, float, float]] = field(default_factory=list)
     depth_scale: float = 1.0
     measured_depth_scale: float | None = None
+    dropped_odometry_samples: int = 0
+    worst_odometry_stamp_offset_s: float = 0.0
+    frames_dropped_by_stamp: int = 0
+    camera_infos_judged: int = 0
+    camera_infos_set_aside: int = 0
+    camera_info_reasons: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -138,7 +153,11 @@ class _Part:
 
     extraction: Extraction
     odometry: list[OdometrySample] = field(default_factory=list)
+    odometry_log_ns: list[int] = field(default_factory=list)  # each sample's log time
     true_poses: list[OdometrySample] = field(default_factory=list)
+    true_pose_log_ns: list[int] = field(default_factory=list)
+    frame_stamps: list[tuple[int, int]] = field(default_factory=list)  # (stamp, log time)
+    observation_frames: list[tuple[int, int]] = field(default_factory=list)  # each one's frame
 
 
 @dataclass(frozen=True)
@@ -248,24 +267,22 @@ class _SpanReader:
         self.detector = _detector(config)
         self.model = config.observation_model
         self.attitudes: deque[tuple[int, NDArray[np.float64]]] = deque(maxlen=MAX_ATTITUDES)
-        self.done: set[str] = set()  # topics read as far as they need be
 
     def read(self, span: _Span, progress: Callable[[int, int], None] | None) -> _Part:
         left_out_before = Counter(self.detector.left_out)
         self._read_once_topics()
         streamed = [
             t
-            for t in (self.choice.color, self.choice.depth, self.choice.camera_info,
-                      self.choice.odom, TRUE_POSE)
+            for t in (self.choice.color, self.choice.depth, self.choice.odom, TRUE_POSE)
             if t and t in self.counts
-        ]  # fmt: skip
+        ]
         # Progress counts colour frames: what a person knows the log by.
         total, done, color = self.counts.get(self.choice.color or "", 0), 0, self.choice.color
         # Read a margin either side so frames at the span's edges still find their depth.
         margin = 3 * self.config.pair_tolerance_ns
         start = None if span.start_ns is None else span.start_ns - margin
         end = None if span.end_ns is None else span.end_ns + margin
-        stream = messages(self.path, streamed, self.read_failures, start, end, self.done)
+        stream = messages(self.path, streamed, self.read_failures, start, end)
         for item in read_ahead(_with_images(stream, color, span)):
             if isinstance(item, _Frame):
                 done += 1
@@ -306,6 +323,7 @@ class _SpanReader:
         """A colour frame inside the span."""
         decoded, t_ns = frame.message.decoded, stamp_ns(frame.message.decoded)
         self.part.extraction.frames += 1
+        self.part.frame_stamps.append((t_ns, frame.message.log_time_ns))
         self.image_frame = self.image_frame or frame_id(decoded)
         self.pairing.colour.append((t_ns, frame))
         self._drain(t_ns)
@@ -321,21 +339,16 @@ class _SpanReader:
                 result.unusable_depth += 1
                 self.failures.add(self.path, topic, str(error))
             self._drain(stamp_ns(decoded))
-        elif topic == choice.camera_info and result.camera is None:
-            try:
-                result.camera = self.config.camera or Camera.from_camera_info(decoded)
-            except ValueError as error:  # a later message may be whole
-                self.failures.add(self.path, topic, str(error))
-                return
-            self.done.add(topic)  # one whole camera_info is all it takes: skip the rest
-            self._drain(stamp_ns(decoded))
         elif topic == choice.odom:
             if message.schema.endswith("TFMessage"):
                 if inside:
-                    self.part.odometry += odometry_from_tf(decoded, self.config.base_frame)
+                    samples = odometry_from_tf(decoded, self.config.base_frame)
+                    self.part.odometry += samples
+                    self.part.odometry_log_ns += [message.log_time_ns] * len(samples)
                 return
             if inside:
                 self.part.odometry.append(odometry_sample(message))
+                self.part.odometry_log_ns.append(message.log_time_ns)
             self.odometry_frame = self.odometry_frame or getattr(decoded, "child_frame_id", None)
             pose = decoded.pose.pose if hasattr(decoded.pose, "pose") else decoded.pose
             R = rotation_of(pose.orientation)
@@ -346,16 +359,9 @@ class _SpanReader:
             self.part.true_poses.append(
                 OdometrySample(stamp_ns(decoded), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
             )
+            self.part.true_pose_log_ns.append(message.log_time_ns)
 
     def _drain(self, latest_ns: int, flush: bool = False) -> None:
-        # Frames wait for the camera info (it may come a message later), but not forever.
-        result = self.part.extraction
-        if result.camera is None:
-            pairing = self.pairing
-            while len(pairing.colour) > MAX_WAITING_FRAMES or (flush and pairing.colour):
-                pairing.colour.popleft()
-                result.skipped["no camera info before it"] += 1
-            return
         ready = self.pairing.ready(latest_ns, flush)
         if ready:
             self._settle_mount()
@@ -393,7 +399,8 @@ class _SpanReader:
     def _observe(self, t_ns: int, frame: _Frame, depth: NDArray | None) -> None:
         """One colour frame with its depth (if any) to observations; a bad frame costs itself."""
         result, choice, image = self.part.extraction, self.choice, frame.image
-        assert result.camera is not None  # _drain waits for it
+        assert result.camera is not None  # extract judged it before reading
+        key = (t_ns, frame.message.log_time_ns)
         if isinstance(image, LogError):
             result.undecodable_frames += 1
             result.skipped[f"colour image does not decode ({image})"] += 1
@@ -421,6 +428,7 @@ class _SpanReader:
                 if note not in result.notes:
                     result.notes.append(note)
             result.observations += observations
+            self.part.observation_frames += [key] * len(observations)
             return
         observations = observe_detections(
             detections, result.camera, self.model, depth=depth, mount=result.mount, t_ns=t_ns,
@@ -430,6 +438,7 @@ class _SpanReader:
             result.depth_tries += len(observations)
             result.depth_misses += sum(Flags.NO_DEPTH in o.flags for o in observations)
         result.observations += observations
+        self.part.observation_frames += [key] * len(observations)
 
 
 def _from_detections(log: DetectionLog, choice: TopicChoice) -> _Part:
@@ -448,7 +457,8 @@ def _from_detections(log: DetectionLog, choice: TopicChoice) -> _Part:
         warnings=log.warnings,
         ids_left_out=log.ids_left_out,
     )
-    return _Part(extraction, log.odometry)
+    # A detection log's odometry carries no log times: its stamps are judged by order alone.
+    return _Part(extraction, log.odometry, [0] * len(log.odometry))
 
 
 def _read_span(
@@ -578,8 +588,12 @@ def _merge(parts: list[_Part]) -> _Part:
     for part in parts:
         piece = part.extraction
         result.observations += piece.observations
+        merged.observation_frames += part.observation_frames
         merged.odometry += part.odometry
+        merged.odometry_log_ns += part.odometry_log_ns
         merged.true_poses += part.true_poses
+        merged.true_pose_log_ns += part.true_pose_log_ns
+        merged.frame_stamps += part.frame_stamps
         result.frames += piece.frames
         result.frames_with_depth += piece.frames_with_depth
         result.skipped.update(piece.skipped)
@@ -671,6 +685,30 @@ def _correct_depth_scale(result: Extraction, configured: float | None, topic: st
     ]  # fmt: skip
 
 
+def _judged_camera(path: Path, choice: TopicChoice, counts: dict[str, int]) -> CameraJudgement:
+    """The camera model the log's camera_info messages agree on (:func:`judge_camera_info`).
+
+    Raises:
+        LogError: no camera info topic, or none of its messages gives a believable model.
+    """
+    topic = choice.camera_info
+    if topic is None:
+        raise LogError(
+            f"{path}: no camera intrinsics: no camera info topic found (pass --camera-info-topic)"
+        )
+    if not counts.get(topic):
+        raise LogError(f"{path}: no camera intrinsics: no messages on {topic}")
+    failures = DecodeFailures()
+    judgement = judge_camera_info(path, topic, failures)
+    if judgement.camera is None:
+        reasons = list(judgement.set_aside) + [w.partition(": ")[2] for w in failures.warnings()]
+        raise LogError(
+            f"{path}: no camera intrinsics: none of the first {judgement.read} messages on "
+            f"{topic} is believable ({'; '.join(reasons) or 'none decodes'})"
+        )
+    return judgement
+
+
 def _check_usable(path: Path, choice: TopicChoice, result: Extraction) -> None:
     """Bad messages cost their frames; but a topic of which nothing could be used is an error.
 
@@ -709,40 +747,95 @@ MAX_SPEED_MPS = 50.0
 MAX_COORDINATE_M = 1e7
 
 
+@dataclass(frozen=True)
+class _CleanPath:
+    """A path without its corrupted samples, and what was dropped."""
+
+    path: Trajectory
+    dropped: int
+    worst_stamp_offset_s: float
+
+
 def _clean_path(
-    samples: list[OdometrySample], topic: str | None, what: str, notes: list[str], frame: str
-) -> Trajectory:
+    samples: list[OdometrySample],
+    log_ns: list[int],
+    topic: str | None,
+    what: str,
+    notes: list[str],
+    frame: str,
+) -> _CleanPath:
     """A path without its corrupted samples, each kind dropped with a note naming the topic:
     one bad sample must not poison the map. Dropped: non-finite values (NaN, inf, a zero
-    quaternion), coordinates beyond 10,000 km, stamps that repeat or go backwards (a clock
-    reset, a replayed stretch), and single samples that jump away and back faster than
-    50 m/s."""
+    quaternion), coordinates beyond 10,000 km, stamps their neighbours contradict (out of the
+    order the others rise in, a repeat, or off the others' lead over their log times:
+    :func:`odd_stamps`, which keeps the majority rather than the first), and single samples
+    that jump away and back faster than 50 m/s.
+
+    Args:
+        samples: in log order; log_ns: each one's log time [ns].
+    """
     finite: list[OdometrySample] = []
-    absurd = backwards = 0
-    for sample in samples:
+    finite_log_ns: list[int] = []
+    absurd = 0
+    for sample, logged in zip(samples, log_ns, strict=True):
         values = (sample.x, sample.y, sample.yaw)
         if not all(math.isfinite(v) for v in values) or max(abs(sample.x), abs(sample.y)) > (
             MAX_COORDINATE_M
         ):
             absurd += 1
-        elif finite and sample.t_ns <= finite[-1].t_ns:
-            backwards += 1
         else:
             finite.append(sample)
+            finite_log_ns.append(logged)
+    judged = odd_stamps(
+        np.array([s.t_ns for s in finite], dtype=np.int64),
+        np.array(finite_log_ns, dtype=np.int64),
+    )
+    in_order = [s for s, kept in zip(finite, judged.kept, strict=True) if kept]
     kept = [
         sample
-        for i, sample in enumerate(finite)
-        if not (0 < i < len(finite) - 1 and _is_spike(finite[i - 1], sample, finite[i + 1]))
+        for i, sample in enumerate(in_order)
+        if not (0 < i < len(in_order) - 1 and _is_spike(in_order[i - 1], sample, in_order[i + 1]))
     ]
-    spikes = len(finite) - len(kept)
+    spikes = len(in_order) - len(kept)
     for n, why in (
         (absurd, "with NaN, infinite or absurd values"),
-        (backwards, "whose stamps repeat or go backwards"),
+        (
+            judged.dropped,
+            "whose stamps their neighbours contradict (out of order, repeated, or off the "
+            f"others' lead over their log times; the worst by {judged.worst_offset_s:.3g} s)",
+        ),
         (spikes, f"that jump away and back faster than {MAX_SPEED_MPS:g} m/s"),
     ):
         if n:
             notes.append(f"dropped {n} {what} sample(s) on {topic} {why}")
-    return Trajectory.from_samples(kept, frame)
+    dropped = absurd + judged.dropped + spikes
+    return _CleanPath(Trajectory.from_samples(kept, frame), dropped, judged.worst_offset_s)
+
+
+def _drop_frames_by_stamp(part: _Part, topic: str | None) -> None:
+    """Observations of colour frames whose stamps their neighbours contradict
+    (:func:`odd_stamps`) dropped, with a note: a frame stamped seconds off would put its
+    markers where the robot was not."""
+    result = part.extraction
+    if not part.frame_stamps:
+        return
+    stamps, logged = np.array(part.frame_stamps, dtype=np.int64).T
+    judged = odd_stamps(stamps, logged)
+    if not judged.dropped:
+        return
+    odd = {(int(t), int(g)) for t, g, k in zip(stamps, logged, judged.kept, strict=True) if not k}
+    result.frames_dropped_by_stamp = judged.dropped
+    if part.observation_frames:  # a detection log's observations carry no frames to judge
+        result.observations = [
+            o
+            for o, frame in zip(result.observations, part.observation_frames, strict=True)
+            if frame not in odd
+        ]
+    result.notes.append(
+        f"dropped the observations of {judged.dropped} frame(s) on {topic} whose stamps their "
+        "neighbours contradict (out of order, repeated, or off the others' lead over their log "
+        f"times; the worst by {judged.worst_offset_s:.3g} s)"
+    )
 
 
 def _is_spike(before: OdometrySample, sample: OdometrySample, after: OdometrySample) -> bool:
@@ -789,6 +882,10 @@ def extract(
     workers, why = choose_workers(counts.get(choice.color or "", 0), workers)
     if why is not None:
         notes.append(why)
+    judgement = None
+    if not choice.detections and config.camera is None:
+        judgement = _judged_camera(path, choice, counts)
+        config = replace(config, camera=judgement.camera)
     if choice.detections:
         part = _from_detections(read_detection_log(path, config, choice, topics), choice)
     elif workers <= 1:
@@ -812,10 +909,25 @@ def extract(
                     progress(done * frames // len(spans), frames)
         part = _merge(parts)
     result = part.extraction
+    if judgement is not None:
+        result.camera_infos_judged = judgement.read
+        result.camera_infos_set_aside = sum(judgement.set_aside.values())
+        result.camera_info_reasons = judgement.set_aside
+        note = judgement.note(choice.camera_info or "")
+        if note is not None:
+            notes.append(note)
     result.notes = notes + result.notes
     _check_usable(path, choice, result)
-    result.odometry = _clean_path(part.odometry, choice.odom, "odometry", result.notes, "odom")
-    result.true_path = _clean_path(part.true_poses, TRUE_POSE, "ground-truth", result.notes, "map")
+    _drop_frames_by_stamp(part, choice.color)
+    odometry = _clean_path(
+        part.odometry, part.odometry_log_ns, choice.odom, "odometry", result.notes, "odom"
+    )
+    result.odometry = odometry.path
+    result.dropped_odometry_samples = odometry.dropped
+    result.worst_odometry_stamp_offset_s = odometry.worst_stamp_offset_s
+    result.true_path = _clean_path(
+        part.true_poses, part.true_pose_log_ns, TRUE_POSE, "ground-truth", result.notes, "map"
+    ).path
     _correct_depth_scale(result, config.depth_scale, choice.depth)
     if result.depth_misses:
         result.notes.append(
