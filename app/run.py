@@ -143,13 +143,17 @@ def marker_map_of(
     log: str,
     config: MapConfig,
     heights: Mapping[int, MarkerHeight] | None = None,
+    extraction: Extraction | None = None,
 ) -> MarkerMap:
-    """An estimate's marker map with the settings' dictionary and marker sides."""
+    """An estimate's marker map with the settings' dictionary and the marker sides used: the
+    extraction's where given (depth may have measured them), else the settings'."""
     frontend = config.frontend
+    size_m, sizes_m = frontend.marker_length_m, frontend.marker_lengths_m
+    if extraction is not None and extraction.marker_size_m_used:
+        size_m, sizes_m = extraction.marker_size_m_used, extraction.marker_sizes_m_used
     return MarkerMap.from_estimate(
-        estimate, log=log, dictionary=frontend.dictionary,
-        marker_size_m=frontend.marker_length_m, marker_sizes_m=frontend.marker_lengths_m,
-        heights=heights,
+        estimate, log=log, dictionary=frontend.dictionary, marker_size_m=size_m,
+        marker_sizes_m=sizes_m, heights=heights,
     )  # fmt: skip
 
 
@@ -374,7 +378,9 @@ def map_log(
         except EstimationError as error:
             raise EstimationError(f"{log}: {method.value}: {error}") from None
         seconds[method.value] = time.perf_counter() - start
-        result = MethodResult(method, estimate, marker_map_of(estimate, str(log), config, heights))
+        result = MethodResult(
+            method, estimate, marker_map_of(estimate, str(log), config, heights, extraction)
+        )
         _score(result, truth, true_path)
         results.append(result)
     return MapRun(

@@ -40,6 +40,7 @@ from markergraph.frontend.decode import (
 )
 from markergraph.frontend.detect import Detector, DetectorMode
 from markergraph.frontend.inputs import CameraJudgement, judge_camera_info, odd_stamps
+from markergraph.frontend.marker_size import SizeByDepth, marker_sizes_by_depth
 from markergraph.frontend.observe import Flags, observe_detections, robust_least_squares
 from markergraph.frontend.posed import (
     LEVEL_TOLERANCE_RAD,
@@ -102,10 +103,20 @@ class Extraction:
         levelled_frames: frames observed through the odometry's attitude (a tilted base or a
             rolled camera) rather than as level.
         depth_ratios: each well-placed marker's stamp, depth and PnP distance.
+        size_ratios: each well-placed marker's id and depth over PnP distance, also where they
+            disagree by more than observe's gate (a wrong marker size).
         depth_scale: what depth was taken to read per true metre, as set or measured; the
             ranges from depth are divided by it.
         measured_depth_scale: what the markers' known size measured it to be, if enough
             markers were seen with depth.
+        marker_size_m_used: the markers' size the observations were made with [m];
+            marker_sizes_m_used: markers of their own size, by id [m].
+        marker_size_m_by_depth: the markers' size depth measures (the given size times
+            ``marker_size_ratio_by_depth`` where that clearly disagrees; see
+            :mod:`~markergraph.frontend.marker_size`), None without enough depth [m];
+            marker_sizes_m_by_depth: markers apart from the rest, by id [m].
+        marker_size_ratio_by_depth: depth over PnP's range with the given size, None without
+            enough depth.
         dropped_odometry_samples: odometry samples dropped as corrupt or with stamps their
             neighbours contradict (see ``notes``).
         worst_odometry_stamp_offset_s: the largest distance between a dropped odometry stamp
@@ -136,6 +147,7 @@ class Extraction:
     depth_tries: int = 0
     levelled_frames: int = 0
     depth_ratios: list[tuple[int, float, float]] = field(default_factory=list)
+    size_ratios: list[tuple[int, float]] = field(default_factory=list)
     depth_scale: float = 1.0
     measured_depth_scale: float | None = None
     dropped_odometry_samples: int = 0
@@ -144,6 +156,11 @@ class Extraction:
     camera_infos_judged: int = 0
     camera_infos_set_aside: int = 0
     camera_info_reasons: dict[str, int] = field(default_factory=dict)
+    marker_size_m_used: float = 0.0
+    marker_sizes_m_used: dict[int, float] = field(default_factory=dict)
+    marker_size_m_by_depth: float | None = None
+    marker_sizes_m_by_depth: dict[int, float] = field(default_factory=dict)
+    marker_size_ratio_by_depth: float | None = None
 
 
 @dataclass
@@ -432,7 +449,7 @@ class _SpanReader:
             return
         observations = observe_detections(
             detections, result.camera, self.model, depth=depth, mount=result.mount, t_ns=t_ns,
-            depth_ratios=result.depth_ratios,
+            depth_ratios=result.depth_ratios, size_ratios=result.size_ratios,
         )  # fmt: skip
         if depth is not None:
             result.depth_tries += len(observations)
@@ -606,6 +623,7 @@ def _merge(parts: list[_Part]) -> _Part:
         result.depth_tries += piece.depth_tries
         result.levelled_frames += piece.levelled_frames
         result.depth_ratios += piece.depth_ratios
+        result.size_ratios += piece.size_ratios
     return merged
 
 
@@ -850,6 +868,82 @@ def _is_spike(before: OdometrySample, sample: OdometrySample, after: OdometrySam
 
 
 def extract(
+    path: Path,
+    config: FrontendConfig = FrontendConfig(),
+    progress: Callable[[int, int], None] | None = None,
+    workers: int | None = 1,
+) -> Extraction:
+    """Observations and odometry from a log (:func:`_extract_once`), read a second time with
+    the markers' size that depth measures when it clearly disagrees with the given one
+    (:func:`marker_sizes_by_depth`): a wrong size would scale every range from PnP and make
+    observe set every depth aside as disagreeing with it.
+
+    Args:
+        progress: called with (colour frames read, frames in all); twice over with a size
+            measured.
+        workers: see :func:`_extract_once`.
+
+    Raises:
+        LogError: the log cannot be read, has no camera, or nothing usable on a topic.
+        SettingsError: a bad dictionary, or allowed ids outside it.
+    """
+    path, given_m = Path(path), config.marker_length_m
+    result = _extract_once(path, config, progress, workers)
+    size = marker_sizes_by_depth(
+        result.size_ratios, config.marker_length_m, config.marker_lengths_m,
+        config.depth_scale or 1.0,
+    )  # fmt: skip
+    notes = []
+    if size is not None and size.use:
+        sizes_m = {**config.marker_lengths_m, **size.sizes_m}
+        notes = _size_notes(size, config)
+        config = replace(config, marker_length_m=size.size_m, marker_lengths_m=sizes_m)
+        result = _extract_once(path, config, progress, workers)
+    elif size is None and result.observations:
+        topic = result.topics.depth
+        notes.append(
+            f"the map's scale rests on the given marker size ({config.marker_length_m:g} m; "
+            "--marker-size sets it): "
+            + (
+                f"too few markers seen with depth on {topic} ({len(result.size_ratios)}) to "
+                "measure it"
+                if topic
+                else "no depth to measure it"
+            )
+        )
+    result.notes += notes
+    result.marker_size_m_used = config.marker_length_m
+    result.marker_sizes_m_used = dict(config.marker_lengths_m)
+    if size is not None:
+        result.marker_size_m_by_depth = given_m * size.ratio
+        result.marker_size_ratio_by_depth = size.ratio
+        result.marker_sizes_m_by_depth = dict(size.sizes_m)
+    return result
+
+
+def _size_notes(size: SizeByDepth, config: FrontendConfig) -> list[str]:
+    """What depth measured of the markers' size, and what is used."""
+    notes = []
+    if size.size_m != config.marker_length_m:
+        short = 100 * (1 - 1 / size.ratio)
+        notes.append(
+            f"markers measure {size.size_m:.3f} m by depth (the given {config.marker_length_m:g}"
+            f" m would put every range {abs(short):.0f} % {'short' if short > 0 else 'long'}; "
+            f"depth over PnP's range in {size.sightings} sightings, "
+            f"{100 * size.ratio_sigma:.2f} % error): using {size.size_m:.3f} m. A depth camera "
+            "is not this far off, a marker size can be: --marker-size sets the size, "
+            "--depth-scale K says depth reads K per true metre"
+        )
+    for marker_id, size_m in sorted(size.sizes_m.items()):
+        given = config.marker_lengths_m.get(marker_id, config.marker_length_m)
+        notes.append(
+            f"marker {marker_id} measures {size_m:.3f} m by depth, apart from the others "
+            f"(given {given:g} m): using {size_m:.3f} m for it"
+        )
+    return notes
+
+
+def _extract_once(
     path: Path,
     config: FrontendConfig = FrontendConfig(),
     progress: Callable[[int, int], None] | None = None,

@@ -5,6 +5,7 @@ log's own evidence, checked against the simulator's ground truth."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,9 @@ from markergraph.datasets.scenarios import scenario
 from markergraph.datasets.write import write_log
 from markergraph.frontend.camera import Camera, majority_camera
 from markergraph.frontend.inputs import odd_stamps
+from markergraph.frontend.marker_size import marker_sizes_by_depth
 from markergraph.run import MapRun, map_log
+from markergraph.settings import MapConfig
 
 COLOR = "/camera/camera/color/image_raw/compressed"
 INFO = "/camera/camera/color/camera_info"
@@ -200,3 +203,68 @@ def test_an_absurd_first_camera_info_is_set_aside(
     assert any(why in reason for reason in extraction.camera_info_reasons)
     assert any(n.startswith(f"camera_info: 1 of 25 messages on {INFO}") for n in extraction.notes)
     assert moved_m(run, clean) < SAME_MAP_M
+
+
+# --- the markers' size ------------------------------------------------------------------------
+
+
+def test_depth_over_pnp_tells_a_size_from_a_depth_scale() -> None:
+    """Exact algebra: ratios of 1.012 are a depth camera's scale (the size is kept); 4/3 is a
+    size (0.15 given for 0.20); one marker at 4/3 among others at 1 is that marker's size."""
+    rng = np.random.default_rng(7)
+
+    def ratios(by_id: dict[int, float]) -> list[tuple[int, float]]:
+        return [(i, k * (1 + rng.normal(0.0, 2e-3))) for i, k in by_id.items() for _ in range(30)]
+
+    depth = marker_sizes_by_depth(ratios({0: 1.012, 1: 1.012}), 0.2, {}, 1.0)
+    assert depth is not None and not depth.use and depth.size_m == 0.2
+    assert depth.ratio == pytest.approx(1.012, rel=1e-3)
+    size = marker_sizes_by_depth(ratios({0: 4 / 3, 1: 4 / 3}), 0.15, {}, 1.0)
+    assert size is not None and size.use and not size.sizes_m
+    assert size.size_m == pytest.approx(0.2, rel=1e-3)
+    one = marker_sizes_by_depth(ratios({0: 1.0, 1: 4 / 3, 2: 1.0}), 0.15, {}, 1.0)
+    assert one is not None and one.use and one.size_m == 0.15
+    assert one.sizes_m.keys() == {1} and one.sizes_m[1] == pytest.approx(0.2, rel=1e-3)
+    said = marker_sizes_by_depth(ratios({0: 4 / 3, 1: 4 / 3}), 0.15, {}, 4 / 3)
+    assert said is not None and not said.use  # --depth-scale says depth is the side that is off
+
+
+def test_a_wrong_marker_size_is_measured_by_depth(log: Path, clean: MapRun) -> None:
+    """--marker-size 0.15 on markers of 0.20 m: depth measures them 0.200 m (within 0.5 %),
+    that size is used and said, map.json carries it, and the map is the clean log's."""
+    run = map_log(log, MapConfig.from_values({"marker_size": 0.15}))
+    extraction = run.extraction
+    assert extraction.marker_size_m_used == pytest.approx(0.2, rel=5e-3)
+    assert extraction.marker_size_m_by_depth == extraction.marker_size_m_used
+    assert any("markers measure 0.200 m by depth (the given 0.15 m would put every range 25 % "
+               "short" in n for n in extraction.notes)  # fmt: skip
+    assert run.results[0].marker_map.marker_size_m == extraction.marker_size_m_used
+    assert moved_m(run, clean) < SAME_MAP_M
+    assert clean.extraction.marker_size_m_by_depth == pytest.approx(0.2, rel=5e-3)
+    assert clean.extraction.marker_size_m_used == 0.2
+
+
+def test_one_marker_of_another_size_is_measured(clean: MapRun, tmp_path: Path) -> None:
+    """Marker 1 printed at 0.15 m among markers of 0.20: depth measures it within 1 %, it alone
+    gets that size, and SLAM's map is as far from the truth as the clean log's, within 1 cm."""
+    world, route = scenario("paper-room")
+    markers = tuple(replace(m, size_m=0.15) if m.id == 1 else m for m in world.markers)
+    path = tmp_path / "mixed.mcap"
+    write_log(replace(world, markers=markers), route, path, seed=3, duration_s=20.0,
+              compressed=True, frame_hz=5.0)  # fmt: skip
+    run = map_log(path)
+    extraction = run.extraction
+    assert extraction.marker_size_m_used == 0.2
+    assert extraction.marker_sizes_m_used.keys() == {1}
+    assert extraction.marker_sizes_m_used[1] == pytest.approx(0.15, rel=0.01)
+    assert any(n.startswith("marker 1 measures 0.15") for n in extraction.notes)
+    assert marker_error_m(run) < marker_error_m(clean) + 0.01
+
+
+def test_without_depth_the_scale_rests_on_the_given_size(log: Path, tmp_path: Path) -> None:
+    """A log without its depth topic says that the map's scale rests on the given size."""
+    depthless = rewritten(log, tmp_path, lambda t, i, d: None if "depth" in t else d)
+    extraction = map_log(depthless).extraction
+    assert extraction.marker_size_m_by_depth is None
+    assert any(n.startswith("the map's scale rests on the given marker size (0.2 m") and
+               n.endswith("no depth to measure it") for n in extraction.notes)  # fmt: skip
