@@ -273,16 +273,13 @@ def prepare(
             "the log (a visual-inertial reset or relocalisation): that step is left to the "
             "observations"
         )
-    source, odometry_noise = config.odometry_noise(extraction.topics.odom)
+    evidence = extraction.odometry_evidence
+    source, odometry_noise = config.odometry_noise(extraction.topics.odom, evidence)
+    _, why = config.odometry_source(extraction.topics.odom, evidence)
     extraction.notes.append(
         f"odometry noise: the {source} model ({100 * odometry_noise.per_m:.1f} cm and "
         f"{math.degrees(odometry_noise.yaw_per_m):.2f} deg per sqrt(m), "
-        f"{math.degrees(odometry_noise.yaw_per_rad):.2f} deg per sqrt(rad) turned)"
-        + (
-            f", chosen by the name {extraction.topics.odom}"
-            if config.values["odometry.source"] == "auto"
-            else ""
-        )
+        f"{math.degrees(odometry_noise.yaw_per_rad):.2f} deg per sqrt(rad) turned): {why}"
     )
     breaks = [t for t, _ in jumps]
     if config.values["camera.delay_ms"] is None:

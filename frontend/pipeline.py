@@ -42,6 +42,7 @@ from markergraph.frontend.detect import Detector, DetectorMode
 from markergraph.frontend.inputs import CameraJudgement, judge_camera_info, odd_stamps
 from markergraph.frontend.marker_size import SizeByDepth, marker_sizes_by_depth
 from markergraph.frontend.observe import Flags, observe_detections, robust_least_squares
+from markergraph.frontend.odometry_kind import OdometryEvidence, odometry_evidence
 from markergraph.frontend.posed import (
     LEVEL_TOLERANCE_RAD,
     MAX_ATTITUDE_GAP_NS,
@@ -117,6 +118,8 @@ class Extraction:
             marker_sizes_m_by_depth: markers apart from the rest, by id [m].
         marker_size_ratio_by_depth: depth over PnP's range with the given size, None without
             enough depth.
+        odometry_evidence: what the odometry's first messages show of its kind (3-D motion,
+            rate, covariance); None for odometry from /tf.
         dropped_odometry_samples: odometry samples dropped as corrupt or with stamps their
             neighbours contradict (see ``notes``).
         worst_odometry_stamp_offset_s: the largest distance between a dropped odometry stamp
@@ -161,6 +164,7 @@ class Extraction:
     marker_size_m_by_depth: float | None = None
     marker_sizes_m_by_depth: dict[int, float] = field(default_factory=dict)
     marker_size_ratio_by_depth: float | None = None
+    odometry_evidence: OdometryEvidence | None = None
 
 
 @dataclass
@@ -1003,6 +1007,8 @@ def _extract_once(
                     progress(done * frames // len(spans), frames)
         part = _merge(parts)
     result = part.extraction
+    if choice.odom and counts.get(choice.odom):
+        result.odometry_evidence = odometry_evidence(path, choice.odom)
     if judgement is not None:
         result.camera_infos_judged = judgement.read
         result.camera_infos_set_aside = sum(judgement.set_aside.values())

@@ -268,3 +268,70 @@ def test_without_depth_the_scale_rests_on_the_given_size(log: Path, tmp_path: Pa
     assert extraction.marker_size_m_by_depth is None
     assert any(n.startswith("the map's scale rests on the given marker size (0.2 m") and
                n.endswith("no depth to measure it") for n in extraction.notes)  # fmt: skip
+
+
+# --- the odometry's kind --------------------------------------------------------------------
+
+TAGSLAM = Path(__file__).resolve().parents[2] / "shared" / "data" / "tagslam-test" / "tests"
+
+
+def test_planar_odometry_on_odom_is_wheel_odometry(clean: MapRun) -> None:
+    """The simulator's wheel odometry (z, roll, pitch exactly zero, covariance unset, 50 Hz) is
+    judged planar and gets the wheel model, with what decided it in the note."""
+    evidence = clean.extraction.odometry_evidence
+    assert evidence is not None and evidence.planar
+    assert evidence.max_tilt_rad == 0.0 and evidence.z_span_m == 0.0
+    assert evidence.covariance == "unset"
+    assert evidence.rate_hz == pytest.approx(50.0, rel=0.05)
+    assert clean.odometry_source == "wheel"
+    assert any(n.startswith("odometry noise: the wheel model") and "planar" in n
+               for n in clean.extraction.notes)  # fmt: skip
+
+
+def test_three_d_odometry_on_odom_is_visual_inertial(log: Path, tmp_path: Path) -> None:
+    """/odom rewritten to roll by up to 2 deg and rise by 5 cm with a set, constant covariance
+    (a VIO published under /odom): judged 3-D from its messages, not by its name, and gets
+    the VIO model; the evidence carries the injected figures."""
+    roll_rad, rise_m = np.radians(2.0), 0.05
+
+    def three_d(topic: str, i: int, decoded: Any) -> Any:
+        if topic == "/odom":
+            pose = decoded.pose.pose
+            half = roll_rad * np.sin(i / 25.0) / 2.0
+            q = pose.orientation  # yaw only: (0, 0, sz, cz); roll about the body's x after it
+            qz, qw = q.z, q.w
+            q.x, q.y, q.z, q.w = (
+                qw * np.sin(half),
+                qz * np.sin(half),
+                qz * np.cos(half),
+                (qw * np.cos(half)),
+            )
+            pose.position.z = rise_m * (i % 100) / 99.0
+            decoded.pose.covariance = [0.01 if k % 7 == 0 else 0.0 for k in range(36)]
+        return decoded
+
+    run = map_log(rewritten(log, tmp_path, three_d))
+    evidence = run.extraction.odometry_evidence
+    assert evidence is not None and not evidence.planar
+    assert evidence.max_tilt_rad == pytest.approx(roll_rad, rel=1e-3)
+    assert evidence.z_span_m == pytest.approx(rise_m, abs=1e-9)
+    assert evidence.covariance == "constant"
+    assert run.odometry_source == "vio"
+    assert any("the vio model" in n and "3-D motion" in n for n in run.extraction.notes)
+
+
+@pytest.mark.skipif(not TAGSLAM.is_dir(), reason="../shared/data/tagslam-test is absent")
+def test_tagslam_vio_republished_under_odom_is_visual_inertial(tmp_path: Path) -> None:
+    """TagSLAM test 21's basalt VIO, named /odom: its messages say 3-D (roll and pitch up to
+    98 deg, height over 0.44 m in its first 600 samples at 25 Hz, a constant placeholder
+    covariance), so the VIO model, whatever the name."""
+    from markergraph.datasets.tagslam import unpacked
+    from markergraph.frontend.odometry_kind import choose_odometry_source, odometry_evidence
+
+    bag = unpacked(TAGSLAM / "test_21", "tag_detections", tmp_path)
+    evidence = odometry_evidence(bag, "/vio_node/odom")
+    assert evidence is not None and evidence.samples == 600
+    assert evidence.rate_hz == pytest.approx(24.8, abs=0.1)
+    assert evidence.covariance == "constant"
+    source, why = choose_odometry_source(evidence, "/odom")
+    assert source == "vio" and why.startswith("3-D motion")
