@@ -276,6 +276,7 @@ def prepare(
     evidence = extraction.odometry_evidence
     source, odometry_noise = config.odometry_noise(extraction.topics.odom, evidence)
     _, why = config.odometry_source(extraction.topics.odom, evidence)
+    extraction.odometry_model_reason = why
     extraction.notes.append(
         f"odometry noise: the {source} model ({100 * odometry_noise.per_m:.1f} cm and "
         f"{math.degrees(odometry_noise.yaw_per_m):.2f} deg per sqrt(m), "

@@ -17,7 +17,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -120,6 +120,7 @@ class Extraction:
             enough depth.
         odometry_evidence: what the odometry's first messages show of its kind (3-D motion,
             rate, covariance); None for odometry from /tf.
+        odometry_model_reason: what chose the odometry's noise model (set when it is chosen).
         dropped_odometry_samples: odometry samples dropped as corrupt or with stamps their
             neighbours contradict (see ``notes``).
         worst_odometry_stamp_offset_s: the largest distance between a dropped odometry stamp
@@ -165,6 +166,27 @@ class Extraction:
     marker_sizes_m_by_depth: dict[int, float] = field(default_factory=dict)
     marker_size_ratio_by_depth: float | None = None
     odometry_evidence: OdometryEvidence | None = None
+    odometry_model_reason: str | None = None
+
+    def input_evidence(self) -> dict[str, Any]:
+        """What the front end judged of its inputs, JSON-ready (report.json's ``inputs``): what
+        it set aside and what it measured, for a verdict to weigh."""
+        evidence = self.odometry_evidence
+        return {
+            "dropped_odometry_samples": self.dropped_odometry_samples,
+            "worst_odometry_stamp_offset_s": self.worst_odometry_stamp_offset_s,
+            "frames_dropped_by_stamp": self.frames_dropped_by_stamp,
+            "camera_infos_judged": self.camera_infos_judged,
+            "camera_infos_set_aside": self.camera_infos_set_aside,
+            "camera_info_reasons": dict(self.camera_info_reasons),
+            "marker_size_m_used": self.marker_size_m_used,
+            "marker_sizes_m_used": {str(k): v for k, v in self.marker_sizes_m_used.items()},
+            "marker_size_m_by_depth": self.marker_size_m_by_depth,
+            "marker_size_ratio_by_depth": self.marker_size_ratio_by_depth,
+            "marker_sizes_m_by_depth": {str(k): v for k, v in self.marker_sizes_m_by_depth.items()},
+            "odometry_evidence": None if evidence is None else asdict(evidence),
+            "odometry_model_reason": self.odometry_model_reason,
+        }
 
 
 @dataclass
