@@ -63,7 +63,9 @@ def judge_camera_info(path: Path, topic: str, failures: DecodeFailures) -> Camer
             if len(models) >= CAMERA_INFOS_JUDGED:
                 break
     finally:
-        stream.close()
+        close = getattr(stream, "close", None)  # a generator: its file closed now, not at gc
+        if close is not None:
+            close()
     camera, set_aside = majority_camera(models)
     return CameraJudgement(camera, len(models), len(models) - sum(set_aside.values()), set_aside)
 

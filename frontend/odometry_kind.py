@@ -85,7 +85,9 @@ def odometry_evidence(path: Path, topic: str) -> OdometryEvidence | None:
     except LogError:
         return None
     finally:
-        stream.close()
+        close = getattr(stream, "close", None)  # a generator: its file closed now, not at gc
+        if close is not None:
+            close()
     if len(stamps) < 2:
         return None
     steps = np.diff(np.array(stamps, dtype=np.float64)) * 1e-9
