@@ -40,7 +40,7 @@ from markergraph.frontend.decode import (
 )
 from markergraph.frontend.detect import Detector, DetectorMode
 from markergraph.frontend.inputs import CameraJudgement, judge_camera_info, odd_stamps
-from markergraph.frontend.marker_size import SizeByDepth, marker_sizes_by_depth
+from markergraph.frontend.marker_size import SIZE_NOT_DEPTH, SizeByDepth, marker_sizes_by_depth
 from markergraph.frontend.observe import Flags, observe_detections, robust_least_squares
 from markergraph.frontend.odometry_kind import OdometryEvidence, odometry_evidence
 from markergraph.frontend.posed import (
@@ -654,7 +654,12 @@ def _merge(parts: list[_Part]) -> _Part:
 
 
 MIN_DEPTH_RATIOS = 20  # markers seen with depth before a depth scale is estimated
-MAX_DEPTH_SCALE_ERROR = 0.05  # beyond, the markers' size is more likely wrong than the depth
+# Depth over PnP's range is one ratio with two readings: the depth camera's scale, or the
+# markers' size. Beyond SIZE_NOT_DEPTH (5 %) it is taken as the size, which extract measures
+# and reads the log again with (marker_size.py says why); within it, as the depth's scale,
+# applied by auto beyond the measurement's own error (DEPTH_SCALE_RESOLUTION). A depth scale is
+# never set beyond it: a 25 % disagreement is a size, a 1 % one a depth camera.
+MAX_DEPTH_SCALE_ERROR = SIZE_NOT_DEPTH
 # A depth scale within this of 1 is left alone by auto: the measurement's own error. On the
 # independent generator's eight logs it read within 0.07 % of the truth, on our paper room's
 # within 0.1 %; on our office's ideal log of seed 4 -0.32 % (its markers seen from 2.4-6 m
