@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.frontend.camera import Camera, majority_camera
+from markergraph.frontend.observe import robust_least_squares
 from markergraph.frontend.sources import DecodeFailures, messages
 
 __all__ = ["CameraJudgement", "OddStamps", "judge_camera_info", "odd_stamps"]
@@ -103,10 +104,11 @@ def odd_stamps(stamps_ns: NDArray[np.int64], log_ns: NDArray[np.int64]) -> OddSt
        strictly rising run through them (not necessarily contiguous) is the majority's
        clock; a stamp off it (one stamped 1000 s late, after which every good stamp would
        seem to go backwards; a repeat) is dropped, not the many it would outvote.
-    2. Offset: a stamp's lead over its log time should match the others'. Beyond
-       :data:`MIN_STAMP_OFFSET_S` or :data:`STAMP_OFFSET_SIGMAS` robust sigmas from their
-       median, it is dropped (a first sample stamped 5 s early that order alone cannot see).
-       Skipped where a log's times are all equal (a bag written without them).
+    2. Offset: a stamp's lead over its log time should match the others' (a robust line in
+       log time, for clocks that drift). Beyond :data:`MIN_STAMP_OFFSET_S` and
+       :data:`STAMP_OFFSET_SIGMAS` robust sigmas from it, it is dropped (a first sample
+       stamped 5 s early, which order alone cannot see). Skipped where a log's times are all
+       equal (a detection log read without them).
 
     Args:
         stamps_ns: each message's header stamp, in log order [ns].
@@ -115,11 +117,14 @@ def odd_stamps(stamps_ns: NDArray[np.int64], log_ns: NDArray[np.int64]) -> OddSt
     n = len(stamps_ns)
     kept = np.zeros(n, dtype=bool)
     kept[_longest_rising(stamps_ns)] = True
-    offset = (stamps_ns - log_ns).astype(np.float64) * 1e-9
-    if n and np.ptp(log_ns) > 0:
-        median = float(np.median(offset[kept]))
-        spread = 1.4826 * float(np.median(np.abs(offset[kept] - median)))
-        kept &= np.abs(offset - median) <= max(MIN_STAMP_OFFSET_S, STAMP_OFFSET_SIGMAS * spread)
+    if np.count_nonzero(kept) >= 3 and np.ptp(log_ns) > 0:
+        # The lead over log time as a line in log time: a camera's own clock drifts against
+        # the recorder's by up to a few seconds an hour, which a constant would read as odd.
+        offset_s = (stamps_ns - log_ns).astype(np.float64) * 1e-9
+        A = np.column_stack([np.ones(n), (log_ns - log_ns[0]).astype(np.float64) * 1e-9])
+        line, _, sigma = robust_least_squares(A[kept], offset_s[kept], passes=3)
+        residual = np.abs(offset_s - A @ line)
+        kept &= residual <= max(MIN_STAMP_OFFSET_S, STAMP_OFFSET_SIGMAS * sigma)
     worst = 0.0
     if n and not kept.all() and kept.any():
         # Where the kept stamps put each message: interpolated by its place in the log.

@@ -82,6 +82,18 @@ def test_odd_stamps_keep_the_majority() -> None:
     assert judged.worst_offset_s == pytest.approx(1000.0, abs=EXACT)
 
 
+def test_odd_stamps_follow_a_drifting_clock() -> None:
+    """Stamps every 10 s on a camera clock that drifts 3 s over an hour against the log's are
+    all kept (a constant lead would set a third of them aside); one 2 s off that line, still
+    in order, is dropped."""
+    log_ns = np.arange(360, dtype=np.int64) * 10**10
+    stamps = log_ns + (log_ns * 3 // 3600)
+    stamps[180] += 2 * 10**9
+    judged = odd_stamps(stamps, log_ns)
+    assert np.flatnonzero(~judged.kept).tolist() == [180]
+    assert judged.worst_offset_s == pytest.approx(2.0, abs=0.01)
+
+
 def test_odd_stamps_without_log_times_judge_order_alone() -> None:
     """Log times all equal (none recorded): a stamp 5 s early at the start rises with the
     rest and is kept; one out of order is dropped."""
