@@ -129,6 +129,35 @@ def test_one_odd_odometry_stamp_costs_that_sample(
     assert marker_error_m(run) < marker_error_m(clean) + SAME_MAP_M
 
 
+def test_a_log_time_of_zero_in_a_sqlite_bag_costs_that_sample(
+    log: Path, clean: MapRun, tmp_path: Path
+) -> None:
+    """A .db3 bag whose 300th /odom message was logged at time 0 (so read first, 6 s before
+    its stamp's place): formerly the 300 samples before its stamp were dropped and SLAM placed
+    2 of 3 markers; now that sample alone is dropped and the map is the clean log's."""
+    from mcap.reader import make_reader
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    folder, seen = tmp_path / "bag", 0
+    with open(log, "rb") as stream, Writer(folder, version=8) as writer:
+        connections: dict[str, Any] = {}
+        for schema, channel, message in make_reader(stream).iter_messages():
+            if channel.topic not in connections:
+                connections[channel.topic] = writer.add_connection(
+                    channel.topic, schema.name, typestore=store
+                )
+            t_ns = message.log_time
+            if channel.topic == "/odom":
+                t_ns, seen = (0 if seen == 300 else t_ns), seen + 1
+            writer.write(connections[channel.topic], t_ns, message.data)
+    run = map_log(folder)
+    assert run.extraction.dropped_odometry_samples == 1
+    assert run.extraction.worst_odometry_stamp_offset_s == pytest.approx(6.0, abs=0.05)
+    assert moved_m(run, clean) < SAME_MAP_M
+
+
 def test_a_frame_stamped_seconds_off_costs_its_observations(
     log: Path, clean: MapRun, tmp_path: Path
 ) -> None:
