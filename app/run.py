@@ -161,13 +161,17 @@ def marker_map_of(
     log: str,
     config: MapConfig,
     heights: Mapping[int, MarkerHeight] | None = None,
+    extraction: Extraction | None = None,
 ) -> MarkerMap:
-    """An estimate's marker map with the settings' dictionary and marker sides."""
+    """An estimate's marker map with the settings' dictionary and the marker sides used: the
+    extraction's where given (depth may have measured them), else the settings'."""
     frontend = config.frontend
+    size_m, sizes_m = frontend.marker_length_m, frontend.marker_lengths_m
+    if extraction is not None and extraction.marker_size_m_used:
+        size_m, sizes_m = extraction.marker_size_m_used, extraction.marker_sizes_m_used
     return MarkerMap.from_estimate(
-        estimate, log=log, dictionary=frontend.dictionary,
-        marker_size_m=frontend.marker_length_m, marker_sizes_m=frontend.marker_lengths_m,
-        heights=heights,
+        estimate, log=log, dictionary=frontend.dictionary, marker_size_m=size_m,
+        marker_sizes_m=sizes_m, heights=heights,
     )  # fmt: skip
 
 
@@ -287,16 +291,14 @@ def prepare(
             "the log (a visual-inertial reset or relocalisation): that step is left to the "
             "observations"
         )
-    source, odometry_noise = config.odometry_noise(extraction.topics.odom)
+    evidence = extraction.odometry_evidence
+    source, odometry_noise = config.odometry_noise(extraction.topics.odom, evidence)
+    _, why = config.odometry_source(extraction.topics.odom, evidence)
+    extraction.odometry_model_reason = why
     extraction.notes.append(
         f"odometry noise: the {source} model ({100 * odometry_noise.per_m:.1f} cm and "
         f"{math.degrees(odometry_noise.yaw_per_m):.2f} deg per sqrt(m), "
-        f"{math.degrees(odometry_noise.yaw_per_rad):.2f} deg per sqrt(rad) turned)"
-        + (
-            f", chosen by the name {extraction.topics.odom}"
-            if config.values["odometry.source"] == "auto"
-            else ""
-        )
+        f"{math.degrees(odometry_noise.yaw_per_rad):.2f} deg per sqrt(rad) turned): {why}"
     )
     breaks = [t for t, _ in jumps]
     if config.values["camera.delay_ms"] is None:
@@ -392,7 +394,9 @@ def map_log(
         except EstimationError as error:
             raise EstimationError(f"{log}: {method.value}: {error}") from None
         seconds[method.value] = time.perf_counter() - start
-        result = MethodResult(method, estimate, marker_map_of(estimate, str(log), config, heights))
+        result = MethodResult(
+            method, estimate, marker_map_of(estimate, str(log), config, heights, extraction)
+        )
         _score(result, truth, true_path)
         results.append(result)
     return judge(MapRun(

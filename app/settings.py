@@ -12,7 +12,6 @@ Later sources win: defaults, then the file, then flags.
 from __future__ import annotations
 
 import math
-import re
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -24,6 +23,7 @@ from markergraph.estimator import ODOMETRY_NOISE, Method, OdometryNoise, Robust,
 from markergraph.frontend.camera import CameraMount
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.observe import DepthModel
+from markergraph.frontend.odometry_kind import OdometryEvidence, choose_odometry_source
 from markergraph.frontend.yaw import YawMethod
 
 __all__ = [
@@ -35,13 +35,6 @@ __all__ = [
     "map_config",
     "read_config_file",
 ]
-
-# Odometry sources by topic name: a RealSense T265's (/camera/odom/sample), then other
-# visual-inertial systems (basalt's /vio_node/odom, VINS, OpenVINS, OKVIS, ROVIO, Kimera, ZED).
-_SOURCE_BY_TOPIC = (
-    ("t265", re.compile(r"t265|odom/sample", re.I)),
-    ("vio", re.compile(r"vio|vins|basalt|okvis|msckf|rovio|kimera|zed", re.I)),
-)
 
 # With "all", SLAM comes first: the result folder's top-level files are its.
 ALL_METHODS = (Method.SLAM, Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.ISAM2, Method.EKF)
@@ -246,7 +239,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("noise.depth_max_m", DepthModel().max_range_m, _number(0.1, 1000.0),
             "depths beyond this are treated as no return [m]"),
     Setting("odometry.source", "auto", _text,
-            "the odometry's noise preset; auto: t265 or vio by the topic's name, else wheel",
+            "the odometry's noise preset; auto: by its messages (3-D motion: vio, or t265 by rate "
+            "or name; planar: wheel, unless the topic's name says vio or t265)",
             choices=["auto", *ODOMETRY_NOISE]),
     Setting("odometry.scale", None, _scale_or_auto,
             "what the odometry's distances are multiplied by (the wheels' radius error); auto "
@@ -355,14 +349,24 @@ class MapConfig:
         """Processes that decode and detect (None: as many as help)."""
         return cast("int | None", self.values["workers"])
 
-    def odometry_noise(self, topic: str | None = None) -> tuple[str, OdometryNoise]:
-        """The odometry source (``odometry.source``, or guessed from the odometry ``topic``) and
-        the noise model the estimators assume: its preset, with any ``noise.odometry_*`` given."""
+    def odometry_source(
+        self, topic: str | None = None, evidence: OdometryEvidence | None = None
+    ) -> tuple[str, str]:
+        """The odometry source and what decided it: ``odometry.source`` as set, or (auto) the
+        odometry's own messages (:func:`choose_odometry_source`: 3-D motion, rate, covariance;
+        the ``topic``'s name only as a tie-breaker or where there is no evidence)."""
+        source = self.values["odometry.source"]
+        if source != "auto":
+            return source, "set by odometry.source"
+        return choose_odometry_source(evidence, topic)
+
+    def odometry_noise(
+        self, topic: str | None = None, evidence: OdometryEvidence | None = None
+    ) -> tuple[str, OdometryNoise]:
+        """The odometry source (:meth:`odometry_source`) and the noise model the estimators
+        assume: its preset, with any ``noise.odometry_*`` given."""
         v = self.values
-        source = v["odometry.source"]
-        if source == "auto":
-            found = (name for name, pattern in _SOURCE_BY_TOPIC if pattern.search(topic or ""))
-            source = next(found, "wheel")
+        source, _ = self.odometry_source(topic, evidence)
         preset = ODOMETRY_NOISE[source]
         return source, OdometryNoise(
             *(

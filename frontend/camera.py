@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -12,7 +13,14 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["EQUIDISTANT", "PLUMB_BOB", "Camera", "CameraMount", "distortion_model"]
+__all__ = [
+    "EQUIDISTANT",
+    "PLUMB_BOB",
+    "Camera",
+    "CameraMount",
+    "distortion_model",
+    "majority_camera",
+]
 
 # Optical frame (x right, y down, z forward) axes expressed in a level, forward-looking base frame
 # (x forward, y left, z up): the columns are the optical x, y and z axes.
@@ -154,6 +162,97 @@ class Camera:
             undistorted = cv2.undistortPoints(points, self.K, coefficients, P=self.K)
         return np.asarray(undistorted, dtype=np.float64).reshape(-1, 2)
 
+    def implausible(self) -> str | None:
+        """Why this model cannot be the camera's, or None when it can: the image's own border
+        (:data:`BORDER_POINTS` points on each edge) must undistort to finite rays, in order
+        along each edge (a lens does not fold the image over), spanning a field of view of at
+        least :data:`MIN_FOV_RAD`, and those rays must project back through the model onto the
+        border within :data:`ROUND_TRIP_PX` (a model whose distortion throws the image's
+        corners far outside it does neither)."""
+        if self.width <= 0 or self.height <= 0:
+            return None  # no image size to judge against (some old bags leave it 0)
+        border = _border_pixels(self.width, self.height)
+        if self.model == EQUIDISTANT:
+            return self._implausible_fisheye(border)
+        rays = self.rays(border)
+        if not np.all(np.isfinite(rays)):
+            return "its undistortion of the image's border is not finite"
+        n = BORDER_POINTS
+        top, bottom = rays[:n, 0], rays[n : 2 * n, 0]
+        left, right = rays[2 * n : 3 * n, 1], rays[3 * n :, 1]
+        if not all(np.all(np.diff(edge) > 0) for edge in (top, bottom, left, right)):
+            return "its undistortion folds the image's border over (not monotone along an edge)"
+        x = rays[:, 0]
+        fov_rad = math.atan(float(x.max())) - math.atan(float(x.min()))
+        if fov_rad < MIN_FOV_RAD:
+            return f"a field of view of {math.degrees(fov_rad):.3g} deg across the image"
+        back = self.distort(rays)
+        miss_px = float(np.max(np.linalg.norm(back - border, axis=1)))
+        if not math.isfinite(miss_px) or miss_px > ROUND_TRIP_PX:
+            return (
+                f"its distortion maps the image's border up to {miss_px:.3g} px from where it "
+                "came from"
+            )
+        return None
+
+    def _implausible_fisheye(self, border: NDArray[np.float64]) -> str | None:
+        """:meth:`implausible` for the equidistant model, judged on its angles (a fisheye's
+        corners may lie beyond 90 degrees, where a ray's x/z means nothing): the distorted
+        angle ``theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8)`` must rise with the true
+        angle until it reaches the image's farthest border point, within 180 degrees."""
+        k = np.zeros(4)
+        k[: len(self.distortion)] = self.distortion[:4]
+        theta = np.linspace(0.0, math.pi, 3601)
+        t2 = theta * theta
+        with np.errstate(all="ignore"):
+            theta_d = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+            normal = (border - [self.cx, self.cy]) / [self.fx, self.fy]
+            r_d = np.hypot(normal[:, 0], normal[:, 1])
+        if not (np.all(np.isfinite(theta_d)) and np.all(np.isfinite(r_d))):
+            return "its model of the image's border is not finite"
+        beyond = np.flatnonzero(theta_d >= r_d.max())
+        if not beyond.size or not np.all(np.diff(theta_d[: beyond[0] + 1]) > 0):
+            return "its distortion does not reach the image's border with a lens that rises"
+        x = normal[:, 0]
+        fov_rad = float(np.interp(-x.min(), theta_d, theta) + np.interp(x.max(), theta_d, theta))
+        if fov_rad < MIN_FOV_RAD:
+            return f"a field of view of {math.degrees(fov_rad):.3g} deg across the image"
+        return None
+
+    def rays(self, pixels: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Pixels (N, 2) to normalised rays (N, 2): x/z and y/z in the optical frame."""
+        points = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        coefficients = np.array(self.distortion)
+        with np.errstate(all="ignore"):
+            if not self.distortion:
+                out = cv2.undistortPoints(points, self.K, None)
+            elif self.model == EQUIDISTANT:
+                out = cv2.fisheye.undistortPoints(points, self.K, coefficients)
+            else:
+                out = cv2.undistortPoints(points, self.K, coefficients)
+        return np.asarray(out, dtype=np.float64).reshape(-1, 2)
+
+    def distort(self, rays: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Normalised rays (N, 2) to pixels (N, 2) through the lens model."""
+        points = np.column_stack([rays, np.ones(len(rays))]).reshape(-1, 1, 3)
+        coefficients = np.array(self.distortion) if self.distortion else np.zeros(4)
+        zero = np.zeros(3)
+        with np.errstate(all="ignore"):
+            if self.model == EQUIDISTANT and self.distortion:
+                out, _ = cv2.fisheye.projectPoints(points, zero, zero, self.K, coefficients)
+            else:
+                out, _ = cv2.projectPoints(points, zero, zero, self.K, coefficients)
+        return np.asarray(out, dtype=np.float64).reshape(-1, 2)
+
+    def key(self) -> tuple[object, ...]:
+        """What two messages must share to describe the same camera (to 9 digits)."""
+        return (
+            self.model,
+            self.width,
+            self.height,
+            *(float(f"{v:.9g}") for v in (self.fx, self.fy, self.cx, self.cy, *self.distortion)),
+        )
+
     @property
     def K(self) -> NDArray[np.float64]:
         """The 3x3 intrinsic matrix."""
@@ -165,6 +264,53 @@ class Camera:
         return np.column_stack(
             [self.fx * p_optical[:, 0] / z + self.cx, self.fy * p_optical[:, 1] / z + self.cy]
         )
+
+
+BORDER_POINTS = 9  # points along each edge of the image that a model is judged on
+MIN_FOV_RAD = math.radians(1.0)  # narrower than any lens a robot maps with
+ROUND_TRIP_PX = 1.0  # undistorting then distorting the border returns it within this
+
+
+def _border_pixels(width: int, height: int) -> NDArray[np.float64]:
+    """:data:`BORDER_POINTS` pixels along the top, bottom, left and right edges, in order of
+    increasing u (top, bottom) or v (left, right); pixel centres 0 .. size - 1."""
+    u = np.linspace(0.0, width - 1.0, BORDER_POINTS)
+    v = np.linspace(0.0, height - 1.0, BORDER_POINTS)
+    zeros_u, zeros_v = np.zeros_like(u), np.zeros_like(v)
+    return np.vstack([
+        np.column_stack([u, zeros_u]),
+        np.column_stack([u, zeros_u + height - 1.0]),
+        np.column_stack([zeros_v, v]),
+        np.column_stack([zeros_v + width - 1.0, v]),
+    ])  # fmt: skip
+
+
+def majority_camera(
+    cameras: list[Camera | str],
+) -> tuple[Camera | None, dict[str, int]]:
+    """The camera model most of a topic's messages give, among those that can be a camera
+    (:meth:`Camera.implausible`), and why the others were set aside: reason -> count.
+
+    Args:
+        cameras: each message's model, or why it gave none (it did not parse).
+    """
+    set_aside: Counter[str] = Counter()
+    groups: dict[tuple[object, ...], list[Camera]] = {}
+    for camera in cameras:
+        if isinstance(camera, str):
+            set_aside[camera] += 1
+            continue
+        reason = camera.implausible()
+        if reason is not None:
+            set_aside[reason] += 1
+            continue
+        groups.setdefault(camera.key(), []).append(camera)
+    if not groups:
+        return None, dict(set_aside)
+    ranked = sorted(groups.values(), key=len, reverse=True)
+    for other in ranked[1:]:
+        set_aside["it disagrees with the majority's model"] += len(other)
+    return ranked[0][0], dict(set_aside)
 
 
 @dataclass(frozen=True, slots=True)

@@ -99,8 +99,12 @@ def _odometry(data: bytes) -> SimpleNamespace:
     reader = _Reader(data)
     header = reader.header()
     child = reader.string()
+    pose = reader.pose()
+    covariance = reader.unpack("d", 8, 36)  # row-major 6x6 over x, y, z, roll, pitch, yaw
     return SimpleNamespace(
-        header=header, child_frame_id=child, pose=SimpleNamespace(pose=reader.pose())
+        header=header,
+        child_frame_id=child,
+        pose=SimpleNamespace(pose=pose, covariance=covariance),
     )
 
 

@@ -203,13 +203,16 @@ def observe_detections(
     mount: CameraMount = CameraMount(),
     t_ns: int = 0,
     depth_ratios: list[tuple[int, float, float]] | None = None,
+    size_ratios: list[tuple[int, float]] | None = None,
 ) -> list[Observation]:
     """Observations of already detected markers; see :func:`observe`.
 
     ``depth_ratios``, when given, receives for each marker seen with depth and well placed for
     PnP (not grazing, not small, not at the image's edge) the stamp, its depth and its PnP
     distance: their ratio is what the depth camera reads per true metre, if the marker's size
-    is right.
+    is right. ``size_ratios`` receives the same markers' id and depth over PnP distance before
+    depth is judged against PnP (:data:`DEPTH_DISAGREES`): with a trusted depth camera, the
+    ratio times the marker's given size is its size, however wrong the given one.
     """
     observations = []
     R_base_optical = mount.R_base_optical
@@ -238,6 +241,10 @@ def observe_detections(
         # Depth is aligned to the colour image as recorded: look it up at the detected
         # (distorted) corners, not the undistorted ones.
         z = None if depth is None else _marker_depth(depth, detection.corners, depth_model)
+        well_placed = abs(theta) < GRAZING_RAD and not edge_flags
+        placed = well_placed and pose is not None and pose[1][2] > 0
+        if size_ratios is not None and z is not None and placed and pose is not None:
+            size_ratios.append((detection.marker_id, z / float(pose[1][2])))
         if (
             z is not None
             and pose is not None
@@ -259,7 +266,6 @@ def observe_detections(
             sigma_z = z * corner_sigma_px * math.sqrt(2.0) / ((left + right) / 2.0)
         else:
             sigma_z = depth_model.sigma(z)
-            well_placed = abs(theta) < GRAZING_RAD and not edge_flags
             if depth_ratios is not None and well_placed and pose is not None and pose[1][2] > 0:
                 depth_ratios.append((t_ns, z, float(pose[1][2])))
         # The centre in the base frame, then horizontal range and bearing from the camera.

@@ -17,7 +17,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +39,10 @@ from markergraph.frontend.decode import (
     stamp_ns,
 )
 from markergraph.frontend.detect import Detector, DetectorMode
+from markergraph.frontend.inputs import CameraJudgement, judge_camera_info, odd_stamps
+from markergraph.frontend.marker_size import SIZE_NOT_DEPTH, SizeByDepth, marker_sizes_by_depth
 from markergraph.frontend.observe import Flags, observe_detections, robust_least_squares
+from markergraph.frontend.odometry_kind import OdometryEvidence, odometry_evidence
 from markergraph.frontend.posed import (
     LEVEL_TOLERANCE_RAD,
     MAX_ATTITUDE_GAP_NS,
@@ -74,7 +77,6 @@ from markergraph.frontend.topics import (
 
 __all__ = ["Extraction", "available_cores", "extract"]
 
-MAX_WAITING_FRAMES = 30
 MAX_ATTITUDES = 64  # the latest odometry attitudes kept to level frames with
 SPANS_PER_WORKER = 4  # stretches of the log per worker: balances load, moves the progress bar
 
@@ -102,10 +104,32 @@ class Extraction:
         levelled_frames: frames observed through the odometry's attitude (a tilted base or a
             rolled camera) rather than as level.
         depth_ratios: each well-placed marker's stamp, depth and PnP distance.
+        size_ratios: each well-placed marker's id and depth over PnP distance, also where they
+            disagree by more than observe's gate (a wrong marker size).
         depth_scale: what depth was taken to read per true metre, as set or measured; the
             ranges from depth are divided by it.
         measured_depth_scale: what the markers' known size measured it to be, if enough
             markers were seen with depth.
+        marker_size_m_used: the markers' size the observations were made with [m];
+            marker_sizes_m_used: markers of their own size, by id [m].
+        marker_size_m_by_depth: the markers' size depth measures (the given size times
+            ``marker_size_ratio_by_depth`` where that clearly disagrees; see
+            :mod:`~markergraph.frontend.marker_size`), None without enough depth [m];
+            marker_sizes_m_by_depth: markers apart from the rest, by id [m].
+        marker_size_ratio_by_depth: depth over PnP's range with the given size, None without
+            enough depth.
+        odometry_evidence: what the odometry's first messages show of its kind (3-D motion,
+            rate, covariance); None for odometry from /tf.
+        odometry_model_reason: what chose the odometry's noise model (set when it is chosen).
+        dropped_odometry_samples: odometry samples dropped as corrupt or with stamps their
+            neighbours contradict (see ``notes``).
+        worst_odometry_stamp_offset_s: the largest distance between a dropped odometry stamp
+            and where the other stamps put it [s]; 0 when none was dropped for its stamp.
+        frames_dropped_by_stamp: colour frames whose stamp their neighbours contradict; their
+            observations are dropped.
+        camera_infos_set_aside: camera_info messages not believed (see
+            ``camera_info_reasons``), of ``camera_infos_judged``.
+        camera_info_reasons: why they were set aside -> how many.
     """
 
     observations: list[Observation]
@@ -127,8 +151,42 @@ class Extraction:
     depth_tries: int = 0
     levelled_frames: int = 0
     depth_ratios: list[tuple[int, float, float]] = field(default_factory=list)
+    size_ratios: list[tuple[int, float]] = field(default_factory=list)
     depth_scale: float = 1.0
     measured_depth_scale: float | None = None
+    dropped_odometry_samples: int = 0
+    worst_odometry_stamp_offset_s: float = 0.0
+    frames_dropped_by_stamp: int = 0
+    camera_infos_judged: int = 0
+    camera_infos_set_aside: int = 0
+    camera_info_reasons: dict[str, int] = field(default_factory=dict)
+    marker_size_m_used: float = 0.0
+    marker_sizes_m_used: dict[int, float] = field(default_factory=dict)
+    marker_size_m_by_depth: float | None = None
+    marker_sizes_m_by_depth: dict[int, float] = field(default_factory=dict)
+    marker_size_ratio_by_depth: float | None = None
+    odometry_evidence: OdometryEvidence | None = None
+    odometry_model_reason: str | None = None
+
+    def input_evidence(self) -> dict[str, Any]:
+        """What the front end judged of its inputs, JSON-ready (report.json's ``inputs``): what
+        it set aside and what it measured, for a verdict to weigh."""
+        evidence = self.odometry_evidence
+        return {
+            "dropped_odometry_samples": self.dropped_odometry_samples,
+            "worst_odometry_stamp_offset_s": self.worst_odometry_stamp_offset_s,
+            "frames_dropped_by_stamp": self.frames_dropped_by_stamp,
+            "camera_infos_judged": self.camera_infos_judged,
+            "camera_infos_set_aside": self.camera_infos_set_aside,
+            "camera_info_reasons": dict(self.camera_info_reasons),
+            "marker_size_m_used": self.marker_size_m_used,
+            "marker_sizes_m_used": {str(k): v for k, v in self.marker_sizes_m_used.items()},
+            "marker_size_m_by_depth": self.marker_size_m_by_depth,
+            "marker_size_ratio_by_depth": self.marker_size_ratio_by_depth,
+            "marker_sizes_m_by_depth": {str(k): v for k, v in self.marker_sizes_m_by_depth.items()},
+            "odometry_evidence": None if evidence is None else asdict(evidence),
+            "odometry_model_reason": self.odometry_model_reason,
+        }
 
 
 @dataclass
@@ -138,7 +196,11 @@ class _Part:
 
     extraction: Extraction
     odometry: list[OdometrySample] = field(default_factory=list)
+    odometry_log_ns: list[int] = field(default_factory=list)  # each sample's log time
     true_poses: list[OdometrySample] = field(default_factory=list)
+    true_pose_log_ns: list[int] = field(default_factory=list)
+    frame_stamps: list[tuple[int, int]] = field(default_factory=list)  # (stamp, log time)
+    observation_frames: list[tuple[int, int]] = field(default_factory=list)  # each one's frame
 
 
 @dataclass(frozen=True)
@@ -248,24 +310,22 @@ class _SpanReader:
         self.detector = _detector(config)
         self.model = config.observation_model
         self.attitudes: deque[tuple[int, NDArray[np.float64]]] = deque(maxlen=MAX_ATTITUDES)
-        self.done: set[str] = set()  # topics read as far as they need be
 
     def read(self, span: _Span, progress: Callable[[int, int], None] | None) -> _Part:
         left_out_before = Counter(self.detector.left_out)
         self._read_once_topics()
         streamed = [
             t
-            for t in (self.choice.color, self.choice.depth, self.choice.camera_info,
-                      self.choice.odom, TRUE_POSE)
+            for t in (self.choice.color, self.choice.depth, self.choice.odom, TRUE_POSE)
             if t and t in self.counts
-        ]  # fmt: skip
+        ]
         # Progress counts colour frames: what a person knows the log by.
         total, done, color = self.counts.get(self.choice.color or "", 0), 0, self.choice.color
         # Read a margin either side so frames at the span's edges still find their depth.
         margin = 3 * self.config.pair_tolerance_ns
         start = None if span.start_ns is None else span.start_ns - margin
         end = None if span.end_ns is None else span.end_ns + margin
-        stream = messages(self.path, streamed, self.read_failures, start, end, self.done)
+        stream = messages(self.path, streamed, self.read_failures, start, end)
         for item in read_ahead(_with_images(stream, color, span)):
             if isinstance(item, _Frame):
                 done += 1
@@ -306,6 +366,7 @@ class _SpanReader:
         """A colour frame inside the span."""
         decoded, t_ns = frame.message.decoded, stamp_ns(frame.message.decoded)
         self.part.extraction.frames += 1
+        self.part.frame_stamps.append((t_ns, frame.message.log_time_ns))
         self.image_frame = self.image_frame or frame_id(decoded)
         self.pairing.colour.append((t_ns, frame))
         self._drain(t_ns)
@@ -321,21 +382,16 @@ class _SpanReader:
                 result.unusable_depth += 1
                 self.failures.add(self.path, topic, str(error))
             self._drain(stamp_ns(decoded))
-        elif topic == choice.camera_info and result.camera is None:
-            try:
-                result.camera = self.config.camera or Camera.from_camera_info(decoded)
-            except ValueError as error:  # a later message may be whole
-                self.failures.add(self.path, topic, str(error))
-                return
-            self.done.add(topic)  # one whole camera_info is all it takes: skip the rest
-            self._drain(stamp_ns(decoded))
         elif topic == choice.odom:
             if message.schema.endswith("TFMessage"):
                 if inside:
-                    self.part.odometry += odometry_from_tf(decoded, self.config.base_frame)
+                    samples = odometry_from_tf(decoded, self.config.base_frame)
+                    self.part.odometry += samples
+                    self.part.odometry_log_ns += [message.log_time_ns] * len(samples)
                 return
             if inside:
                 self.part.odometry.append(odometry_sample(message))
+                self.part.odometry_log_ns.append(message.log_time_ns)
             self.odometry_frame = self.odometry_frame or getattr(decoded, "child_frame_id", None)
             pose = decoded.pose.pose if hasattr(decoded.pose, "pose") else decoded.pose
             R = rotation_of(pose.orientation)
@@ -346,16 +402,9 @@ class _SpanReader:
             self.part.true_poses.append(
                 OdometrySample(stamp_ns(decoded), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
             )
+            self.part.true_pose_log_ns.append(message.log_time_ns)
 
     def _drain(self, latest_ns: int, flush: bool = False) -> None:
-        # Frames wait for the camera info (it may come a message later), but not forever.
-        result = self.part.extraction
-        if result.camera is None:
-            pairing = self.pairing
-            while len(pairing.colour) > MAX_WAITING_FRAMES or (flush and pairing.colour):
-                pairing.colour.popleft()
-                result.skipped["no camera info before it"] += 1
-            return
         ready = self.pairing.ready(latest_ns, flush)
         if ready:
             self._settle_mount()
@@ -393,7 +442,8 @@ class _SpanReader:
     def _observe(self, t_ns: int, frame: _Frame, depth: NDArray | None) -> None:
         """One colour frame with its depth (if any) to observations; a bad frame costs itself."""
         result, choice, image = self.part.extraction, self.choice, frame.image
-        assert result.camera is not None  # _drain waits for it
+        assert result.camera is not None  # extract judged it before reading
+        key = (t_ns, frame.message.log_time_ns)
         if isinstance(image, LogError):
             result.undecodable_frames += 1
             result.skipped[f"colour image does not decode ({image})"] += 1
@@ -421,15 +471,17 @@ class _SpanReader:
                 if note not in result.notes:
                     result.notes.append(note)
             result.observations += observations
+            self.part.observation_frames += [key] * len(observations)
             return
         observations = observe_detections(
             detections, result.camera, self.model, depth=depth, mount=result.mount, t_ns=t_ns,
-            depth_ratios=result.depth_ratios,
+            depth_ratios=result.depth_ratios, size_ratios=result.size_ratios,
         )  # fmt: skip
         if depth is not None:
             result.depth_tries += len(observations)
             result.depth_misses += sum(Flags.NO_DEPTH in o.flags for o in observations)
         result.observations += observations
+        self.part.observation_frames += [key] * len(observations)
 
 
 def _from_detections(log: DetectionLog, choice: TopicChoice) -> _Part:
@@ -448,7 +500,8 @@ def _from_detections(log: DetectionLog, choice: TopicChoice) -> _Part:
         warnings=log.warnings,
         ids_left_out=log.ids_left_out,
     )
-    return _Part(extraction, log.odometry)
+    # A detection log's odometry carries no log times: its stamps are judged by order alone.
+    return _Part(extraction, log.odometry, [0] * len(log.odometry))
 
 
 def _read_span(
@@ -578,8 +631,12 @@ def _merge(parts: list[_Part]) -> _Part:
     for part in parts:
         piece = part.extraction
         result.observations += piece.observations
+        merged.observation_frames += part.observation_frames
         merged.odometry += part.odometry
+        merged.odometry_log_ns += part.odometry_log_ns
         merged.true_poses += part.true_poses
+        merged.true_pose_log_ns += part.true_pose_log_ns
+        merged.frame_stamps += part.frame_stamps
         result.frames += piece.frames
         result.frames_with_depth += piece.frames_with_depth
         result.skipped.update(piece.skipped)
@@ -592,11 +649,17 @@ def _merge(parts: list[_Part]) -> _Part:
         result.depth_tries += piece.depth_tries
         result.levelled_frames += piece.levelled_frames
         result.depth_ratios += piece.depth_ratios
+        result.size_ratios += piece.size_ratios
     return merged
 
 
 MIN_DEPTH_RATIOS = 20  # markers seen with depth before a depth scale is estimated
-MAX_DEPTH_SCALE_ERROR = 0.05  # beyond, the markers' size is more likely wrong than the depth
+# Depth over PnP's range is one ratio with two readings: the depth camera's scale, or the
+# markers' size. Beyond SIZE_NOT_DEPTH (5 %) it is taken as the size, which extract measures
+# and reads the log again with (marker_size.py says why); within it, as the depth's scale,
+# applied by auto beyond the measurement's own error (DEPTH_SCALE_RESOLUTION). A depth scale is
+# never set beyond it: a 25 % disagreement is a size, a 1 % one a depth camera.
+MAX_DEPTH_SCALE_ERROR = SIZE_NOT_DEPTH
 # A depth scale within this of 1 is left alone by auto: the measurement's own error. On the
 # independent generator's eight logs it read within 0.07 % of the truth, on our paper room's
 # within 0.1 %; on our office's ideal log of seed 4 -0.32 % (its markers seen from 2.4-6 m
@@ -671,6 +734,30 @@ def _correct_depth_scale(result: Extraction, configured: float | None, topic: st
     ]  # fmt: skip
 
 
+def _judged_camera(path: Path, choice: TopicChoice, counts: dict[str, int]) -> CameraJudgement:
+    """The camera model the log's camera_info messages agree on (:func:`judge_camera_info`).
+
+    Raises:
+        LogError: no camera info topic, or none of its messages gives a believable model.
+    """
+    topic = choice.camera_info
+    if topic is None:
+        raise LogError(
+            f"{path}: no camera intrinsics: no camera info topic found (pass --camera-info-topic)"
+        )
+    if not counts.get(topic):
+        raise LogError(f"{path}: no camera intrinsics: no messages on {topic}")
+    failures = DecodeFailures()
+    judgement = judge_camera_info(path, topic, failures)
+    if judgement.camera is None:
+        reasons = list(judgement.set_aside) + [w.partition(": ")[2] for w in failures.warnings()]
+        raise LogError(
+            f"{path}: no camera intrinsics: none of the first {judgement.read} messages on "
+            f"{topic} is believable ({'; '.join(reasons) or 'none decodes'})"
+        )
+    return judgement
+
+
 def _check_usable(path: Path, choice: TopicChoice, result: Extraction) -> None:
     """Bad messages cost their frames; but a topic of which nothing could be used is an error.
 
@@ -709,40 +796,95 @@ MAX_SPEED_MPS = 50.0
 MAX_COORDINATE_M = 1e7
 
 
+@dataclass(frozen=True)
+class _CleanPath:
+    """A path without its corrupted samples, and what was dropped."""
+
+    path: Trajectory
+    dropped: int
+    worst_stamp_offset_s: float
+
+
 def _clean_path(
-    samples: list[OdometrySample], topic: str | None, what: str, notes: list[str], frame: str
-) -> Trajectory:
+    samples: list[OdometrySample],
+    log_ns: list[int],
+    topic: str | None,
+    what: str,
+    notes: list[str],
+    frame: str,
+) -> _CleanPath:
     """A path without its corrupted samples, each kind dropped with a note naming the topic:
     one bad sample must not poison the map. Dropped: non-finite values (NaN, inf, a zero
-    quaternion), coordinates beyond 10,000 km, stamps that repeat or go backwards (a clock
-    reset, a replayed stretch), and single samples that jump away and back faster than
-    50 m/s."""
+    quaternion), coordinates beyond 10,000 km, stamps their neighbours contradict (out of the
+    order the others rise in, a repeat, or off the others' lead over their log times:
+    :func:`odd_stamps`, which keeps the majority rather than the first), and single samples
+    that jump away and back faster than 50 m/s.
+
+    Args:
+        samples: in log order; log_ns: each one's log time [ns].
+    """
     finite: list[OdometrySample] = []
-    absurd = backwards = 0
-    for sample in samples:
+    finite_log_ns: list[int] = []
+    absurd = 0
+    for sample, logged in zip(samples, log_ns, strict=True):
         values = (sample.x, sample.y, sample.yaw)
         if not all(math.isfinite(v) for v in values) or max(abs(sample.x), abs(sample.y)) > (
             MAX_COORDINATE_M
         ):
             absurd += 1
-        elif finite and sample.t_ns <= finite[-1].t_ns:
-            backwards += 1
         else:
             finite.append(sample)
+            finite_log_ns.append(logged)
+    judged = odd_stamps(
+        np.array([s.t_ns for s in finite], dtype=np.int64),
+        np.array(finite_log_ns, dtype=np.int64),
+    )
+    in_order = [s for s, kept in zip(finite, judged.kept, strict=True) if kept]
     kept = [
         sample
-        for i, sample in enumerate(finite)
-        if not (0 < i < len(finite) - 1 and _is_spike(finite[i - 1], sample, finite[i + 1]))
+        for i, sample in enumerate(in_order)
+        if not (0 < i < len(in_order) - 1 and _is_spike(in_order[i - 1], sample, in_order[i + 1]))
     ]
-    spikes = len(finite) - len(kept)
+    spikes = len(in_order) - len(kept)
     for n, why in (
         (absurd, "with NaN, infinite or absurd values"),
-        (backwards, "whose stamps repeat or go backwards"),
+        (
+            judged.dropped,
+            "whose stamps their neighbours contradict (out of order, repeated, or off the "
+            f"others' lead over their log times; the worst by {judged.worst_offset_s:.3g} s)",
+        ),
         (spikes, f"that jump away and back faster than {MAX_SPEED_MPS:g} m/s"),
     ):
         if n:
             notes.append(f"dropped {n} {what} sample(s) on {topic} {why}")
-    return Trajectory.from_samples(kept, frame)
+    dropped = absurd + judged.dropped + spikes
+    return _CleanPath(Trajectory.from_samples(kept, frame), dropped, judged.worst_offset_s)
+
+
+def _drop_frames_by_stamp(part: _Part, topic: str | None) -> None:
+    """Observations of colour frames whose stamps their neighbours contradict
+    (:func:`odd_stamps`) dropped, with a note: a frame stamped seconds off would put its
+    markers where the robot was not."""
+    result = part.extraction
+    if not part.frame_stamps:
+        return
+    stamps, logged = np.array(part.frame_stamps, dtype=np.int64).T
+    judged = odd_stamps(stamps, logged)
+    if not judged.dropped:
+        return
+    odd = {(int(t), int(g)) for t, g, k in zip(stamps, logged, judged.kept, strict=True) if not k}
+    result.frames_dropped_by_stamp = judged.dropped
+    if part.observation_frames:  # a detection log's observations carry no frames to judge
+        result.observations = [
+            o
+            for o, frame in zip(result.observations, part.observation_frames, strict=True)
+            if frame not in odd
+        ]
+    result.notes.append(
+        f"dropped the observations of {judged.dropped} frame(s) on {topic} whose stamps their "
+        "neighbours contradict (out of order, repeated, or off the others' lead over their log "
+        f"times; the worst by {judged.worst_offset_s:.3g} s)"
+    )
 
 
 def _is_spike(before: OdometrySample, sample: OdometrySample, after: OdometrySample) -> bool:
@@ -757,6 +899,82 @@ def _is_spike(before: OdometrySample, sample: OdometrySample, after: OdometrySam
 
 
 def extract(
+    path: Path,
+    config: FrontendConfig = FrontendConfig(),
+    progress: Callable[[int, int], None] | None = None,
+    workers: int | None = 1,
+) -> Extraction:
+    """Observations and odometry from a log (:func:`_extract_once`), read a second time with
+    the markers' size that depth measures when it clearly disagrees with the given one
+    (:func:`marker_sizes_by_depth`): a wrong size would scale every range from PnP and make
+    observe set every depth aside as disagreeing with it.
+
+    Args:
+        progress: called with (colour frames read, frames in all); twice over with a size
+            measured.
+        workers: see :func:`_extract_once`.
+
+    Raises:
+        LogError: the log cannot be read, has no camera, or nothing usable on a topic.
+        SettingsError: a bad dictionary, or allowed ids outside it.
+    """
+    path, given_m = Path(path), config.marker_length_m
+    result = _extract_once(path, config, progress, workers)
+    size = marker_sizes_by_depth(
+        result.size_ratios, config.marker_length_m, config.marker_lengths_m,
+        config.depth_scale or 1.0,
+    )  # fmt: skip
+    notes = []
+    if size is not None and size.use:
+        sizes_m = {**config.marker_lengths_m, **size.sizes_m}
+        notes = _size_notes(size, config)
+        config = replace(config, marker_length_m=size.size_m, marker_lengths_m=sizes_m)
+        result = _extract_once(path, config, progress, workers)
+    elif size is None and result.observations:
+        topic = result.topics.depth
+        notes.append(
+            f"the map's scale rests on the given marker size ({config.marker_length_m:g} m; "
+            "--marker-size sets it): "
+            + (
+                f"too few markers seen with depth on {topic} ({len(result.size_ratios)}) to "
+                "measure it"
+                if topic
+                else "no depth to measure it"
+            )
+        )
+    result.notes += notes
+    result.marker_size_m_used = config.marker_length_m
+    result.marker_sizes_m_used = dict(config.marker_lengths_m)
+    if size is not None:
+        result.marker_size_m_by_depth = given_m * size.ratio
+        result.marker_size_ratio_by_depth = size.ratio
+        result.marker_sizes_m_by_depth = dict(size.sizes_m)
+    return result
+
+
+def _size_notes(size: SizeByDepth, config: FrontendConfig) -> list[str]:
+    """What depth measured of the markers' size, and what is used."""
+    notes = []
+    if size.size_m != config.marker_length_m:
+        short = 100 * (1 - 1 / size.ratio)
+        notes.append(
+            f"markers measure {size.size_m:.3f} m by depth (the given {config.marker_length_m:g}"
+            f" m would put every range {abs(short):.0f} % {'short' if short > 0 else 'long'}; "
+            f"depth over PnP's range in {size.sightings} sightings, "
+            f"{100 * size.ratio_sigma:.2f} % error): using {size.size_m:.3f} m. A depth camera "
+            "is not this far off, a marker size can be: --marker-size sets the size, "
+            "--depth-scale K says depth reads K per true metre"
+        )
+    for marker_id, size_m in sorted(size.sizes_m.items()):
+        given = config.marker_lengths_m.get(marker_id, config.marker_length_m)
+        notes.append(
+            f"marker {marker_id} measures {size_m:.3f} m by depth, apart from the others "
+            f"(given {given:g} m): using {size_m:.3f} m for it"
+        )
+    return notes
+
+
+def _extract_once(
     path: Path,
     config: FrontendConfig = FrontendConfig(),
     progress: Callable[[int, int], None] | None = None,
@@ -789,6 +1007,10 @@ def extract(
     workers, why = choose_workers(counts.get(choice.color or "", 0), workers)
     if why is not None:
         notes.append(why)
+    judgement = None
+    if not choice.detections and config.camera is None:
+        judgement = _judged_camera(path, choice, counts)
+        config = replace(config, camera=judgement.camera)
     if choice.detections:
         part = _from_detections(read_detection_log(path, config, choice, topics), choice)
     elif workers <= 1:
@@ -812,10 +1034,27 @@ def extract(
                     progress(done * frames // len(spans), frames)
         part = _merge(parts)
     result = part.extraction
+    if choice.odom and counts.get(choice.odom):
+        result.odometry_evidence = odometry_evidence(path, choice.odom)
+    if judgement is not None:
+        result.camera_infos_judged = judgement.read
+        result.camera_infos_set_aside = sum(judgement.set_aside.values())
+        result.camera_info_reasons = judgement.set_aside
+        note = judgement.note(choice.camera_info or "")
+        if note is not None:
+            notes.append(note)
     result.notes = notes + result.notes
     _check_usable(path, choice, result)
-    result.odometry = _clean_path(part.odometry, choice.odom, "odometry", result.notes, "odom")
-    result.true_path = _clean_path(part.true_poses, TRUE_POSE, "ground-truth", result.notes, "map")
+    _drop_frames_by_stamp(part, choice.color)
+    odometry = _clean_path(
+        part.odometry, part.odometry_log_ns, choice.odom, "odometry", result.notes, "odom"
+    )
+    result.odometry = odometry.path
+    result.dropped_odometry_samples = odometry.dropped
+    result.worst_odometry_stamp_offset_s = odometry.worst_stamp_offset_s
+    result.true_path = _clean_path(
+        part.true_poses, part.true_pose_log_ns, TRUE_POSE, "ground-truth", result.notes, "map"
+    ).path
     _correct_depth_scale(result, config.depth_scale, choice.depth)
     if result.depth_misses:
         result.notes.append(

@@ -28,6 +28,7 @@ from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_depth, decode_image, frame_id
 from markergraph.frontend.detect import Detector
+from markergraph.frontend.inputs import judge_camera_info
 from markergraph.frontend.rig import read_kalibr_cameras
 from markergraph.frontend.sources import (
     DecodeFailures,
@@ -347,23 +348,22 @@ def _chain(static: list[Any], bases: tuple[str | None, ...], frame: str) -> tupl
 
 
 def _intrinsics_of(path: Path, topic: str, blockers: list[str]) -> Intrinsics | None:
-    """The first usable intrinsics on a camera info topic, else a blocker saying why."""
-    found = _first(path, topic)
-    reasons = []
-    for message in found:
+    """The intrinsics the front end will use: the model most of the topic's first camera_info
+    messages agree on (:func:`judge_camera_info`), else a blocker saying why none is."""
+    judgement = judge_camera_info(path, topic, DecodeFailures())
+    if judgement.camera is None:
+        reasons = "; ".join(judgement.set_aside) or f"no message on {topic} decodes"
+        blockers.append(f"no camera intrinsics ({reasons} on {topic})")
+        return None
+    name = judgement.camera.model  # the name the front end reads it by
+    for message in _first(path, topic):
         try:
-            camera = Camera.from_camera_info(message.decoded)
-        except ValueError as error:  # the front end takes the next one: so do we
-            reasons.append(str(error))
+            if Camera.from_camera_info(message.decoded) == judgement.camera:
+                name = str(getattr(message.decoded, "distortion_model", "") or "") or "none"
+                break
+        except ValueError:
             continue
-        name = str(getattr(message.decoded, "distortion_model", "") or "")
-        return Intrinsics(topic, camera, name or "none")
-    blockers.append(
-        f"no camera intrinsics ({reasons[0]} on {topic})"
-        if reasons
-        else f"no camera intrinsics (no message on {topic} decodes)"
-    )
-    return None
+    return Intrinsics(topic, judgement.camera, name)
 
 
 def _image(message: Message, depth: bool) -> ImageStats:

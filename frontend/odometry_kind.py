@@ -1,0 +1,144 @@
+"""What kind of odometry a topic carries, from its messages rather than its name: wheel
+odometry is planar (z, roll and pitch all zero), a visual-inertial estimate moves in 3-D; how
+often it publishes, and whether its covariance is set or a placeholder."""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from markergraph.frontend.sources import DecodeFailures, LogError, messages
+from markergraph.frontend.tf import rotation_of
+
+__all__ = ["OdometryEvidence", "choose_odometry_source", "odometry_evidence"]
+
+SAMPLES_JUDGED = 600  # the first samples read (12 s at 50 Hz): enough to see a rig's tilt
+# A planar estimate keeps z, roll and pitch at zero; a wheel base's own odometry does so exactly,
+# a 3-D estimate of a base on a flat floor still wobbles by more than this.
+PLANAR_TILT_RAD = math.radians(0.5)
+PLANAR_Z_M = 0.01
+T265_RATE_HZ = 150.0  # a RealSense T265 publishes its pose at 200 Hz; VIO at camera rate
+# Sources by topic name, the tie-breaker: a RealSense T265's (/camera/odom/sample), then other
+# visual-inertial systems (basalt's /vio_node/odom, VINS, OpenVINS, OKVIS, ROVIO, Kimera, ZED).
+SOURCE_BY_TOPIC = (
+    ("t265", re.compile(r"t265|odom/sample", re.I)),
+    ("vio", re.compile(r"vio|vins|basalt|okvis|msckf|rovio|kimera|zed", re.I)),
+)
+
+
+@dataclass(frozen=True)
+class OdometryEvidence:
+    """What a nav_msgs/Odometry topic's first messages show of its kind.
+
+    Attributes:
+        samples: messages judged (the first :data:`SAMPLES_JUDGED`).
+        rate_hz: their median rate [Hz].
+        z_span_m: the spread of their height [m].
+        max_tilt_rad: the largest angle of the body's z axis from the odometry frame's [rad].
+        covariance: ``"unset"`` (all zeros), ``"constant"`` (the same in every message: a
+            placeholder) or ``"varying"``.
+        xy_variance_per_m: with a varying covariance, how its position variance grows with
+            the distance travelled [m^2 per m]; None otherwise or where it does not grow.
+    """
+
+    samples: int
+    rate_hz: float
+    z_span_m: float
+    max_tilt_rad: float
+    covariance: str
+    xy_variance_per_m: float | None = None
+
+    @property
+    def planar(self) -> bool:
+        return self.max_tilt_rad <= PLANAR_TILT_RAD and self.z_span_m <= PLANAR_Z_M
+
+
+def odometry_evidence(path: Path, topic: str) -> OdometryEvidence | None:
+    """The evidence of a topic's first :data:`SAMPLES_JUDGED` messages; None where they are not
+    nav_msgs/Odometry (odometry from /tf) or fewer than two decode."""
+    stamps, z, tilt, position, variance = [], [], [], [], []
+    stream = messages(path, [topic], DecodeFailures())
+    try:
+        for message in stream:
+            pose_with_covariance = getattr(message.decoded, "pose", None)
+            pose = getattr(pose_with_covariance, "pose", None)
+            if pose is None:
+                return None  # not nav_msgs/Odometry
+            R = rotation_of(pose.orientation)
+            p = pose.position
+            if R is None or not all(math.isfinite(float(v)) for v in (p.x, p.y, p.z)):
+                continue
+            stamps.append(message.log_time_ns)
+            z.append(float(p.z))
+            tilt.append(math.acos(max(-1.0, min(1.0, float(R[2, 2])))))
+            position.append((float(p.x), float(p.y)))
+            covariance = np.asarray(
+                getattr(pose_with_covariance, "covariance", ()), dtype=np.float64
+            ).ravel()
+            variance.append(covariance[[0, 7]].sum() if covariance.size == 36 else 0.0)
+            if len(stamps) >= SAMPLES_JUDGED:
+                break
+    except LogError:
+        return None
+    finally:
+        close = getattr(stream, "close", None)  # a generator: its file closed now, not at gc
+        if close is not None:
+            close()
+    if len(stamps) < 2:
+        return None
+    steps = np.diff(np.array(stamps, dtype=np.float64)) * 1e-9
+    rate_hz = 1.0 / float(np.median(steps)) if np.median(steps) > 0 else math.inf
+    variances = np.array(variance)
+    if not np.all(np.isfinite(variances)) or not np.any(variances):
+        kind, per_m = "unset", None
+    elif np.ptp(variances) <= 1e-12 * max(1.0, float(np.max(np.abs(variances)))):
+        kind, per_m = "constant", None
+    else:
+        kind = "varying"
+        travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(position, axis=0).T))])
+        per_m = None
+        if travelled[-1] > 0.5:  # a slope over half a metre or more
+            slope = float(np.polyfit(travelled, variances / 2.0, 1)[0])
+            per_m = slope if slope > 0 else None
+    return OdometryEvidence(len(stamps), rate_hz, float(np.ptp(z)), float(max(tilt)), kind, per_m)
+
+
+def choose_odometry_source(evidence: OdometryEvidence | None, topic: str | None) -> tuple[str, str]:
+    """The odometry's noise preset (``wheel``, ``vio``, ``t265``) and what decided it: 3-D
+    motion (roll, pitch or height) makes it visual-inertial, and then a T265's rate or name a
+    T265; planar motion makes it wheel odometry unless the topic's name says otherwise (a VIO
+    may publish its pose flattened); without evidence, the name alone."""
+    by_name = next((name for name, p in SOURCE_BY_TOPIC if p.search(topic or "")), None)
+    if evidence is None:
+        return by_name or "wheel", (
+            f"chosen by the name {topic}" if by_name else "no nav_msgs/Odometry to judge"
+        )
+    seen = (
+        f"{evidence.samples} samples at {evidence.rate_hz:.0f} Hz, roll and pitch up to "
+        f"{math.degrees(evidence.max_tilt_rad):.1f} deg, z over {evidence.z_span_m:.2f} m, "
+        + {
+            "unset": "covariance unset",
+            "constant": "covariance a constant placeholder",
+            "varying": "covariance set"
+            + (
+                f" (position sigma {100 * math.sqrt(evidence.xy_variance_per_m):.1f} cm per "
+                "sqrt(m))"
+                if evidence.xy_variance_per_m
+                else ""
+            ),
+        }[evidence.covariance]
+    )
+    if not evidence.planar:
+        fast = evidence.rate_hz >= T265_RATE_HZ
+        source = "t265" if by_name == "t265" or fast else "vio"
+        why = "3-D motion: a visual-inertial estimate, wheel odometry is planar"
+        if source == "t265":
+            why += "; a T265 " + ("by its rate" if fast else f"by the name {topic}")
+        return source, f"{why} ({seen})"
+    if by_name is not None:
+        return by_name, f"planar like wheel odometry, but chosen by the name {topic} ({seen})"
+    return "wheel", f"planar: wheel odometry ({seen})"
