@@ -24,6 +24,7 @@ from markergraph.frontend.camera import CameraMount
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.observe import DepthModel
 from markergraph.frontend.odometry_kind import OdometryEvidence, choose_odometry_source
+from markergraph.frontend.rig import read_tagslam
 from markergraph.frontend.yaw import YawMethod
 
 __all__ = [
@@ -271,6 +272,17 @@ SETTINGS: tuple[Setting, ...] = (
 _BY_KEY = {s.key: s for s in SETTINGS}
 
 
+def _with_rig_defaults(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The settings a rig file gives where the user gave none: a TagSLAM ``tagslam.yaml``'s
+    ``default_tag_size`` is the marker size (the tags it sizes one by one keep theirs)."""
+    given = dict(values)
+    if given.get("rig.tagslam") and "marker_size" not in given:
+        default = read_tagslam(Path(given["rig.tagslam"])).default_tag_size_m
+        if default is not None:
+            given["marker_size"] = default
+    return given
+
+
 @dataclass(frozen=True)
 class MapConfig:
     """Everything the main job needs besides the log and the output folder: every setting,
@@ -283,7 +295,7 @@ class MapConfig:
     values: Mapping[str, Any]
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "values", _complete(self.values))
+        object.__setattr__(self, "values", _complete(_with_rig_defaults(self.values)))
         if self.values["overlay.map_frame"] == self.values["overlay.odom_frame"]:
             raise SettingsError(
                 f"overlay.map_frame and overlay.odom_frame are both "

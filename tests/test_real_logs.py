@@ -100,9 +100,13 @@ def detection_log(test: str, bags: Path, **extra: Any) -> DetectionLog:
 def test_stairs_recording_maps_to_tagslams_map(bags: Path) -> None:
     """Test 21 (a hand-held T265 with VIO up a staircase): every wall tag TagSLAM mapped is
     mapped, the floor tag is left out and said so, and SLAM, the marker graph and the closed
-    form agree with TagSLAM's map to the measured figures."""
-    run = mg.map_log(unpacked("test_21", "tag_detections", bags), settings("test_21", **{
-        "marker_size": 0.16}))  # fmt: skip
+    form agree with TagSLAM's map to the measured figures. The tags' size comes from
+    tagslam.yaml's default_tag_size (0.16 m), and every method's verdict is ok."""
+    run = mg.map_log(unpacked("test_21", "tag_detections", bags), settings("test_21"))
+    assert run.config.values["marker_size"] == 0.16
+    assert {r.label: r.judgement.verdict.value for r in run.results} == dict.fromkeys(
+        ("slam", "closed-form", "marker-graph", "isam2", "ekf"), "ok"
+    ), run.judgement.reasons
     reference = reference_wall_tags(unpacked("test_21", "reference", bags))
     assert len(reference) == 22
     for result in run.results:
@@ -194,8 +198,9 @@ def test_outdoor_recording_and_tagslams_odometry_convention(bags: Path) -> None:
     tags come out 0.4 cm from TagSLAM's, which they do only if T_body_odom is the odometry's
     body in the rig (the inverse reading puts them 57 cm off); their yaw within 0.3 deg under the
     T265 noise model the topic's name selects (7.6 deg under the wheel model, 12.8 under VIO's)."""
-    run = mg.map_log(unpacked("test_22", "tag_detections", bags), settings("test_22", **{
-        "marker_size": 0.42}))  # fmt: skip
+    run = mg.map_log(unpacked("test_22", "tag_detections", bags), settings("test_22"))
+    assert run.config.values["marker_size"] == 0.42  # tagslam.yaml's default_tag_size
+    assert run.judgement.verdict.value == "ok", run.judgement.reasons
     reference = reference_wall_tags(unpacked("test_22", "reference", bags))
     assert set(reference) == {2, 3}
     assert errors(run, reference)["slam"] < TWO_TAGS_RMSE_22_M
