@@ -210,7 +210,6 @@ def messages(
     failures: DecodeFailures | None = None,
     start_ns: int | None = None,
     end_ns: int | None = None,
-    done: Collection[str] = (),
 ) -> Iterator[Message]:
     """Decoded messages of the given topics, file after file, in log-time order within each.
 
@@ -219,9 +218,7 @@ def messages(
     ``start_ns``/``end_ns`` only log times in [start, end) are read, from the chunks holding
     them. With ``failures``, a message that does not decode is skipped and counted there, and
     so are a damaged chunk's messages (a damaged stretch of a long log costs that stretch);
-    without it, either raises. In an MCAP log, topics in ``done`` (which the caller may grow
-    while reading: a camera_info once the camera is known) are passed over undecoded; a bag
-    yields them still.
+    without it, either raises.
 
     Raises:
         LogError: an unreadable file, a channel whose encoding or schema cannot be decoded, or
@@ -237,8 +234,6 @@ def messages(
             for schema, channel, message in _raw_messages(
                 file, stream, topics, start_ns, end_ns, failures
             ):
-                if channel.topic in done:
-                    continue
                 decode = decoders.get(channel.id)
                 if decode is None:
                     decode = _decoder_for(file, channel, schema, factory)
