@@ -173,8 +173,9 @@ for (name, label), f in summary.items():
 # %% [markdown]
 # "in 95%" is the share of true markers (home aside, which defines the map frame) inside each
 # method's 95 % position ellipse (`estimator.metrics.ellipse_coverage`): 95 % for honest
-# covariances. Where it falls short on the corridor loop, the wheels' systematic errors are the
-# cause: the odometry model, shared by every method, does not describe them.
+# covariances. Over more seeds the EKF's falls short on the corridor loop (65 % over 10 seeds in
+# `tests/benchmarks/drift_study.py`): the wheels' systematic errors bring the robot back to home
+# up to 10 deg off, and the filter corrects the markers it placed on the way to first order only.
 
 # %% [markdown]
 # ## One run, drawn

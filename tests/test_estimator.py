@@ -546,8 +546,8 @@ def test_marker_graph_links_are_consistent_with_the_truth(noisy_run: SimulatedRu
 
 
 def test_iterated_ekf_update_lands_on_the_gauss_newton_optimum() -> None:
-    """With the robot's yaw uncertain by 10 deg, one update equals the minimum of prior plus
-    observation (Gauss-Newton to convergence) to 1e-9, where one linearisation misses it."""
+    """With the robot's yaw uncertain by 10 deg, one update lands on the minimum of prior plus
+    observation (Gauss-Newton to convergence), where one linearisation misses it."""
     rng = np.random.default_rng(3)
     ekf = MarkerEkf(MOUNT, 0, np.array([-2.0, 0.5, 0.2]))
     ekf.kf.P = np.diag([0.05, 0.05, math.radians(10.0) ** 2])
@@ -571,8 +571,9 @@ def test_iterated_ekf_update_lands_on_the_gauss_newton_optimum() -> None:
     y[:2] = np.arctan2(np.sin(y[:2]), np.cos(y[:2]))
     linear = prior + P @ H.T @ np.linalg.solve(H @ P @ H.T + R, y)
     ekf.update(obs)
-    np.testing.assert_allclose(ekf.robot, x, atol=EXACT_ALGEBRA)
-    assert np.max(np.abs(linear[:2] - x[:2])) > 1e-4  # the single linearisation is off
+    # It stops once a step is under 1 mm: within a tenth of that, 2 % of the range's sigma.
+    np.testing.assert_allclose(ekf.robot, x, atol=1e-4)
+    assert np.max(np.abs(linear[:2] - x[:2])) > 0.1  # the single linearisation is metres off
 
 
 # --- covariance coverage ----------------------------------------------------------------------
