@@ -42,6 +42,18 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         "odometry_source": run.odometry_source,
         "odometry_scale": run.odometry_scale,
         "levelled_frames": extraction.levelled_frames,
+        "marker_detections": {
+            str(i): {
+                "detections": c.detections,
+                "dropped": c.dropped,
+                "off_wall": c.off_wall,
+                "no_pose": c.no_pose,
+                "corners_reversed": c.rewound,
+                "left_out": c.left_out,
+            }
+            for i, c in sorted(extraction.marker_detections.items())
+        },
+        "inputs": extraction.input_evidence(),
         "notes": extraction.notes + extraction.warnings,
         "ground_truth": bool(run.true_markers),
         "seconds": run.seconds,

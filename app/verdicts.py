@@ -23,8 +23,9 @@ The evidence, and why each check is set where it is:
 * **Ellipses larger than the map.** A marker whose 95 % ellipse is longer than the whole map is
   not located by the data: the estimate there is a guess, however well it fits.
 * **Markers left unplaced**, **an optimiser that did not converge**, **frames that do not
-  decode**, **searches that stopped at the end of their range** (the camera's delay, the
-  odometry's scale), and **depth against PnP** (the marker size) come from the run itself.
+  decode or whose stamps their neighbours contradict**, **odometry samples dropped**,
+  **searches that stopped at the end of their range** (the camera's delay, the odometry's
+  scale), and **depth that finds no marker** come from the run itself.
 
 A check that cannot be made (one method alone, no covariance) adds no reason: a verdict says
 what the evidence shows, not what it cannot see.
@@ -66,6 +67,7 @@ ELLIPSE_SIGMAS = math.sqrt(5.991)  # 95 % for 2 dof
 BEHIND_SHARE = 0.5  # a marker seen from behind its face in most of its sightings faces away
 BEHIND_MIN_SIGHTINGS = 3
 DROPPED_SHARE_SUSPECT = 0.10  # of colour frames that do not decode
+DROPPED_ODOMETRY_SUSPECT = 0.05  # of odometry samples: a gap of one in twenty is no harm
 DEPTH_MISS_SHARE_SUSPECT = 0.5  # of observations that tried depth
 
 
@@ -333,6 +335,22 @@ def _input_reasons(
             "dropped", 100 * dropped / read,
             f"{100 * dropped / read:.0f} % of the colour frames do not decode ({dropped} of "
             f"{read})",
+        ))  # fmt: skip
+    bad_stamps = extraction.frames_dropped_by_stamp
+    if read and bad_stamps / read > DROPPED_SHARE_SUSPECT:
+        reasons.append(_suspect(
+            "dropped", 100 * bad_stamps / read,
+            f"{100 * bad_stamps / read:.0f} % of the colour frames have stamps their neighbours "
+            f"contradict ({bad_stamps} of {read})",
+        ))  # fmt: skip
+    samples = len(extraction.odometry) + extraction.dropped_odometry_samples
+    if samples and extraction.dropped_odometry_samples / samples > DROPPED_ODOMETRY_SUSPECT:
+        share = extraction.dropped_odometry_samples / samples
+        reasons.append(_suspect(
+            "dropped", 100 * share,
+            f"{100 * share:.0f} % of the odometry samples were dropped as corrupt or out of "
+            f"time ({extraction.dropped_odometry_samples} of {samples}): the path between "
+            "the rest is interpolated",
         ))  # fmt: skip
     if extraction.depth_tries and extraction.depth_misses / extraction.depth_tries > (
         DEPTH_MISS_SHARE_SUSPECT

@@ -47,8 +47,12 @@ from markergraph.frontend.posed import (
     LEVEL_TOLERANCE_RAD,
     MAX_ATTITUDE_GAP_NS,
     LevelledCamera,
+    LevelledFrame,
+    MarkerDetections,
+    drop_notes,
     levelled_view,
-    observe_levelled,
+    observe_levelled_frame,
+    tally_detections,
 )
 from markergraph.frontend.ros2 import yaw_from_quaternion
 from markergraph.frontend.sources import (
@@ -103,6 +107,9 @@ class Extraction:
             pixel (0, NaN, negative or beyond the depth model's range), of ``depth_tries``.
         levelled_frames: frames observed through the odometry's attitude (a tilted base or a
             rolled camera) rather than as level.
+        levelled: those frames' detections, kept and dropped, until they are tallied.
+        marker_detections: per marker observed from its full pose, its detections and how many
+            were dropped (off a wall, no pose) or read with their corners reversed.
         depth_ratios: each well-placed marker's stamp, depth and PnP distance.
         size_ratios: each well-placed marker's id and depth over PnP distance, also where they
             disagree by more than observe's gate (a wrong marker size).
@@ -150,6 +157,8 @@ class Extraction:
     depth_misses: int = 0
     depth_tries: int = 0
     levelled_frames: int = 0
+    levelled: list[LevelledFrame] = field(default_factory=list, repr=False)
+    marker_detections: dict[int, MarkerDetections] = field(default_factory=dict)
     depth_ratios: list[tuple[int, float, float]] = field(default_factory=list)
     size_ratios: list[tuple[int, float]] = field(default_factory=list)
     depth_scale: float = 1.0
@@ -464,12 +473,10 @@ class _SpanReader:
         if view is not None:
             # A tilted base (a ramp, a hand-held rig) or a rolled camera: each marker's full
             # pose from its corners, turned into the level frame.
-            observations, left_out = observe_levelled(detections, view, self.model, t_ns)
+            frame = observe_levelled_frame(detections, view, self.model, t_ns)
+            observations = frame.observations
             result.levelled_frames += 1
-            for marker_id, reason in left_out.items():
-                note = f"marker {marker_id} left out of the 2-D map: {reason}"
-                if note not in result.notes:
-                    result.notes.append(note)
+            result.levelled.append(frame)  # tallied once the log is read: drop_notes
             result.observations += observations
             self.part.observation_frames += [key] * len(observations)
             return
@@ -499,6 +506,7 @@ def _from_detections(log: DetectionLog, choice: TopicChoice) -> _Part:
         notes=log.notes,
         warnings=log.warnings,
         ids_left_out=log.ids_left_out,
+        marker_detections=log.marker_detections,
     )
     # A detection log's odometry carries no log times: its stamps are judged by order alone.
     return _Part(extraction, log.odometry, [0] * len(log.odometry))
@@ -648,6 +656,7 @@ def _merge(parts: list[_Part]) -> _Part:
         result.depth_misses += piece.depth_misses
         result.depth_tries += piece.depth_tries
         result.levelled_frames += piece.levelled_frames
+        result.levelled += piece.levelled
         result.depth_ratios += piece.depth_ratios
         result.size_ratios += piece.size_ratios
     return merged
@@ -1063,6 +1072,10 @@ def _extract_once(
             " noise.depth_max_m, or 20 % from the marker's PnP distance): their range comes from"
             " the marker's pose (PnP)"
         )
+    if result.levelled:
+        result.marker_detections = tally_detections(result.levelled)
+        result.notes += drop_notes(result.marker_detections)
+        result.levelled = []
     if result.levelled_frames:
         result.notes.append(
             f"{result.levelled_frames} of {result.frames} frames were taken with the base tilted "

@@ -54,7 +54,6 @@ __all__ = [
     "MarkerDetections",
     "drop_notes",
     "levelled_view",
-    "observe_levelled",
     "observe_levelled_frame",
     "tally_detections",
 ]
@@ -274,27 +273,6 @@ def observe_levelled_frame(
             )
         )
     return LevelledFrame(observations, dropped, rewound)
-
-
-def observe_levelled(
-    detections: list[Detection], view: LevelledCamera, model: ObservationModel, t_ns: int
-) -> tuple[list[Observation], dict[int, str]]:
-    """:func:`observe_levelled_frame` for one frame of images.
-
-    Returns:
-        (observations, marker id -> why a detection of it was dropped in this frame).
-    """
-    frame = observe_levelled_frame(detections, view, model, t_ns)
-    reasons = {}
-    for d in frame.dropped:
-        if d.reason is DropReason.OFF_WALL:
-            reasons[d.marker_id] = (
-                f"not on a wall: its normal read {math.degrees(d.elevation_rad):+.0f} deg from "
-                "horizontal in one frame"
-            )
-        else:
-            reasons[d.marker_id] = d.reason.value
-    return frame.observations, reasons
 
 
 @dataclass(frozen=True, slots=True)

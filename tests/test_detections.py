@@ -14,7 +14,7 @@ from markergraph.frontend.camera import EQUIDISTANT, Camera
 from markergraph.frontend.detect import Detection
 from markergraph.frontend.detections import detections_of
 from markergraph.frontend.observe import ObservationModel
-from markergraph.frontend.posed import LevelledCamera, observe_levelled
+from markergraph.frontend.posed import DropReason, LevelledCamera, observe_levelled_frame
 
 EXACT = 1e-6  # noise-free corners through PnP: the pose comes back to solver precision
 
@@ -111,16 +111,18 @@ def test_levelled_observation_is_exact_through_a_tilted_camera() -> None:
     view = LevelledCamera(camera, R @ R_LEVEL_FORWARD, np.array([0.05, -0.02, 0.3]))
     centre, normal_yaw = np.array([2.5, 1.3, 0.9]), math.radians(200.0)
     corners = seen(view, centre, normal_yaw)
-    (obs,), left_out = observe_levelled([Detection(4, corners)], view, ObservationModel(0.2), 5)
+    frame = observe_levelled_frame([Detection(4, corners)], view, ObservationModel(0.2), 5)
+    (obs,) = frame.observations
     bearing = math.atan2(centre[1], centre[0])
-    assert not left_out and obs.t_ns == 5
+    assert not frame.dropped and obs.t_ns == 5
     assert obs.bearing == pytest.approx(bearing, abs=EXACT)
     assert obs.range_m == pytest.approx(math.hypot(*centre[:2]), abs=EXACT)
     assert obs.theta == pytest.approx(math.remainder(bearing + math.pi - normal_yaw, math.tau),
                                       abs=EXACT)  # fmt: skip
     assert 0 < obs.sigma_range < 0.05 and 0 < obs.sigma_theta < 0.2 and obs.sigma_bearing > 0
     ceiling = seen(view, np.array([2.0, 0.5, 2.4]), 0.0, tilt=-math.radians(85))
-    observations, left_out = observe_levelled(
-        [Detection(9, ceiling)], view, ObservationModel(0.2), 5
-    )
-    assert observations == [] and "not on a wall" in left_out[9]
+    frame = observe_levelled_frame([Detection(9, ceiling)], view, ObservationModel(0.2), 5)
+    (dropped,) = frame.dropped
+    assert frame.observations == [] and dropped.marker_id == 9
+    assert dropped.reason is DropReason.OFF_WALL
+    assert dropped.elevation_rad == pytest.approx(-math.radians(85), abs=1e-6)
