@@ -258,8 +258,10 @@ def _verdict_section(report: Mapping[str, Any]) -> str:
     verdict = report.get("verdict")
     if verdict not in _VERDICT_WORDS:
         return ""
-    methods = report.get("methods") if isinstance(report.get("methods"), Mapping) else {}
+    methods = report.get("methods")
     rows = []
+    if not isinstance(methods, Mapping):
+        methods = {}
     for label, entry in methods.items():
         if not isinstance(entry, Mapping) or entry.get("verdict") not in _VERDICT_WORDS:
             continue

@@ -473,10 +473,10 @@ class _SpanReader:
         if view is not None:
             # A tilted base (a ramp, a hand-held rig) or a rolled camera: each marker's full
             # pose from its corners, turned into the level frame.
-            frame = observe_levelled_frame(detections, view, self.model, t_ns)
-            observations = frame.observations
+            levelled = observe_levelled_frame(detections, view, self.model, t_ns)
+            observations = levelled.observations
             result.levelled_frames += 1
-            result.levelled.append(frame)  # tallied once the log is read: drop_notes
+            result.levelled.append(levelled)  # tallied once the log is read: drop_notes
             result.observations += observations
             self.part.observation_frames += [key] * len(observations)
             return
