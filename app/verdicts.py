@@ -326,42 +326,31 @@ def _closed_form_reasons(closed: Estimate, reference: Estimate | None) -> list[R
 def _input_reasons(
     extraction: Extraction, camera_delay_ns: int, odometry_scale: float, settings: dict[str, Any]
 ) -> list[Reason]:
-    reasons = []
+    frames, samples = (
+        extraction.frames,
+        len(extraction.odometry) + extraction.dropped_odometry_samples,
+    )
     # Damage only: frames skipped by design (a camera without calibration, frames used without
     # depth) are not evidence against the map.
-    read, dropped = extraction.frames, extraction.undecodable_frames
-    if read and dropped / read > DROPPED_SHARE_SUSPECT:
-        reasons.append(_suspect(
-            "dropped", 100 * dropped / read,
-            f"{100 * dropped / read:.0f} % of the colour frames do not decode ({dropped} of "
-            f"{read})",
-        ))  # fmt: skip
-    bad_stamps = extraction.frames_dropped_by_stamp
-    if read and bad_stamps / read > DROPPED_SHARE_SUSPECT:
-        reasons.append(_suspect(
-            "dropped", 100 * bad_stamps / read,
-            f"{100 * bad_stamps / read:.0f} % of the colour frames have stamps their neighbours "
-            f"contradict ({bad_stamps} of {read})",
-        ))  # fmt: skip
-    samples = len(extraction.odometry) + extraction.dropped_odometry_samples
-    if samples and extraction.dropped_odometry_samples / samples > DROPPED_ODOMETRY_SUSPECT:
-        share = extraction.dropped_odometry_samples / samples
-        reasons.append(_suspect(
-            "dropped", 100 * share,
-            f"{100 * share:.0f} % of the odometry samples were dropped as corrupt or out of "
-            f"time ({extraction.dropped_odometry_samples} of {samples}): the path between "
-            "the rest is interpolated",
-        ))  # fmt: skip
-    if extraction.depth_tries and extraction.depth_misses / extraction.depth_tries > (
-        DEPTH_MISS_SHARE_SUSPECT
-    ):
-        share = extraction.depth_misses / extraction.depth_tries
-        reasons.append(_suspect(
-            "depth", 100 * share,
-            f"{100 * share:.0f} % of the markers seen with depth had no usable depth on them "
-            "(none valid, or too far from the marker's distance by its size): their ranges rest "
-            "on the marker size alone",
-        ))  # fmt: skip
+    shares = [
+        ("dropped", extraction.undecodable_frames, frames, DROPPED_SHARE_SUSPECT,
+         "of the colour frames do not decode", ""),
+        ("dropped", extraction.frames_dropped_by_stamp, frames, DROPPED_SHARE_SUSPECT,
+         "of the colour frames have stamps their neighbours contradict", ""),
+        ("dropped", extraction.dropped_odometry_samples, samples, DROPPED_ODOMETRY_SUSPECT,
+         "of the odometry samples were dropped as corrupt or out of time",
+         ": the path between the rest is interpolated"),
+        ("depth", extraction.depth_misses, extraction.depth_tries, DEPTH_MISS_SHARE_SUSPECT,
+         "of the markers seen with depth had no usable depth on them",
+         " (none valid, or too far from the marker's distance by its size): their ranges rest "
+         "on the marker size alone"),
+    ]  # fmt: skip
+    reasons = [
+        _suspect(check, 100 * part / whole,
+                 f"{100 * part / whole:.0f} % {what} ({part} of {whole}){consequence}")
+        for check, part, whole, line, what, consequence in shares
+        if whole and part / whole > line
+    ]  # fmt: skip
     if settings.get("camera.delay_ms") is None:
         delay_s = camera_delay_ns * 1e-9
         if (

@@ -1,6 +1,22 @@
-"""Test-wide settings: hypothesis runs derandomised, so every run draws the same examples."""
+"""Test-wide settings and fixtures: hypothesis runs derandomised, so every run draws the same
+examples; the small rendered log several modules damage in their own ways, rendered once."""
 
+from pathlib import Path
+
+import pytest
 from hypothesis import settings
+
+from markergraph.datasets import scenario, write_log
 
 settings.register_profile("markergraph", derandomize=True, database=None, print_blob=True)
 settings.load_profile("markergraph")
+
+
+@pytest.fixture(scope="session")
+def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """20 s of the paper room at 5 Hz: 100 JPEG frames with depth, 50 Hz odometry, three
+    markers, ground truth. Read it, never write to it: rewrite a copy."""
+    path = tmp_path_factory.mktemp("log") / "room.mcap"
+    world, route = scenario("paper-room")
+    write_log(world, route, path, seed=3, duration_s=20.0, compressed=True, frame_hz=5.0)
+    return path

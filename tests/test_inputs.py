@@ -28,15 +28,6 @@ EXACT = 1e-9
 
 
 @pytest.fixture(scope="module")
-def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """20 s of the paper room at 5 Hz: 100 JPEG frames with depth, 50 Hz odometry, truth."""
-    path = tmp_path_factory.mktemp("log") / "room.mcap"
-    world, route = scenario("paper-room")
-    write_log(world, route, path, seed=3, duration_s=20.0, compressed=True, frame_hz=5.0)
-    return path
-
-
-@pytest.fixture(scope="module")
 def clean(log: Path) -> MapRun:
     return map_log(log)
 

@@ -22,8 +22,6 @@ from mcap_ros2.decoder import DecoderFactory
 
 from markergraph.cli import main
 from markergraph.datasets.rewrite import rewrite_log
-from markergraph.datasets.scenarios import scenario
-from markergraph.datasets.write import write_log
 from markergraph.estimator.types import OutputError
 from markergraph.frontend import files
 from markergraph.frontend.files import result_folder
@@ -69,15 +67,6 @@ def strict_json(path: Path) -> Any:
         raise AssertionError(f"{path} holds {name}")
 
     return json.loads(path.read_text(), parse_constant=refuse)
-
-
-@pytest.fixture(scope="module")
-def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """20 s of the paper room at 5 Hz: 100 JPEG frames, three markers, ground truth."""
-    path = tmp_path_factory.mktemp("log") / "room.mcap"
-    world, route = scenario("paper-room")
-    write_log(world, route, path, seed=3, duration_s=20.0, compressed=True, frame_hz=5.0)
-    return path
 
 
 @pytest.fixture(scope="module")

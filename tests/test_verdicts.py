@@ -7,7 +7,6 @@ import dataclasses
 import json
 import math
 from collections import Counter
-from pathlib import Path
 from typing import Any
 
 import gtsam
@@ -17,7 +16,7 @@ from scipy import stats
 
 from markergraph.cli import main
 from markergraph.cli._map import EXIT_NOT_OK
-from markergraph.datasets import scenario, simulate_fast, write_log
+from markergraph.datasets import scenario, simulate_fast
 from markergraph.datasets.rewrite import rewrite_log
 from markergraph.estimator import (
     Estimate,
@@ -323,20 +322,11 @@ def _estimate(markers: dict[int, tuple[gtsam.Pose2, np.ndarray]]) -> Estimate:
 COLOR = "/camera/camera/color/image_raw/compressed"
 
 
-@pytest.fixture(scope="module")
-def small_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """20 s of the paper room at 5 Hz: 100 JPEG frames, three markers, ground truth."""
-    path = tmp_path_factory.mktemp("log") / "room.mcap"
-    world, route = scenario("paper-room")
-    write_log(world, route, path, seed=3, duration_s=20.0, compressed=True, frame_hz=5.0)
-    return path
-
-
-def test_cli_prints_verdicts_and_strict_exits_4_only_when_not_ok(small_log, tmp_path, capsys):
+def test_cli_prints_verdicts_and_strict_exits_4_only_when_not_ok(log, tmp_path, capsys):
     """The clean log: SLAM ok in the summary, report.json and report.html, and --strict exits 0.
     A quarter of its colour frames undecodable: every method suspect with the share dropped,
     the folder still written, and --strict exits 4."""
-    code = main(["map", str(small_log), "--out", str(tmp_path / "clean"), "--no-plots",
+    code = main(["map", str(log), "--out", str(tmp_path / "clean"), "--no-plots",
                  "--strict"])  # fmt: skip
     out = capsys.readouterr().out
     assert code == 0 and "verdict slam: ok" in out
@@ -351,7 +341,7 @@ def test_cli_prints_verdicts_and_strict_exits_4_only_when_not_ok(small_log, tmp_
         return decoded
 
     damaged = tmp_path / "damaged.mcap"
-    rewrite_log(small_log, damaged, corrupt)
+    rewrite_log(log, damaged, corrupt)
     code = main(["map", str(damaged), "--out", str(tmp_path / "damaged"), "--no-plots",
                  "--strict"])  # fmt: skip
     out = capsys.readouterr().out
