@@ -29,6 +29,7 @@ from markergraph.estimator import (
     TrajectoryError,
     build_frames,
     camera_delay_by_residuals,
+    ellipse_coverage,
     estimate_frames,
     map_error,
     marker_heights,
@@ -57,6 +58,8 @@ class MethodResult:
             rigid alignment.
         trajectory_error: ATE and RPE at the estimate's stamps.
         true_path: the true base poses at the estimate's stamps, in the home marker's frame.
+        inside_95_ellipse: the share of true markers inside the estimate's 95 % ellipses (None
+            without covariances or truth): 0.95 when they are honest.
         judgement: how far the estimate can be trusted, and why (:mod:`markergraph.verdicts`).
     """
 
@@ -67,6 +70,7 @@ class MethodResult:
     map_error_aligned: MapError | None = None
     trajectory_error: TrajectoryError | None = None
     true_path: Trajectory | None = None
+    inside_95_ellipse: float | None = None
     judgement: Judgement = field(default_factory=lambda: Judgement(Verdict.OK))
 
     @property
@@ -181,6 +185,8 @@ def _score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory
     if not truth or not set(estimate.markers) & set(truth):
         return
     result.map_error = map_error(estimate, truth)
+    coverage = ellipse_coverage(estimate, truth)
+    result.inside_95_ellipse = None if math.isnan(coverage.share) else coverage.share
     if len(estimate.markers) >= 2:
         result.map_error_aligned = map_error(estimate, truth, align=True)
     result.trajectory_error, result.true_path = path_error(estimate.trajectory, path)

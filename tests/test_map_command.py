@@ -51,7 +51,9 @@ def test_summary_names_the_sample_and_every_method(mapped) -> None:
 
 def test_map_json_matches_ground_truth(mapped) -> None:
     """map.json (SLAM) places every marker within 0.35 m RMS of the logged ground truth, the
-    same figure report.json gives; the paper's closed form does worse."""
+    same figure report.json gives; the paper's closed form does worse. On this clean log every
+    method's verdict is ok, and every true marker lies inside SLAM's, iSAM2's, the EKF's and the
+    marker graph's 95 % ellipses (11 of 11 each)."""
     folder, _ = mapped
     document = json.loads((folder / "map.json").read_text())
     report = json.loads((folder / "report.json").read_text())
@@ -60,6 +62,10 @@ def test_map_json_matches_ground_truth(mapped) -> None:
     assert report["ground_truth"] and report["frames"] > 1000
     assert report["settings"]["method"] == "all"  # from the --config file
     assert report["methods"]["slam"]["marker_rmse_m"] < 0.35
+    for method in METHODS:
+        assert report["methods"][method]["verdict"] == "ok", report["verdict_reasons"]
+        if method != "closed-form":
+            assert report["methods"][method]["inside_95_ellipse"] == 1.0, method
     assert (
         report["methods"]["closed-form"]["marker_rmse_m"]
         > (report["methods"]["slam"]["marker_rmse_m"])
