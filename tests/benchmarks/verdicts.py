@@ -49,7 +49,8 @@ CLEAN = (  # scenario, seed, seconds, a D435i's effects: seeds no test or tuning
     ("office", 25, 60.0, True),
     ("warehouse", 26, 90.0, True),
 )
-TRAP_LOG = ("paper-room", 21, 60.0, False)  # the clean log the traps are made from
+TRAP_LOG = ("paper-room", 21, 60.0, False)  # the clean log most traps are made from
+WAREHOUSE = ("warehouse", 26, 90.0, True)  # its markers are DICT_4X4_250
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,7 @@ class Trap:
     name: str
     change: Callable[[str, int, Any], Any] | None = None
     flags: tuple[str, ...] = ()
+    base: tuple[str, int, float, bool] = TRAP_LOG
 
 
 def _late_odometry(seconds: float, index: int) -> Callable[[str, int, Any], Any]:
@@ -93,7 +95,9 @@ TRAPS = (
     Trap("first camera_info: distortion 1e30", _first_camera_info(_distortion)),
     Trap("first camera_info: focal length 1e300", _first_camera_info(_focal)),
     Trap("--marker-size 0.15 (markers are 0.20)", flags=("--marker-size", "0.15")),
-)
+    Trap("warehouse read as DICT_4X4_50 (is _250)", flags=("--dictionary", "DICT_4X4_50"),
+         base=WAREHOUSE),
+)  # fmt: skip
 
 
 def simulate(name: str, seed: int, seconds: float | None, d435i: bool, work: Path) -> Path:
@@ -107,6 +111,11 @@ def simulate(name: str, seed: int, seconds: float | None, d435i: bool, work: Pat
         effects = D435I_ON_DIFF_DRIVE if d435i else SensorEffects()
         write_log(world, route, log, seed, duration_s=seconds, compressed=True, sensors=effects)
     return log
+
+
+def dictionary_of(name: str) -> str:
+    world, _ = scenario(name)
+    return world.markers[0].dictionary
 
 
 def map_log(log: Path, out: Path, *flags: str) -> tuple[int, str, dict[str, Any] | None]:
@@ -154,7 +163,9 @@ def main() -> None:
     for name, seed, seconds, d435i in clean:
         log = simulate(name, seed, seconds, d435i, work)
         out = work / f"map-{log.stem}"
-        code, error, report = map_log(log, out, "--method", "all")
+        code, error, report = map_log(
+            log, out, "--method", "all", "--dictionary", dictionary_of(name)
+        )
         if report is None:
             print(f"  {log.name}: exit {code}: {error}")
             continue
@@ -178,14 +189,15 @@ def main() -> None:
         print(f"  {method:<13} {inside:>3} of {total:<3} {100 * share:5.1f} %")
 
     print("\ntraps (SLAM): marker RMSE in the home frame, against the clean log's")
-    base = simulate(*TRAP_LOG, work)
-    for trap in TRAPS:
+    for n, trap in enumerate(TRAPS):
+        base = simulate(*trap.base, work)
         log = base
         if trap.change is not None:
-            log = work / f"trap-{TRAPS.index(trap)}.mcap"
+            log = work / f"trap-{n}.mcap"
             if not log.exists():
                 rewrite_log(base, log, trap.change)
-        code, error, report = map_log(log, work / f"map-trap-{TRAPS.index(trap)}", *trap.flags)
+        flags = ("--dictionary", dictionary_of(trap.base[0]), *trap.flags)  # the trap's last
+        code, error, report = map_log(log, work / f"map-trap-{n}", *flags)
         clean_m = clean_error.get(base, math.nan)
         if report is None:
             outcome, figure = f"flagged: exit {code}: {error}", "-"
