@@ -134,15 +134,18 @@ def true_markers(name: str, home_id: int) -> dict[int, gtsam.Pose2]:
 
 
 def coverage(map_json: Path, truth: dict[int, gtsam.Pose2]) -> tuple[int, int]:
-    """(markers inside their 95 % ellipse, markers with an ellipse), the home marker aside."""
+    """(markers inside their 95 % ellipse, markers with an ellipse), the home marker aside; a
+    marker the world does not hold is outside."""
     document = json.loads(map_json.read_text())
     inside = total = 0
     for marker in document["markers"]:
         if marker["id"] == document["home_id"] or marker.get("covariance") is None:
             continue
+        total += 1
+        if marker["id"] not in truth:  # a marker the world does not hold: a misread id
+            continue
         S = position_covariance(marker["yaw"], np.array(marker["covariance"]))
         error = truth[marker["id"]].translation() - np.array([marker["x"], marker["y"]])
-        total += 1
         inside += bool(error @ np.linalg.solve(S, error) <= CHI2_95_2DOF)
     return inside, total
 
