@@ -397,11 +397,21 @@ def judge_run(
             + _facing_reasons(estimate, extraction.observations, camera_x_m)
             + disagreements[estimate.method]
         )
-    judged = [e for e in estimates if e.method is not Method.CLOSED_FORM and not own[e.method]]
-    reference = min(judged, key=lambda e: _preference(e.method), default=None)
+    # The closed form is checked against the soundest other method; where none is sound, the
+    # best of them still shows how far it drifts, and nothing vouches for it.
+    others = [e for e in estimates if e.method is not Method.CLOSED_FORM]
+    sound = [e for e in others if not own[e.method]]
+    reference = min(sound or others, key=lambda e: _preference(e.method), default=None)
     for estimate in estimates:
         if estimate.method is Method.CLOSED_FORM:
             own[estimate.method] += _closed_form_reasons(estimate, reference)
+            if others and not sound:
+                own[estimate.method].append(_suspect(
+                    "disagreement", float(len(others)),
+                    "no other method vouches for it: "
+                    + ", ".join(f"{e.method.value} is {Judgement.of(own[e.method]).verdict.value}"
+                                for e in others),
+                ))  # fmt: skip
     per_method = {m: Judgement.of(inputs + reasons) for m, reasons in own.items()}
     run_reasons = list(inputs) + [
         Reason(r.verdict, r.check, f"{m.value}: {r.text}", r.figure)
