@@ -88,6 +88,7 @@ _UNITS: tuple[tuple[str, str, float, str], ...] = (
     ("_px", "px", 1.0, ".3g"),
     ("_s", "s", 1.0, ".3g"),
     ("_m", "m", 1.0, ".3f"),
+    ("_share", "%", 100.0, ".0f"),
 )
 _ACRONYMS = {
     "rmse": "RMSE",

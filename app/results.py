@@ -95,7 +95,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         if result.map_error_aligned is not None:
             entry["marker_rmse_aligned_m"] = result.map_error_aligned.rmse_position_m
         if result.inside_95_ellipse is not None:
-            entry["inside_95_ellipse"] = result.inside_95_ellipse
+            entry["inside_95_ellipse_share"] = result.inside_95_ellipse
         if result.trajectory_error is not None:
             entry["ate_m"] = result.trajectory_error.ate_rmse_m
             rpe = result.trajectory_error.rpe_rmse_m_per_m

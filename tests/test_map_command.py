@@ -65,7 +65,7 @@ def test_map_json_matches_ground_truth(mapped) -> None:
     for method in METHODS:
         assert report["methods"][method]["verdict"] == "ok", report["verdict_reasons"]
         if method != "closed-form":
-            assert report["methods"][method]["inside_95_ellipse"] == 1.0, method
+            assert report["methods"][method]["inside_95_ellipse_share"] == 1.0, method
     assert (
         report["methods"]["closed-form"]["marker_rmse_m"]
         > (report["methods"]["slam"]["marker_rmse_m"])
