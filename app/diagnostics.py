@@ -23,10 +23,6 @@ __all__ = ["ODOMETRY_OUTLIER", "diagnostics"]
 ODOMETRY_OUTLIER = math.sqrt(14.156)
 
 
-def _marker_of(keys: tuple[str, ...]) -> list[int]:
-    return [int(k[1:]) for k in keys if k.startswith("m")]
-
-
 def _stamp(keys: tuple[str, ...], stamps: Sequence[int]) -> int | None:
     """The stamp of the last robot pose a factor touches."""
     poses = [int(k[1:]) for k in keys if k.startswith("x")]
@@ -50,7 +46,7 @@ def diagnostics(estimate: Estimate, frames: Frames | Sequence[Frames]) -> dict[s
     downweighted_per_marker: defaultdict[int, int] = defaultdict(int)
     downweighted, odometry_outliers = [], []
     for r in estimate.residuals:
-        markers = _marker_of(r.keys)
+        markers = r.marker_ids
         if r.kind == "odometry":
             if r.whitened_error > ODOMETRY_OUTLIER:
                 odometry_outliers.append(

@@ -156,9 +156,8 @@ def _residual_reasons(estimate: Estimate) -> list[Reason]:
     per_marker: dict[int, list[float]] = {}
     for r in estimate.residuals:
         if r.kind == "observation":
-            for name in r.keys:
-                if name.startswith("m"):
-                    per_marker.setdefault(int(name[1:]), []).append(r.whitened_error)
+            for marker_id in r.marker_ids:
+                per_marker.setdefault(marker_id, []).append(r.whitened_error)
     medians = {i: float(np.median(e)) for i, e in per_marker.items()}
     # A marker stands out from the rest, not just a map whose every residual is large (that is
     # the whole solution's reason, above): its own median beyond the line and half again the

@@ -39,12 +39,10 @@ class ResidualFit:
     Attributes:
         chi2: the sum of squared whitened residuals (twice the graph's error).
         dof: residual dimensions less estimated dimensions (what ``chi2`` should average).
-        factors: how many factors the sum is over.
     """
 
     chi2: float
     dof: int
-    factors: int
 
     @property
     def ratio(self) -> float:
@@ -65,7 +63,7 @@ def residual_fit(estimate: Estimate) -> ResidualFit | None:
     if dof <= 0:
         return None
     chi2 = float(sum(r.whitened_error**2 for r in residuals))
-    return ResidualFit(chi2, dof, len(residuals))
+    return ResidualFit(chi2, dof)
 
 
 def chi2_upper(dof: int, z: float = 3.090232306167813) -> float:

@@ -272,6 +272,11 @@ class FactorResidual:
     whitened_error: float
     downweighted: bool = False
 
+    @property
+    def marker_ids(self) -> list[int]:
+        """The markers it joins (from keys ``"m<id>"``)."""
+        return [int(k[1:]) for k in self.keys if k.startswith("m")]
+
 
 @dataclass
 class Estimate:
