@@ -20,17 +20,13 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from markergraph.estimator import (
-        Estimate,
+    from markergraph.common.errors import (
         MarkerGraphError,
-        Method,
-        OdometrySample,
         OutputError,
         RejectedObservationError,
         SettingsError,
-        Trajectory,
-        estimate,
     )
+    from markergraph.estimator import Estimate, Method, OdometrySample, Trajectory, estimate
     from markergraph.frontend import LogError, extract
     from markergraph.markermap import MarkerMap, MarkerMapError
     from markergraph.results import write_results
@@ -59,12 +55,12 @@ __all__ = [
 
 _HOME = {
     "Estimate": "markergraph.estimator",
-    "MarkerGraphError": "markergraph.estimator",
+    "MarkerGraphError": "markergraph.common.errors",
     "Method": "markergraph.estimator",
     "OdometrySample": "markergraph.estimator",
-    "OutputError": "markergraph.estimator",
-    "RejectedObservationError": "markergraph.estimator",
-    "SettingsError": "markergraph.estimator",
+    "OutputError": "markergraph.common.errors",
+    "RejectedObservationError": "markergraph.common.errors",
+    "SettingsError": "markergraph.common.errors",
     "Trajectory": "markergraph.estimator",
     "estimate": "markergraph.estimator",
     "LogError": "markergraph.frontend",

@@ -20,7 +20,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from markergraph.estimator import MarkerGraphError, SettingsError
+from markergraph.common.errors import MarkerGraphError, SettingsError
 from markergraph.frontend import Extraction, FrontendConfig, extract
 
 # The front end's own worker start (one OpenCV thread, and a watchdog that ends the worker when

@@ -19,10 +19,11 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.errors import MarkerGraphError
+from markergraph.common.files import written_whole
 from markergraph.estimator.heights import MarkerHeight
 from markergraph.estimator.paper import Edge, Form, edge_from_pose2, heading
-from markergraph.estimator.types import Estimate, MarkerGraphError
-from markergraph.frontend.files import written_whole
+from markergraph.estimator.types import Estimate
 
 __all__ = ["MAP_SCHEMA", "MapLink", "MapMarker", "MarkerMap", "MarkerMapError"]
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from markergraph.frontend.files import written_whole
+from markergraph.common.files import written_whole
 
 __all__ = ["FIGURES_ENV", "NotebookFigures"]
 

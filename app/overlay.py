@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 from mcap_ros2.writer import Writer
 
+from markergraph.common.files import written_whole
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.frontend.files import written_whole
 from markergraph.frontend.ros2 import (
     MESSAGE_DEFINITIONS,
     header,

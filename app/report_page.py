@@ -19,7 +19,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from markergraph.frontend.files import written_whole
+from markergraph.common.files import written_whole
 
 __all__ = ["FIGURE_ORDER", "REPORT_PAGE", "figures_in", "render_report_page", "write_report_page"]
 

@@ -8,18 +8,19 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from markergraph.common.files import MANIFEST_KEY, REPORT_SCHEMA_PREFIX, result_folder
 from markergraph.diagnostics import diagnostics
 from markergraph.formats import write_g2o, write_tum
-from markergraph.frontend.files import MANIFEST_KEY, REPORT_SCHEMA, result_folder
 from markergraph.markermap import write_json
 from markergraph.overlay import write_overlay
 from markergraph.report_page import REPORT_PAGE, write_report_page
 from markergraph.run import MapRun, MethodResult
 from markergraph.sessions import LocalizationRun
 
-__all__ = ["DIAGNOSTICS_FIGURE", "write_localization", "write_results"]
+__all__ = ["DIAGNOSTICS_FIGURE", "REPORT_SCHEMA", "write_localization", "write_results"]
 
 DIAGNOSTICS_FIGURE = "diagnostics.png"
+REPORT_SCHEMA = f"{REPORT_SCHEMA_PREFIX}1"  # report.json's layout; bump on a breaking change
 
 
 def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
@@ -113,7 +114,7 @@ def _rmse(result: MethodResult) -> tuple[float, float] | None:
 
 def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = True) -> list[Path]:
     """The result folder, written whole or not at all
-    (:func:`~markergraph.frontend.files.result_folder`); an existing one is replaced only with
+    (:func:`~markergraph.common.files.result_folder`); an existing one is replaced only with
     ``force``, and only if markergraph wrote it or it is empty.
 
     Files: ``map.json``, ``map.g2o`` (graph methods), ``map.png`` and ``map.svg`` for the first

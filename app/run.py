@@ -13,13 +13,12 @@ from typing import Any, NamedTuple
 import gtsam
 import numpy as np
 
+from markergraph.common.errors import EstimationError, MarkerGraphError
 from markergraph.estimator import (
     Estimate,
-    EstimationError,
     Form,
     Frames,
     MapError,
-    MarkerGraphError,
     MarkerHeight,
     Method,
     Observation,

@@ -17,14 +17,8 @@ from typing import Any
 import gtsam
 import numpy as np
 
-from markergraph.estimator import (
-    Estimate,
-    Frames,
-    Method,
-    SettingsError,
-    Trajectory,
-    marker_heights,
-)
+from markergraph.common.errors import SettingsError
+from markergraph.estimator import Estimate, Frames, Method, Trajectory, marker_heights
 from markergraph.estimator.sessions import (
     Localization,
     MapPrior,

@@ -19,7 +19,8 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any, cast
 
-from markergraph.estimator import ODOMETRY_NOISE, Method, OdometryNoise, Robust, SettingsError
+from markergraph.common.errors import SettingsError
+from markergraph.estimator import ODOMETRY_NOISE, Method, OdometryNoise, Robust
 from markergraph.frontend.camera import CameraMount
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.observe import DepthModel

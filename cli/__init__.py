@@ -15,7 +15,7 @@ from importlib.metadata import PackageNotFoundError, version
 from typing import NoReturn
 
 from markergraph.cli import _frontend, _map, _mapfile, _simulate
-from markergraph.estimator.types import MarkerGraphError
+from markergraph.common.errors import MarkerGraphError
 
 __all__ = ["main"]
 

@@ -13,11 +13,11 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 from markergraph.cli._settings import add_settings, add_verbosity, settings_from
+from markergraph.common.files import check_output_file
+from markergraph.common.progress import ProgressBar
 from markergraph.formats import write_observations
 from markergraph.frontend import extract
-from markergraph.frontend.files import check_output_file
 from markergraph.frontend.preflight import ImageStats, Intrinsics, Mount, Preflight, preflight
-from markergraph.frontend.progress import ProgressBar
 from markergraph.settings import map_config
 
 DETECT = "detect markers in an MCAP log and write observations as JSON lines"

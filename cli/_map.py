@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from markergraph.cli._settings import add_settings, add_verbosity, settings_from
-from markergraph.frontend.files import check_output_folder
-from markergraph.frontend.progress import ProgressBar, Stages
+from markergraph.common.files import check_output_folder
+from markergraph.common.progress import ProgressBar, Stages
 from markergraph.markermap import MarkerMap
 from markergraph.results import write_localization, write_results
 from markergraph.run import MapRun, map_log

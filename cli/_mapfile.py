@@ -8,10 +8,10 @@ import sys
 import tempfile
 from pathlib import Path
 
+from markergraph.common.errors import SettingsError
+from markergraph.common.files import check_output_file
 from markergraph.estimator.paper import Form
-from markergraph.estimator.types import SettingsError
 from markergraph.formats import ExportFormat, export_map
-from markergraph.frontend.files import check_output_file
 from markergraph.markermap import MarkerMap, MarkerMapError
 
 EXPORT = "write a map.json in another tool's format"

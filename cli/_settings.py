@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from markergraph.estimator.types import SettingsError
+from markergraph.common.errors import SettingsError
 from markergraph.settings import SETTINGS, read_config_file
 
 __all__ = ["FLAGS", "add_settings", "add_verbosity", "settings_from"]

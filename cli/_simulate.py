@@ -6,11 +6,11 @@ import argparse
 import math
 from pathlib import Path
 
+from markergraph.common.errors import SettingsError
+from markergraph.common.files import check_output_file
+from markergraph.common.progress import ProgressBar
 from markergraph.datasets.scenarios import SCENARIOS, scenario
 from markergraph.datasets.write import write_log
-from markergraph.estimator.types import SettingsError
-from markergraph.frontend.files import check_output_file
-from markergraph.frontend.progress import ProgressBar
 
 MAX_FRAME_RATE_HZ = 240.0  # faster than any camera the simulator models
 SUMMARY = "simulate a scenario and write a ROS 2 MCAP log with ground truth"

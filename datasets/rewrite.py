@@ -11,7 +11,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
-from markergraph.frontend.files import written_whole
+from markergraph.common.files import written_whole
 
 __all__ = ["rewrite_log"]
 

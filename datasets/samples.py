@@ -12,9 +12,9 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from markergraph.common.progress import ProgressBar
 from markergraph.datasets.scenarios import scenario
 from markergraph.datasets.write import write_log
-from markergraph.frontend.progress import ProgressBar
 
 __all__ = ["SAMPLES", "cache_dir", "sample_log", "sample_path"]
 

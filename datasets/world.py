@@ -11,7 +11,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.types import MarkerGraphError
+from markergraph.common.errors import MarkerGraphError
 
 __all__ = ["Marker", "Wall", "World", "WorldFileError"]
 

@@ -31,6 +31,7 @@ from mcap.records import Schema
 from mcap.writer import CompressionType
 from mcap_ros2.writer import Writer
 
+from markergraph.common.files import written_whole
 from markergraph.datasets.render import RenderedFrame, Renderer
 from markergraph.datasets.route import Drive, Route, WheelErrors, drive
 from markergraph.datasets.sensors import (
@@ -43,7 +44,6 @@ from markergraph.datasets.simulate import SIMULATED_MOUNT
 from markergraph.datasets.world import World
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.frontend.camera import Camera, CameraMount
-from markergraph.frontend.files import written_whole
 from markergraph.frontend.ros2 import (
     MESSAGE_DEFINITIONS,
     header,

@@ -10,14 +10,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.errors import MarkerGraphError, RejectedObservationError
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import (
-    MarkerGraphError,
-    Observation,
-    OdometryNoise,
-    OdometrySample,
-    RejectedObservationError,
-)
+from markergraph.estimator.types import Observation, OdometryNoise, OdometrySample
 
 __all__ = ["RELEASED_MOTION_COVARIANCE", "Frame", "Frames", "build_frames"]
 

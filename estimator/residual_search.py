@@ -10,11 +10,12 @@ from dataclasses import dataclass, replace
 
 import gtsam
 
+from markergraph.common.errors import EstimationError
 from markergraph.estimator.frames import build_frames
 from markergraph.estimator.graph import Robust
 from markergraph.estimator.slam import slam_cost
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import EstimationError, Observation, OdometryNoise
+from markergraph.estimator.types import Observation, OdometryNoise
 
 __all__ = ["SEARCH_FRAMES", "GridMinimum", "SlamInputs", "cheapest_on_grid", "search_sample"]
 

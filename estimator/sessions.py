@@ -27,6 +27,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 from numpy.typing import NDArray
 
+from markergraph.common.errors import EstimationError
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.graph import (
     GraphBuilder,
@@ -45,12 +46,7 @@ from markergraph.estimator.slam import (
     new_isam2,
 )
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import (
-    EstimationError,
-    FactorResidual,
-    MarkerEstimate,
-    Method,
-)
+from markergraph.estimator.types import FactorResidual, MarkerEstimate, Method
 
 __all__ = [
     "Localization",

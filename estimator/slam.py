@@ -11,6 +11,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
+from markergraph.common.errors import EstimationError
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.gauge import relative_covariances
 from markergraph.estimator.graph import (
@@ -29,7 +30,7 @@ from markergraph.estimator.links import (
     measure_links,
 )
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import Estimate, EstimationError, MarkerEstimate, Method
+from markergraph.estimator.types import Estimate, MarkerEstimate, Method
 
 __all__ = ["IncrementalSlam", "slam_cost", "solve_isam2", "solve_marker_graph", "solve_slam"]
 

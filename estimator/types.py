@@ -12,48 +12,23 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.errors import RejectedObservationError
+
 if TYPE_CHECKING:  # trajectory.py builds on these records
     from markergraph.estimator.trajectory import Trajectory
 
 __all__ = [
     "ODOMETRY_NOISE",
     "Estimate",
-    "EstimationError",
     "FactorResidual",
     "MarkerEstimate",
-    "MarkerGraphError",
     "MarkerLink",
     "Method",
     "Observation",
     "OdometryNoise",
     "OdometrySample",
-    "OutputError",
     "Placement",
-    "RejectedObservationError",
-    "SettingsError",
 ]
-
-
-class MarkerGraphError(Exception):
-    """Base of every error markergraph raises on purpose."""
-
-
-class RejectedObservationError(MarkerGraphError, ValueError):
-    """An observation the estimator cannot use (NaN, negative range, unknown marker id)."""
-
-
-class SettingsError(MarkerGraphError, ValueError):
-    """A setting, flag or settings file with a bad value; the message names it."""
-
-
-class EstimationError(MarkerGraphError):
-    """A graph the optimiser cannot solve (an indeterminate system: a marker or pose that no
-    factor pins down); the message says which method and what GTSAM reported."""
-
-
-class OutputError(MarkerGraphError):
-    """An output that may not be written (it would replace the input or a user's files), or
-    that another run took meanwhile; the message names it."""
 
 
 class Method(Enum):

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.types import SettingsError
+from markergraph.common.errors import SettingsError
 
 __all__ = [
     "Detection",

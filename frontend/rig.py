@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from markergraph.estimator.types import SettingsError
+from markergraph.common.errors import SettingsError
 from markergraph.frontend.camera import Camera
 
 __all__ = [

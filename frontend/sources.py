@@ -26,7 +26,7 @@ from mcap.records import Message as McapMessage
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 from mcap_ros2.decoder import DecoderFactory
 
-from markergraph.estimator.types import MarkerGraphError
+from markergraph.common.errors import MarkerGraphError
 from markergraph.frontend.cdr import FAST_DECODERS
 
 __all__ = [

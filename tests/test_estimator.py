@@ -10,6 +10,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from markergraph.common.errors import MarkerGraphError, RejectedObservationError
 from markergraph.datasets import ObservationNoise, WheelErrors, scenario, simulate_fast
 from markergraph.datasets.simulate import SimulatedRun
 from markergraph.estimator import (
@@ -17,12 +18,10 @@ from markergraph.estimator import (
     Estimate,
     Form,
     MarkerEstimate,
-    MarkerGraphError,
     Method,
     Observation,
     OdometryNoise,
     OdometrySample,
-    RejectedObservationError,
     Robust,
     SlamInputs,
     Trajectory,

@@ -17,9 +17,9 @@ import pytest
 import yaml
 from mcap_ros2.writer import Writer
 
+from markergraph.common.errors import MarkerGraphError
 from markergraph.datasets import Marker, Wall, World, scenario
 from markergraph.datasets.write import write_log
-from markergraph.estimator import MarkerGraphError
 from markergraph.formats import read_observations
 from markergraph.frontend import (
     FrontendConfig,

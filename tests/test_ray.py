@@ -16,13 +16,9 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
+from markergraph.common.errors import SettingsError  # noqa: E402
 from markergraph.datasets import scenario, write_log  # noqa: E402
-from markergraph.estimator import (  # noqa: E402
-    Method,
-    SettingsError,
-    build_frames,
-    estimate_frames,
-)
+from markergraph.estimator import Method, build_frames, estimate_frames  # noqa: E402
 from markergraph.executors import Executor, extract_logs  # noqa: E402
 from markergraph.frontend import Extraction, FrontendConfig, LogError, extract  # noqa: E402
 

@@ -21,10 +21,10 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from markergraph.cli import main
+from markergraph.common.errors import OutputError
+from markergraph.common.files import clean_stale, result_folder
 from markergraph.datasets.rewrite import rewrite_log
-from markergraph.estimator.types import OutputError
-from markergraph.frontend import files
-from markergraph.frontend.files import result_folder
+from markergraph.results import REPORT_SCHEMA
 
 COLOR = "/camera/camera/color/image_raw/compressed"
 DEPTH = "/camera/camera/aligned_depth_to_color/image_raw"
@@ -169,7 +169,7 @@ def test_two_runs_at_once_never_mix_their_files(tmp_path: Path) -> None:
     first to finish takes the name, the other fails with OutputError and is not mixed in."""
     out = tmp_path / "result"
     with pytest.raises(OutputError, match="another run meanwhile"), result_folder(out) as slow:
-        (slow / "report.json").write_text(json.dumps({"schema": files.REPORT_SCHEMA, "run": 1}))
+        (slow / "report.json").write_text(json.dumps({"schema": REPORT_SCHEMA, "run": 1}))
         with result_folder(out) as fast:
             assert fast != slow
             (fast / "report.json").write_text('{"run": 2}')
@@ -195,12 +195,12 @@ def test_stale_temporary_folders_of_killed_runs_are_cleaned(log: Path, tmp_path:
     (half / "map.json").write_text("{")
     old = tmp_path / f".result.old-{pid}-0badc0de"
     old.mkdir()
-    (old / "report.json").write_text(json.dumps({"schema": files.REPORT_SCHEMA}))
+    (old / "report.json").write_text(json.dumps({"schema": REPORT_SCHEMA}))
     live = tmp_path / f".result.partial-{os.getpid()}-00000000"  # a running run's: kept
     live.mkdir()
-    files.clean_stale(out)
+    clean_stale(out)
     assert not half.exists() and not old.exists() and live.exists()
-    assert strict_json(out / "report.json")["schema"] == files.REPORT_SCHEMA
+    assert strict_json(out / "report.json")["schema"] == REPORT_SCHEMA
 
 
 def test_killed_run_leaves_no_workers_and_the_next_run_succeeds(log: Path, tmp_path: Path):
@@ -232,8 +232,8 @@ def test_every_writer_uses_the_one_helper() -> None:
     root = Path(__file__).resolve().parents[1]
     offenders = [
         str(path.relative_to(root))
-        for folder in ("estimator", "frontend", "datasets", "cli")
-        for path in (root / folder).glob("*.py")
+        for folder in ("common", "estimator", "frontend", "datasets", "app", "cli")
+        for path in (root / folder).rglob("*.py")
         if path.name != "files.py"
         and any(s in path.read_text() for s in ("os.replace", "os.rename", ".rename(", ".partial"))
     ]

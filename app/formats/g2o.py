@@ -10,8 +10,8 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.types import MarkerGraphError
-from markergraph.frontend.files import written_whole
+from markergraph.common.errors import MarkerGraphError
+from markergraph.common.files import written_whole
 
 __all__ = ["MARKER_VERTEX_OFFSET", "write_g2o"]
 

@@ -13,9 +13,10 @@ import json
 import math
 from pathlib import Path
 
+from markergraph.common.errors import MarkerGraphError
+from markergraph.common.files import written_whole
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import MarkerGraphError, Observation, OdometrySample
-from markergraph.frontend.files import written_whole
+from markergraph.estimator.types import Observation, OdometrySample
 
 __all__ = ["read_observations", "write_observations"]
 

@@ -10,7 +10,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.frontend.files import written_whole
+from markergraph.common.files import written_whole
 from markergraph.markermap import MapMarker, MarkerMap
 
 __all__ = ["ExportFormat", "export_map"]

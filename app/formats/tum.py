@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from markergraph.common.errors import MarkerGraphError
+from markergraph.common.files import written_whole
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import MarkerGraphError
-from markergraph.frontend.files import written_whole
 
 __all__ = ["read_tum", "write_tum"]
 

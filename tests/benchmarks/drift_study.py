@@ -11,9 +11,9 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: one BLAS thread is faster
 
+from markergraph.common.progress import ProgressBar
 from markergraph.datasets.study import drift_study, summarise
 from markergraph.estimator import chi2_interval
-from markergraph.frontend.progress import ProgressBar
 
 
 def main() -> None:

@@ -8,8 +8,9 @@ A run that was killed leaves its temporary folder behind; the next run aimed at 
 recognises it by its dead process id and removes it.
 
 A folder is replaced only when it is empty, or when markergraph wrote it (its ``report.json``
-carries :data:`REPORT_SCHEMA` and lists every file in it: a folder to which the user added
-anything is not replaced), and never when it is or holds an input.
+has a ``schema`` beginning with :data:`REPORT_SCHEMA_PREFIX` and lists every file in it under
+:data:`MANIFEST_KEY`: a folder to which the user added anything is not replaced), and never when
+it is or holds an input.
 """
 
 from __future__ import annotations
@@ -25,18 +26,19 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from markergraph.estimator.types import OutputError
+from markergraph.common.errors import OutputError
 
 __all__ = [
     "MANIFEST_KEY",
-    "REPORT_SCHEMA",
+    "REPORT_SCHEMA_PREFIX",
     "check_output_file",
     "check_output_folder",
     "result_folder",
     "written_whole",
 ]
 
-REPORT_SCHEMA = "markergraph.report/1"
+# Any version of the application layer's report.json schema marks a folder as ours.
+REPORT_SCHEMA_PREFIX = "markergraph.report/"
 MANIFEST_KEY = "files"  # report.json lists every file of the result folder under this key
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<kind>partial|old)-(?P<pid>\d+)-[0-9a-f]+$")
 
@@ -114,7 +116,9 @@ def _foreign_entries(folder: Path) -> list[str] | None:
         report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    if not isinstance(report, dict) or report.get("schema") != REPORT_SCHEMA:
+    if not isinstance(report, dict) or not str(report.get("schema")).startswith(
+        REPORT_SCHEMA_PREFIX
+    ):
         return None
     listed = report.get(MANIFEST_KEY)
     if not isinstance(listed, list):
