@@ -29,8 +29,9 @@ if TYPE_CHECKING:
     from markergraph.estimator import Estimate, Method, OdometrySample, Trajectory, estimate
     from markergraph.frontend import LogError, extract
     from markergraph.markermap import MarkerMap, MarkerMapError
+    from markergraph.records import MapRun
     from markergraph.results import write_results
-    from markergraph.run import MapRun, map_log
+    from markergraph.run import map_log, map_logs
     from markergraph.settings import MapConfig
 
 __all__ = [
@@ -50,6 +51,7 @@ __all__ = [
     "estimate",
     "extract",
     "map_log",
+    "map_logs",
     "write_results",
 ]
 
@@ -68,7 +70,8 @@ _HOME = {
     "MarkerMap": "markergraph.markermap",
     "MarkerMapError": "markergraph.markermap",
     "write_results": "markergraph.results",
-    "MapRun": "markergraph.run",
+    "MapRun": "markergraph.records",
+    "map_logs": "markergraph.run",
     "map_log": "markergraph.run",
     "MapConfig": "markergraph.settings",
 }

@@ -13,9 +13,8 @@ from markergraph.diagnostics import diagnostics
 from markergraph.formats import write_g2o, write_tum
 from markergraph.markermap import write_json
 from markergraph.overlay import write_overlay
+from markergraph.records import LocalizationRun, MapRun, MethodResult
 from markergraph.report_page import REPORT_PAGE, write_report_page
-from markergraph.run import MapRun, MethodResult
-from markergraph.sessions import LocalizationRun
 
 __all__ = ["DIAGNOSTICS_FIGURE", "REPORT_SCHEMA", "write_localization", "write_results"]
 
@@ -54,8 +53,11 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
             }
             for i, c in sorted(extraction.marker_detections.items())
         },
-        "inputs": extraction.input_evidence(),
-        "notes": extraction.notes + extraction.warnings,
+        "inputs": {
+            **extraction.input_evidence(),
+            "odometry_model_reason": run.odometry_model_reason,
+        },
+        "notes": [*map(str, run.notes), *extraction.warnings],
         "ground_truth": bool(run.true_markers),
         "seconds": run.seconds,
         "settings": dict(run.config.values),
@@ -80,7 +82,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
             "links": len(result.estimate.links),
             "unplaced": {str(k): v for k, v in result.estimate.unplaced.items()},
             "converged": result.estimate.converged,
-            "notes": result.estimate.notes,
+            "notes": [str(note) for note in result.estimate.notes],
             "diagnostics": diagnostics(
                 result.estimate, [s.frames for s in run.sessions] or run.frames
             ),
@@ -228,7 +230,7 @@ def write_localization(run: LocalizationRun, out: Path, *, force: bool = False) 
             "schema": REPORT_SCHEMA, MANIFEST_KEY: sorted([*files, "report.json"]),
             "log": str(run.log), "map": str(run.map_path), "poses": len(loc.trajectory),
             "moved": [m.marker_id for m in loc.moved], "new": sorted(loc.new),
-            "ate_m": run.ate_m, "notes": run.notes, "settings": dict(values),
+            "ate_m": run.ate_m, "notes": [str(n) for n in run.notes], "settings": dict(values),
         })  # fmt: skip
         written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
     return written

@@ -12,9 +12,9 @@ from markergraph.cli._settings import add_settings, add_verbosity, settings_from
 from markergraph.common.files import check_output_folder
 from markergraph.common.progress import ProgressBar, Stages
 from markergraph.markermap import MarkerMap
+from markergraph.records import MapRun
 from markergraph.results import write_localization, write_results
-from markergraph.run import MapRun, map_log
-from markergraph.sessions import localize_log, map_logs
+from markergraph.run import localize_log, map_logs
 from markergraph.settings import config_toml, map_config
 from markergraph.verdicts import Verdict
 
@@ -131,11 +131,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({logs[0]})")
     stages = Stages(quiet=args.quiet, verbose=args.verbose)
     with ProgressBar(f"reading {Path(logs[0]).name}", quiet=args.quiet) as bar:
-        if len(logs) == 1 and prior is None and args.executor == "local":
-            result = map_log(logs[0], config, progress=bar, stage=stages)
-        else:
-            result = map_logs(logs, config, prior=prior, executor=args.executor,
-                              address=args.ray_address, progress=bar, stage=stages)  # fmt: skip
+        result = map_logs(logs, config, prior=prior, executor=args.executor,
+                          address=args.ray_address, progress=bar, stage=stages)  # fmt: skip
     stages(f"writing {out}/")
     written = write_results(result, out, force=args.force, plots=not args.no_plots)
     stages.close()
@@ -185,5 +182,5 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
             f"separate map {n}: {len(marker_map.markers)} markers from {', '.join(map(str, logs))}"
         )
     if not quiet:
-        for note in extraction.notes + extraction.warnings:
+        for note in [*result.notes, *extraction.warnings]:
             print(f"note: {note}", file=sys.stderr)

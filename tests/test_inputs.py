@@ -12,13 +12,15 @@ from typing import Any
 import numpy as np
 import pytest
 
+from markergraph.common import Note
 from markergraph.datasets.rewrite import rewrite_log
 from markergraph.datasets.scenarios import scenario
 from markergraph.datasets.write import write_log
 from markergraph.frontend.camera import Camera, majority_camera
 from markergraph.frontend.inputs import odd_stamps
 from markergraph.frontend.marker_size import marker_sizes_by_depth
-from markergraph.run import MapRun, map_log
+from markergraph.records import MapRun
+from markergraph.run import map_log
 from markergraph.settings import MapConfig
 
 COLOR = "/camera/camera/color/image_raw/compressed"
@@ -316,8 +318,8 @@ def test_planar_odometry_on_odom_is_wheel_odometry(clean: MapRun) -> None:
     assert evidence.covariance == "unset"
     assert evidence.rate_hz == pytest.approx(50.0, rel=0.05)
     assert clean.odometry_source == "wheel"
-    assert any(n.startswith("odometry noise: the wheel model") and "planar" in n
-               for n in clean.extraction.notes)  # fmt: skip
+    assert str(clean.odometry_model_reason).startswith("planar")
+    assert [n.kind for n in clean.notes if isinstance(n, Note)].count("odometry.noise_model") == 1
 
 
 def test_three_d_odometry_on_odom_is_visual_inertial(log: Path, tmp_path: Path) -> None:
@@ -349,7 +351,8 @@ def test_three_d_odometry_on_odom_is_visual_inertial(log: Path, tmp_path: Path) 
     assert evidence.z_span_m == pytest.approx(rise_m, abs=1e-9)
     assert evidence.covariance == "constant"
     assert run.odometry_source == "vio"
-    assert any("the vio model" in n and "3-D motion" in n for n in run.extraction.notes)
+    assert "3-D motion" in str(run.odometry_model_reason)
+    assert [n.kind for n in run.notes if isinstance(n, Note)].count("odometry.noise_model") == 1
 
 
 @pytest.mark.skipif(not TAGSLAM.is_dir(), reason="../shared/data/tagslam-test is absent")
@@ -378,4 +381,4 @@ def test_the_evidence_is_json_ready(clean: MapRun) -> None:
     assert json.loads(text)["odometry_evidence"]["covariance"] == "unset"
     assert evidence["dropped_odometry_samples"] == 0 and evidence["camera_infos_set_aside"] == 0
     assert evidence["marker_size_m_used"] == 0.2
-    assert str(evidence["odometry_model_reason"]).startswith("planar")
+    assert str(clean.odometry_model_reason).startswith("planar")  # the run's, beside these

@@ -1,0 +1,235 @@
+"""One log's extraction made ready for the estimators: checked, its odometry's noise model
+chosen, the camera's delay and the odometry's scale applied (each chosen by SLAM's residuals
+unless set)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from markergraph.common import MarkerGraphError, Note
+from markergraph.estimator import (
+    Frames,
+    Observation,
+    OdometryNoise,
+    SlamInputs,
+    build_frames,
+    camera_delay_by_residuals,
+    odometry_scale_by_residuals,
+    retimed,
+    widened_for_motion,
+)
+from markergraph.frontend import Extraction
+from markergraph.settings import MapConfig
+
+__all__ = ["Prepared", "prepare"]
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """One log made ready for the estimators (:func:`prepare`).
+
+    Attributes:
+        observations: at their capture times, sigmas widened for blur if asked.
+        frames: the estimators' input, on the scaled odometry.
+        camera_delay_ns: the camera's delay used [ns].
+        odometry_source: the odometry noise model used (``wheel``, ``vio``, ``t265``).
+        odometry_model_reason: what chose that model.
+        odometry_scale: what the odometry's distances were multiplied by.
+        notes: what this stage noticed and chose.
+    """
+
+    observations: list[Observation]
+    frames: Frames
+    camera_delay_ns: int
+    odometry_source: str
+    odometry_model_reason: str
+    odometry_scale: float
+    notes: tuple[Note, ...]
+
+
+def prepare(
+    log: Path,
+    extraction: Extraction,
+    config: MapConfig,
+    stage: Callable[[str], None] = lambda name: None,
+    home_id: int | None = None,
+) -> Prepared:
+    """One log's extraction made ready for the estimators: checked, odometry jumps released,
+    its noise model chosen, the camera's delay and the odometry's scale applied (each chosen by
+    SLAM's residuals unless set).
+
+    Raises:
+        MarkerGraphError: no marker observations, or no odometry.
+    """
+    _check_usable(log, extraction, config)
+    notes = _content_notes(extraction)
+    jumps = extraction.odometry.jumps()
+    breaks = [t for t, _ in jumps]
+    evidence = extraction.odometry_evidence
+    source, why = config.odometry_source(extraction.topics.odom, evidence)
+    _, noise = config.odometry_noise(extraction.topics.odom, evidence)
+    notes.append(_noise_note(source, noise, why))
+    if config.values["camera.delay_ms"] is None:
+        stage("choosing the camera's delay by SLAM's residuals")
+    observations, delay_ns = _timed(extraction, config, noise, breaks, home_id, notes)
+    scale = _odometry_scale(extraction, config, observations, noise, breaks, home_id, stage, notes)
+    frames = build_frames(
+        observations,
+        extraction.odometry.scaled(scale),
+        home_id,
+        odometry_noise=noise,
+        odometry_breaks=breaks,
+    )
+    return Prepared(observations, frames, delay_ns, source, why, scale, tuple(notes))
+
+
+def _check_usable(log: Path, extraction: Extraction, config: MapConfig) -> None:
+    """Raise, naming the log, when there is nothing to map: no markers, or no odometry."""
+    if not extraction.observations:
+        left_out = sorted(extraction.ids_left_out)
+        raise MarkerGraphError(
+            f"{log}: no markers of {config.frontend.dictionary} were found in "
+            f"{extraction.frames} frames"
+            + (
+                f" (markers {', '.join(map(str, left_out))} were seen but are not in --ids)"
+                if left_out
+                else ""
+            )
+        )
+    if not len(extraction.odometry):
+        topic = extraction.topics.odom
+        dropped = [str(n) for n in extraction.notes if topic and str(n).startswith("dropped")]
+        dropped = [n for n in dropped if topic and topic in n]
+        raise MarkerGraphError(
+            f"{log}: no usable odometry on {topic} ({'; '.join(dropped) or 'no samples'})"
+            if topic
+            else f"{log}: no odometry (no nav_msgs/Odometry topic and no odom -> base "
+            "transforms on /tf)"
+        )
+
+
+def _content_notes(extraction: Extraction) -> list[Note]:
+    """What the observations and odometry themselves call for a word on: a lone marker, and
+    jumps of the odometry (each left to the observations)."""
+    notes = []
+    seen = {o.marker_id for o in extraction.observations}
+    if len(seen) == 1:
+        only = next(iter(seen))
+        notes.append(Note(
+            "map.one_marker",
+            f"only marker {only} was seen: the map is that marker alone, with the robot's "
+            "path in its frame; there is nothing to link",
+            figure=only,
+        ))  # fmt: skip
+    topic = extraction.topics.odom
+    for t_ns, size_m in extraction.odometry.jumps():
+        after_s = (t_ns - int(extraction.odometry.t_ns[0])) * 1e-9
+        notes.append(Note(
+            "odometry.jump",
+            f"odometry on {topic} jumped {size_m:.2f} m at {after_s:.2f} s into "
+            "the log (a visual-inertial reset or relocalisation): that step is left to the "
+            "observations",
+            topic=topic, figure=size_m,
+        ))  # fmt: skip
+    return notes
+
+
+def _noise_note(source: str, noise: OdometryNoise, why: str) -> Note:
+    return Note(
+        "odometry.noise_model",
+        f"odometry noise: the {source} model ({100 * noise.per_m:.1f} cm and "
+        f"{math.degrees(noise.yaw_per_m):.2f} deg per sqrt(m), "
+        f"{math.degrees(noise.yaw_per_rad):.2f} deg per sqrt(rad) turned): {why}",
+        figure=noise.per_m,
+    )
+
+
+def _timed(
+    extraction: Extraction,
+    config: MapConfig,
+    noise: OdometryNoise,
+    breaks: list[int],
+    home_id: int | None,
+    notes: list[Note],
+) -> tuple[list[Observation], int]:
+    """The observations at their capture times (the camera's delay, chosen by the residuals
+    unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked,
+    for the shutter instead; and the camera's delay used [ns]."""
+    v = config.values
+    observations = extraction.observations
+    readout_ns = round(v["camera.readout_ms"] * 1e6)
+    height = extraction.camera.height if extraction.camera is not None else 0
+    window_s = v["camera.exposure_ms"] * 1e-3
+    if v["camera.shutter"] == "widen":
+        window_s += readout_ns * 1e-9
+        readout_ns = 0
+    if window_s > 0:
+        observations = widened_for_motion(observations, extraction.odometry, window_s)
+    if v["camera.delay_ms"] is not None:
+        delay_ns = round(v["camera.delay_ms"] * 1e6)
+        return retimed(observations, delay_ns, readout_ns, height), delay_ns
+    mount = extraction.mount.T_base_camera
+    inputs = SlamInputs(
+        observations, extraction.odometry, home_id, mount, noise, breaks, config.robust
+    )
+    chosen = camera_delay_by_residuals(inputs, readout_ns=readout_ns, image_height=height)
+    topic = extraction.topics.odom
+    delay_ns = 0 if chosen.delay_ns is None else chosen.delay_ns
+    if chosen.delay_ns is None:
+        notes.append(Note(
+            "camera.delay_unresolved",
+            f"camera stamps taken as they are against {topic}: SLAM's "
+            "residuals have no minimum between -50 and +100 ms (--camera-delay sets a delay)",
+            topic=topic,
+        ))  # fmt: skip
+    else:
+        notes.append(Note(
+            "camera.delay_chosen",
+            f"camera stamps {delay_ns / 1e6:+.1f} ms against {topic} "
+            "(chosen by SLAM's residuals over -50..+100 ms; --camera-delay sets it)",
+            topic=topic, figure=delay_ns * 1e-9,
+        ))  # fmt: skip
+    return retimed(observations, delay_ns, readout_ns, height), delay_ns
+
+
+def _odometry_scale(
+    extraction: Extraction,
+    config: MapConfig,
+    observations: list[Observation],
+    noise: OdometryNoise,
+    breaks: list[int],
+    home_id: int | None,
+    stage: Callable[[str], None],
+    notes: list[Note],
+) -> float:
+    """The factor the odometry's distances are multiplied by: as set, or chosen by SLAM's
+    residuals (1 where they have no minimum), and said in the notes."""
+    configured = config.values["odometry.scale"]
+    if configured is not None:
+        return float(configured)
+    stage("choosing the odometry's scale by SLAM's residuals")
+    found = odometry_scale_by_residuals(
+        SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
+                   noise, breaks, config.robust)
+    )  # fmt: skip
+    topic = extraction.topics.odom
+    if found.chosen is None:
+        notes.append(Note(
+            "odometry.scale_unresolved",
+            f"odometry on {topic} taken at its scale: SLAM's residuals have no minimum between "
+            "0.95 and 1.05 (--odometry-scale sets one)",
+            topic=topic,
+        ))  # fmt: skip
+        return 1.0
+    off = 100 * (1 / found.chosen - 1)
+    notes.append(Note(
+        "odometry.scale_chosen",
+        f"odometry on {topic} reads distances {abs(off):.2f} % {'long' if off > 0 else 'short'}: "
+        f"its steps are scaled by {found.chosen:.4f} (chosen by SLAM's residuals over "
+        "0.95..1.05; --odometry-scale sets it)",
+        topic=topic, figure=found.chosen,
+    ))  # fmt: skip
+    return found.chosen

@@ -1,0 +1,201 @@
+"""What the main job returns: a map run (one or several logs) with each method's result, and a
+localisation run; the result folder is written from these."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gtsam
+
+from markergraph.common import Note
+from markergraph.estimator import (
+    Estimate,
+    Frames,
+    MapError,
+    MarkerHeight,
+    Method,
+    Trajectory,
+    TrajectoryError,
+)
+from markergraph.estimator.sessions import Localization
+from markergraph.frontend import Extraction
+from markergraph.markermap import MarkerMap
+from markergraph.settings import MapConfig
+from markergraph.verdicts import Judgement, Verdict
+
+__all__ = ["LocalizationRun", "MapRun", "MethodResult", "Session", "marker_map_of"]
+
+
+def marker_map_of(
+    estimate: Estimate,
+    log: str,
+    config: MapConfig,
+    heights: Mapping[int, MarkerHeight] | None = None,
+    extraction: Extraction | None = None,
+) -> MarkerMap:
+    """An estimate's marker map with the settings' dictionary and the marker sides used: the
+    extraction's where given (depth may have measured them), else the settings'."""
+    frontend = config.frontend
+    size_m, sizes_m = frontend.marker_length_m, frontend.marker_lengths_m
+    if extraction is not None and extraction.marker_size_m_used:
+        size_m, sizes_m = extraction.marker_size_m_used, extraction.marker_sizes_m_used
+    return MarkerMap.from_estimate(
+        estimate, log=log, dictionary=frontend.dictionary, marker_size_m=size_m,
+        marker_sizes_m=sizes_m, heights=heights,
+    )  # fmt: skip
+
+
+@dataclass
+class MethodResult:
+    """One method's map, and its error against ground truth when the log carries it.
+
+    Attributes:
+        method: the method.
+        estimate: what it estimated.
+        marker_map: the estimate as a map (what map.json holds).
+        map_error, map_error_aligned: marker errors in the home frame, and after the best
+            rigid alignment.
+        trajectory_error: ATE and RPE at the estimate's stamps.
+        true_path: the true base poses at the estimate's stamps, in the home marker's frame.
+        inside_95_ellipse: the share of true markers inside the estimate's 95 % ellipses (None
+            without covariances or truth): 0.95 when they are honest.
+        judgement: how far the estimate can be trusted, and why (:mod:`markergraph.verdicts`).
+    """
+
+    method: Method
+    estimate: Estimate
+    marker_map: MarkerMap
+    map_error: MapError | None = None
+    map_error_aligned: MapError | None = None
+    trajectory_error: TrajectoryError | None = None
+    true_path: Trajectory | None = None
+    inside_95_ellipse: float | None = None
+    judgement: Judgement = field(default_factory=lambda: Judgement(Verdict.OK))
+
+    @property
+    def label(self) -> str:
+        return self.method.value
+
+
+@dataclass(frozen=True)
+class Session:
+    """One log of a several-log map: where its robot went in the map (None: it shares no
+    marker with the map, and is mapped on its own in ``MapRun.separate``)."""
+
+    log: Path
+    extraction: Extraction
+    frames: Frames
+    trajectory: Trajectory | None
+
+
+@dataclass
+class MapRun:
+    """Everything the main job produced.
+
+    Attributes:
+        log: the log read (with several, the first placed in the map).
+        config: the settings it was read and estimated with.
+        extraction: the front end's output.
+        frames: the estimator's input.
+        results: one per method, in the order asked.
+        true_markers: ground truth ``T_map_marker`` in the estimate's map frame (empty for a
+            real log).
+        true_path: the true base path in the estimate's map frame, if logged.
+        camera_delay_ns: how late the camera's stamps were taken to be against odometry [ns].
+        odometry_source: the odometry noise model used (``wheel``, ``vio``, ``t265``).
+        odometry_model_reason: what chose that model.
+        odometry_scale: what the odometry's distances were multiplied by.
+        notes: what the front end and the preparation of the log noticed, in that order.
+        seconds: stage -> wall time.
+        sessions: with several logs, each log and its trajectory in the map.
+        separate: maps of logs that share no marker with this one: (their logs, the map).
+        judgement: the run's verdict: the gravest of its methods', each reason naming its
+            method (:func:`~markergraph.run.judge`).
+    """
+
+    log: Path
+    config: MapConfig
+    extraction: Extraction
+    frames: Frames
+    results: list[MethodResult]
+    true_markers: dict[int, gtsam.Pose2] = field(default_factory=dict)
+    true_path: Trajectory | None = None
+    camera_delay_ns: int = 0
+    odometry_source: str = "wheel"
+    odometry_model_reason: str | None = None
+    odometry_scale: float = 1.0
+    notes: list[Note] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+    sessions: list[Session] = field(default_factory=list)
+    separate: list[tuple[list[Path], MarkerMap]] = field(default_factory=list)
+    judgement: Judgement = field(default_factory=lambda: Judgement(Verdict.OK))
+
+
+@dataclass
+class LocalizationRun:
+    """A log localised against a saved map.
+
+    Attributes:
+        log, map_path: the log and the saved map.
+        saved: the saved map.
+        config: the settings.
+        extraction: the front end's output.
+        localization: trajectory, pose covariances, moved and new markers.
+        ate_m: the trajectory's RMS error against the logged truth, if any [m].
+        true_path: the logged truth at the trajectory's stamps, in the map frame.
+        notes: what a person should read.
+    """
+
+    log: Path
+    map_path: Path
+    saved: MarkerMap
+    config: MapConfig
+    extraction: Extraction
+    localization: Localization
+    ate_m: float | None
+    true_path: Trajectory | None
+    notes: list[Note]
+
+    def document(self) -> dict[str, Any]:
+        """``localization.json``: every pose with its covariance, the moved and new markers,
+        and how far each map marker was pulled (schema ``markergraph.localization/1``)."""
+        loc = self.localization
+        return {
+            "schema": "markergraph.localization/1",
+            "map": str(self.map_path),
+            "log": str(self.log),
+            "frame": "the saved map's (its home marker's) frame; x, y [m], yaw [rad]",
+            "poses": [
+                {
+                    "t_ns": int(t),
+                    "x": float(p[0]),
+                    "y": float(p[1]),
+                    "yaw": float(p[2]),
+                    "covariance": c.tolist(),
+                }
+                for t, p, c in zip(
+                    loc.trajectory.t_ns, loc.trajectory.poses, loc.pose_covariances, strict=True
+                )
+            ],
+            "moved": [
+                {
+                    "id": m.marker_id,
+                    "displacement_m": m.displacement_m,
+                    "before": _pose(m.T_map_before),
+                    "now": _pose(m.T_map_now),
+                    "pulled_sigmas": m.prior_whitened,
+                }
+                for m in loc.moved
+            ],
+            "new": [{"id": i, **_pose(m.T_map_marker)} for i, m in sorted(loc.new.items())],
+            "pulled_sigmas": {str(i): v for i, v in sorted(loc.checked.items())},
+            "ate_m": self.ate_m,
+            "notes": [str(note) for note in self.notes],
+        }
+
+
+def _pose(T: gtsam.Pose2) -> dict[str, float]:
+    return {"x": T.x(), "y": T.y(), "yaw": T.theta()}
