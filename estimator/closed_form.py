@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.estimator.angles import wrap
+from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.frames import Frame, Frames
 from markergraph.estimator.graph import observation_measurement
 from markergraph.estimator.paper import (
@@ -36,7 +37,6 @@ from markergraph.estimator.paper import (
 )
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
-    Estimate,
     MarkerEstimate,
     MarkerLink,
     Method,

@@ -12,6 +12,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from markergraph.common.errors import EstimationError
+from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.gauge import relative_covariances
 from markergraph.estimator.graph import (
@@ -30,7 +31,7 @@ from markergraph.estimator.links import (
     measure_links,
 )
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import Estimate, MarkerEstimate, Method
+from markergraph.estimator.types import MarkerEstimate, Method
 
 __all__ = ["IncrementalSlam", "slam_cost", "solve_isam2", "solve_marker_graph", "solve_slam"]
 
