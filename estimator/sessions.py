@@ -38,10 +38,10 @@ from markergraph.estimator.graph import (
 )
 from markergraph.estimator.links import measure_links
 from markergraph.estimator.slam import (
-    _lm_params,
-    _localise_on_markers,
-    _marginals,
     first_line,
+    lm_params,
+    localise_on_markers,
+    marginals_or_note,
     marker_estimates,
     new_isam2,
 )
@@ -152,7 +152,7 @@ def _isam2_to_rest(isam: gtsam.ISAM2, builder: GraphBuilder) -> gtsam.Values:
     for _ in range(5):
         isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), params)
     start = isam.calculateEstimate()
-    return gtsam.LevenbergMarquardtOptimizer(builder.graph, start, _lm_params()).optimize()
+    return gtsam.LevenbergMarquardtOptimizer(builder.graph, start, lm_params()).optimize()
 
 
 def solve_sessions(
@@ -180,72 +180,26 @@ def solve_sessions(
     Raises:
         EstimationError: no session can be placed, or GTSAM cannot solve the graph.
     """
-    builder = GraphBuilder(T_base_cameras[0], robust)
-    known: dict[int, gtsam.Pose2] = {}
-    if priors:
-        for marker_id, prior in sorted(priors.items()):
-            builder.add_marker_prior(marker_id, prior.T_map_marker, prior.covariance)
-            known[marker_id] = prior.T_map_marker
-    else:
-        home = sessions[0].home_id if home_id is None else home_id
-        builder.add_home_prior(home)
-        known[home] = gtsam.Pose2()
+    builder, known = _start_graph(sessions, T_base_cameras[0], robust, priors, home_id)
     offsets = np.concatenate([[0], np.cumsum([len(s.frames) for s in sessions])]).astype(int)
-    pending, placed = list(range(len(sessions))), []
     isam = new_isam2() if method is Method.ISAM2 else None
-    progress = True
-    while pending and progress:
-        progress = False
-        for s in list(pending):
-            T_map_odom = _anchor(sessions[s], known, T_base_cameras[s])
-            if T_map_odom is None:
-                continue
-            builder.T_base_camera = T_base_cameras[s]
-            if method is Method.MARKER_GRAPH:
-                _add_links(builder, sessions[s], T_base_cameras[s], T_map_odom)
-            else:
-                for k in range(len(sessions[s].frames)):
-                    builder.add_frame(sessions[s], k, T_map_odom, int(offsets[s]))
-                    if isam is not None:
-                        _update(isam, builder)
-            for marker_id in sessions[s].marker_ids():
-                known.setdefault(marker_id, builder.values.atPose2(L(marker_id)))
-            pending.remove(s)
-            placed.append(s)
-            progress = True
-    if not placed:
-        raise EstimationError(
-            "no session sees a marker of the map (or the home marker): nothing to place"
-        )
-    if isam is not None:
-        _update(isam, builder)
-    try:
-        if isam is not None:
-            values = _isam2_to_rest(isam, builder)
-        else:
-            start = (
-                builder.values if method is Method.MARKER_GRAPH
-                else builder.warm_start(_lm_params())
-            )  # fmt: skip
-            optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, start, _lm_params())
-            values = optimizer.optimize()
-    except RuntimeError as error:
-        raise EstimationError(f"GTSAM could not solve the graph: {first_line(error)}") from None
+    placed, pending = _place_sessions(
+        _Placing(builder, known, sessions, T_base_cameras, offsets, method, isam)
+    )
+    values = _solve(builder, isam, method)
     notes: list[str] = []
-    marginals = _marginals(builder.graph, values, notes)
-    counts: defaultdict[int, int] = defaultdict(int)
-    for s in placed:
-        for frame in sessions[s].frames:
-            for obs in frame.observations:
-                counts[obs.marker_id] += 1
+    marginals = marginals_or_note(builder.graph, values, notes)
+    counts = Counter(
+        o.marker_id for s in placed for f in sessions[s].frames for o in f.observations
+    )
     markers = marker_estimates(
-        values, [i for i in sorted(known) if values.exists(L(i))], Counter(counts), marginals
+        values, [i for i in sorted(known) if values.exists(L(i))], counts, marginals
     )
     trajectories: list[Trajectory | None] = [None] * len(sessions)
     covariances: list[NDArray[np.float64] | None] = [None] * len(sessions)
     for s in placed:
         if method is Method.MARKER_GRAPH:  # no robot poses: each frame on its nearest marker
-            trajectories[s] = _localise_on_markers(
+            trajectories[s] = localise_on_markers(
                 sessions[s], values, set(markers), T_base_cameras[s]
             )
             continue
@@ -269,6 +223,107 @@ def solve_sessions(
         read_residuals(builder.graph, values, builder.kinds), notes, builder.graph, values,
         partial(builder.pose_graph, values),
     )  # fmt: skip
+
+
+def _start_graph(
+    sessions: Sequence[Frames],
+    T_base_camera: gtsam.Pose2,
+    robust: Robust,
+    priors: Mapping[int, MapPrior] | None,
+    home_id: int | None,
+) -> tuple[GraphBuilder, dict[int, gtsam.Pose2]]:
+    """The graph before any session: the saved map's priors, or the home marker fixed at the
+    origin; and the markers it places (id -> pose in the map)."""
+    builder = GraphBuilder(T_base_camera, robust)
+    known: dict[int, gtsam.Pose2] = {}
+    if priors:
+        for marker_id, prior in sorted(priors.items()):
+            builder.add_marker_prior(marker_id, prior.T_map_marker, prior.covariance)
+            known[marker_id] = prior.T_map_marker
+    else:
+        home = sessions[0].home_id if home_id is None else home_id
+        builder.add_home_prior(home)
+        known[home] = gtsam.Pose2()
+    return builder, known
+
+
+@dataclass(frozen=True, slots=True)
+class _Placing:
+    """What placing the sessions in the graph works on."""
+
+    builder: GraphBuilder
+    """The graph, grown session by session."""
+    known: dict[int, gtsam.Pose2]
+    """Markers placed so far -> their pose in the map; grows as sessions are placed."""
+    sessions: Sequence[Frames]
+    """Each log's frames."""
+    T_base_cameras: Sequence[gtsam.Pose2]
+    """Each session's camera mount."""
+    offsets: NDArray[np.int_]
+    """Each session's first pose key (``X(offset)``)."""
+    method: Method
+    """SLAM, ISAM2 or MARKER_GRAPH."""
+    isam: gtsam.ISAM2 | None
+    """The incremental solver (``Method.ISAM2``), updated after every frame; else None."""
+
+
+def _place_sessions(placing: _Placing) -> tuple[list[int], list[int]]:
+    """Add every session that sees a marker already in the map, again until none more can be
+    placed; (placed, pending) session indices.
+
+    Raises:
+        EstimationError: no session can be placed.
+    """
+    builder, known, sessions = placing.builder, placing.known, placing.sessions
+    pending, placed = list(range(len(sessions))), []
+    progress = True
+    while pending and progress:
+        progress = False
+        for s in list(pending):
+            T_map_odom = _anchor(sessions[s], known, placing.T_base_cameras[s])
+            if T_map_odom is None:
+                continue
+            builder.T_base_camera = placing.T_base_cameras[s]
+            if placing.method is Method.MARKER_GRAPH:
+                _add_links(builder, sessions[s], placing.T_base_cameras[s], T_map_odom)
+            else:
+                for k in range(len(sessions[s].frames)):
+                    builder.add_frame(sessions[s], k, T_map_odom, int(placing.offsets[s]))
+                    if placing.isam is not None:
+                        _update(placing.isam, builder)
+            for marker_id in sessions[s].marker_ids():
+                known.setdefault(marker_id, builder.values.atPose2(L(marker_id)))
+            pending.remove(s)
+            placed.append(s)
+            progress = True
+    if not placed:
+        raise EstimationError(
+            "no session sees a marker of the map (or the home marker): nothing to place"
+        )
+    return placed, pending
+
+
+def _solve(builder: GraphBuilder, isam: gtsam.ISAM2 | None, method: Method) -> gtsam.Values:
+    """The placed sessions' solution: iSAM2 brought to rest, or batch Levenberg-Marquardt
+    (from the pose-graph form's solution for SLAM, from the links' initial values for the
+    marker graph).
+
+    Raises:
+        EstimationError: GTSAM cannot solve the graph.
+    """
+    if isam is not None:
+        _update(isam, builder)
+    try:
+        if isam is not None:
+            return _isam2_to_rest(isam, builder)
+        start = (
+            builder.values if method is Method.MARKER_GRAPH
+            else builder.warm_start(lm_params())
+        )  # fmt: skip
+        optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, start, lm_params())
+        return optimizer.optimize()
+    except RuntimeError as error:
+        raise EstimationError(f"GTSAM could not solve the graph: {first_line(error)}") from None
 
 
 @dataclass(frozen=True)

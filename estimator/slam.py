@@ -33,12 +33,22 @@ from markergraph.estimator.links import (
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import MarkerEstimate, Method
 
-__all__ = ["IncrementalSlam", "slam_cost", "solve_isam2", "solve_marker_graph", "solve_slam"]
+__all__ = [
+    "IncrementalSlam",
+    "lm_params",
+    "localise_on_markers",
+    "marginals_or_note",
+    "slam_cost",
+    "solve_isam2",
+    "solve_marker_graph",
+    "solve_slam",
+]
 
 MAX_ITERATIONS = 100
 
 
-def _lm_params() -> gtsam.LevenbergMarquardtParams:
+def lm_params() -> gtsam.LevenbergMarquardtParams:
+    """Levenberg-Marquardt's settings for every batch solve here and in sessions.py."""
     # Tighter tolerances buy nothing measurable and cost rejected steps at convergence
     # (1.5 s instead of 0.36 s on the 10,000-pose benchmark).
     params = gtsam.LevenbergMarquardtParams()
@@ -77,9 +87,11 @@ def marker_estimates(
     }  # fmt: skip
 
 
-def _marginals(
+def marginals_or_note(
     graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, notes: list[str]
 ) -> gtsam.Marginals | None:
+    """The solution's marginals, or None with a note saying why when the system is
+    indeterminate (the means are kept)."""
     try:
         return gtsam.Marginals(graph, values)
     except RuntimeError as error:  # an indeterminate system: report, keep the means
@@ -174,8 +186,8 @@ def _optimise(
     form's solution (:meth:`GraphBuilder.warm_start`); (solution, converged)."""
     start = time.perf_counter()
     try:
-        start_values = builder.warm_start(_lm_params()) if warm else builder.values
-        optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, start_values, _lm_params())
+        start_values = builder.warm_start(lm_params()) if warm else builder.values
+        optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, start_values, lm_params())
         result = optimizer.optimize()
     except RuntimeError as error:  # GTSAM's IndeterminantLinearSystemException
         raise EstimationError(
@@ -204,7 +216,7 @@ def _solved_estimate(
     trajectory, residuals, links and notes, and the graph and solution themselves."""
     graph = builder.graph
     start = time.perf_counter()
-    marginals = _marginals(graph, result, notes)
+    marginals = marginals_or_note(graph, result, notes)
     estimate = Estimate(
         method=method,
         home_id=frames.home_id,
@@ -373,7 +385,7 @@ def solve_isam2(
     return estimate
 
 
-def _localise_on_markers(
+def localise_on_markers(
     frames: Frames, values: gtsam.Values, placed: set[int], T_base_camera: gtsam.Pose2
 ) -> Trajectory:
     """The robot in each frame, from its nearest placed marker: the marker graph keeps no
@@ -443,7 +455,7 @@ def solve_marker_graph(
         builder,
         result,
         marker_ids=placed,
-        trajectory=_localise_on_markers(frames, result, set(placed), T_base_camera),
+        trajectory=localise_on_markers(frames, result, set(placed), T_base_camera),
         links=link_counts(links),
         notes=notes,
         converged=converged,
