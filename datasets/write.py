@@ -30,6 +30,7 @@ import numpy as np
 from mcap.records import Schema
 from mcap.writer import CompressionType
 from mcap_ros2.writer import Writer
+from numpy.typing import NDArray
 
 from markergraph.common.files import written_whole
 from markergraph.datasets.render import RenderedFrame, Renderer
@@ -191,8 +192,11 @@ def write_log(
         start = int(min(motion.odometry_t_ns[0], motion.frame_t_ns[0]))
         _write_static(bag, world, mount, topics, start, T_map_world, sensors)
         _write_stream(
-            bag, motion, renderer, camera, topics, T_map_world, compressed, sensors, rng, progress
-        )
+            _Recording(
+                bag, motion, renderer, camera, topics, T_map_world, compressed, sensors, rng,
+                progress,
+            )
+        )  # fmt: skip
         bag.writer.finish()
     return LogSummary(out, len(motion.frame_t_ns), dict(bag.counts), out.stat().st_size)
 
@@ -322,21 +326,48 @@ def _yaw_rate(truth: Trajectory, t_ns: int, half_window_ns: int = 10_000_000) ->
     return before.between(after).theta() / (2 * half_window_ns * 1e-9)
 
 
-def _write_stream(
-    bag: _Bag,
-    motion: Drive,
-    renderer: Renderer,
-    camera: Camera,
-    topics: Topics,
-    T_map_world: gtsam.Pose2,
-    compressed: bool,
-    sensors: SensorEffects,
-    rng: np.random.Generator,
-    progress: Callable[[int, int], None] | None,
-) -> None:
-    """Odometry, tf, ground truth and camera frames, in the order they would be recorded."""
+@dataclass(frozen=True, slots=True)
+class _Recording:
+    """What writing the stream of a log works from."""
+
+    bag: _Bag
+    """The log being written."""
+    motion: Drive
+    """The drive: odometry and frame times, odometry and true poses."""
+    renderer: Renderer
+    """Renders the camera's frames."""
+    camera: Camera
+    """The camera's intrinsics (distortion included)."""
+    topics: Topics
+    """Topic names."""
+    T_map_world: gtsam.Pose2
+    """The world in the map (home marker's) frame, for the ground truth."""
+    compressed: bool
+    """JPEG colour on ``.../compressed`` instead of raw rgb8."""
+    sensors: SensorEffects
+    """The camera's and base's departures from ideal."""
+    rng: np.random.Generator
+    """The run's random stream (exposure, rendering noise)."""
+    progress: Callable[[int, int], None] | None
+    """Called with (frames done, frames in all), or None."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Stamps:
+    """The stamps the sensors put on their messages, and the frames they drop."""
+
+    odometry: NDArray[np.int64]
+    """(N,) each odometry sample's header stamp, jittered [ns]."""
+    frames: NDArray[np.int64]
+    """(M,) each camera frame's header stamp, late and jittered [ns]."""
+    dropped: NDArray[np.bool_]
+    """(M,) whether each frame is dropped."""
+
+
+def _stamps(motion: Drive, sensors: SensorEffects, rng: np.random.Generator) -> _Stamps:
+    """The sensors' stamps and dropped frames, drawn from a stream of their own so ideal logs
+    stay as they were."""
     odometry_t, frame_t = motion.odometry_t_ns, motion.frame_t_ns
-    # The sensors' own draws come from a stream of their own, so ideal logs stay as they were.
     sensor_rng = np.random.default_rng([int(rng.integers(2**31)), 7])
     odometry_stamps = odometry_t + np.rint(
         sensor_rng.normal(0.0, sensors.odometry_jitter_s * 1e9, len(odometry_t))
@@ -346,130 +377,122 @@ def _write_stream(
         * 1e9
     ).astype(np.int64)
     dropped = sensor_rng.random(len(frame_t)) < sensors.dropped_frames
+    return _Stamps(odometry_stamps, frame_stamps, dropped)
+
+
+def _write_stream(rec: _Recording) -> None:
+    """Odometry, tf, ground truth and camera frames, in the order they would be recorded."""
+    motion = rec.motion
+    odometry_t, frame_t = motion.odometry_t_ns, motion.frame_t_ns
+    stamps = _stamps(motion, rec.sensors, rec.rng)
     truth = Trajectory(odometry_t, motion.odometry_truth, "world")
-    base = BASE_FOOTPRINT if sensors.realsense_tf_tree else "base_link"
     i = j = 0
     exposure = 1.0
     while i < len(odometry_t) or j < len(frame_t):
         next_odometry = odometry_t[i] + ODOMETRY_LATENCY_NS if i < len(odometry_t) else math.inf
-        next_frame = frame_stamps[j] + IMAGE_LATENCY_NS if j < len(frame_t) else math.inf
+        next_frame = stamps.frames[j] + IMAGE_LATENCY_NS if j < len(frame_t) else math.inf
         if next_odometry <= next_frame:
-            t_ns = int(odometry_stamps[i])
-            x, y, yaw = motion.odometry[i]
-            bag.write(
-                topics.odom,
-                "nav_msgs/msg/Odometry",
-                {
-                    "header": header(t_ns, "odom"),
-                    "child_frame_id": base,
-                    "pose": {"pose": _pose(x, y, yaw), "covariance": [0.0] * 36},
-                    "twist": {
-                        "twist": {
-                            "linear": {"x": 0.0, "y": 0.0, "z": 0.0},
-                            "angular": {"x": 0.0, "y": 0.0, "z": 0.0},
-                        },
-                        "covariance": [0.0] * 36,
-                    },
-                },
-                t_ns,
-                int(next_odometry),
-            )
-            bag.write(
-                topics.tf,
-                "tf2_msgs/msg/TFMessage",
-                {
-                    "transforms": [
-                        transform_stamped(t_ns, "odom", base, (x, y, 0.0), quaternion_from_yaw(yaw))
-                    ]
-                },
-                t_ns,
-                int(next_odometry),
-            )
-            t_ns = int(odometry_t[i])  # the truth at its true time
-            T_map_base = T_map_world.compose(gtsam.Pose2(*motion.odometry_truth[i]))
-            bag.write(
-                topics.true_pose,
-                "geometry_msgs/msg/PoseStamped",
-                {
-                    "header": header(t_ns, "map"),
-                    "pose": _pose(T_map_base.x(), T_map_base.y(), T_map_base.theta()),
-                },
-                t_ns,
-                int(next_odometry),
-            )
+            _write_odometry(rec, i, int(stamps.odometry[i]), int(next_odometry))
             i += 1
             continue
         exposure = float(
-            np.clip(exposure + rng.normal(0.0, renderer.effects.exposure_sigma), 0.8, 1.2)
+            np.clip(exposure + rec.rng.normal(0.0, rec.renderer.effects.exposure_sigma), 0.8, 1.2)
         )
-        if dropped[j]:
+        if stamps.dropped[j]:
             j += 1
             continue
-        t_ns = int(frame_stamps[j])
-        frame = capture(renderer, truth, int(frame_t[j]), sensors, rng, exposure)
-        log_time = int(next_frame)
-        if compressed:
-            ok, jpeg = cv2.imencode(
-                ".jpg", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
-            )
-            if not ok:
-                raise RuntimeError(f"JPEG encoding failed for the frame at t_ns={t_ns}")
-            bag.write(
-                topics.color_compressed,
-                "sensor_msgs/msg/CompressedImage",
-                {
-                    "header": header(t_ns, OPTICAL_FRAME),
-                    "format": "rgb8; jpeg compressed bgr8",
-                    "data": jpeg.tobytes(),
-                },
-                t_ns,
-                log_time,
-            )
-        else:
-            bag.write(
-                topics.color,
-                "sensor_msgs/msg/Image",
-                {
-                    "header": header(t_ns, OPTICAL_FRAME),
-                    "height": camera.height,
-                    "width": camera.width,
-                    "encoding": "rgb8",
-                    "is_bigendian": 0,
-                    "step": 3 * camera.width,
-                    "data": frame.rgb.tobytes(),
-                },
-                t_ns,
-                log_time,
-            )
-        bag.write(
-            topics.depth,
-            "sensor_msgs/msg/Image",
-            {
-                "header": header(t_ns, OPTICAL_FRAME),
-                "height": camera.height,
-                "width": camera.width,
-                "encoding": "16UC1",
-                "is_bigendian": 0,
-                "step": 2 * camera.width,
-                "data": frame.depth_mm.tobytes(),
-            },
-            t_ns,
-            log_time,
-        )
-        bag.write(
-            topics.color_info,
-            "sensor_msgs/msg/CameraInfo",
-            _camera_info(t_ns, camera),
-            t_ns,
-            log_time,
-        )
-        bag.write(
-            topics.depth_info,
-            "sensor_msgs/msg/CameraInfo",
-            _camera_info(t_ns, camera),
-            t_ns,
-            log_time,
-        )
+        t_ns = int(stamps.frames[j])
+        frame = capture(rec.renderer, truth, int(frame_t[j]), rec.sensors, rec.rng, exposure)
+        _write_frame(rec, frame, t_ns, int(next_frame))
         j += 1
-        if progress is not None:
-            progress(j, len(frame_t))
+        if rec.progress is not None:
+            rec.progress(j, len(frame_t))
+
+
+def _write_odometry(rec: _Recording, i: int, t_ns: int, log_time: int) -> None:
+    """Odometry sample ``i`` on the odometry topic and /tf at its (jittered) stamp ``t_ns``,
+    and the true pose at its true time."""
+    bag, topics = rec.bag, rec.topics
+    base = BASE_FOOTPRINT if rec.sensors.realsense_tf_tree else "base_link"
+    x, y, yaw = rec.motion.odometry[i]
+    bag.write(
+        topics.odom,
+        "nav_msgs/msg/Odometry",
+        {
+            "header": header(t_ns, "odom"),
+            "child_frame_id": base,
+            "pose": {"pose": _pose(x, y, yaw), "covariance": [0.0] * 36},
+            "twist": {
+                "twist": {
+                    "linear": {"x": 0.0, "y": 0.0, "z": 0.0},
+                    "angular": {"x": 0.0, "y": 0.0, "z": 0.0},
+                },
+                "covariance": [0.0] * 36,
+            },
+        },
+        t_ns,
+        log_time,
+    )
+    bag.write(
+        topics.tf,
+        "tf2_msgs/msg/TFMessage",
+        {
+            "transforms": [
+                transform_stamped(t_ns, "odom", base, (x, y, 0.0), quaternion_from_yaw(yaw))
+            ]
+        },
+        t_ns,
+        log_time,
+    )
+    t_ns = int(rec.motion.odometry_t_ns[i])  # the truth at its true time
+    T_map_base = rec.T_map_world.compose(gtsam.Pose2(*rec.motion.odometry_truth[i]))
+    bag.write(
+        topics.true_pose,
+        "geometry_msgs/msg/PoseStamped",
+        {
+            "header": header(t_ns, "map"),
+            "pose": _pose(T_map_base.x(), T_map_base.y(), T_map_base.theta()),
+        },
+        t_ns,
+        log_time,
+    )
+
+
+def _write_frame(rec: _Recording, frame: RenderedFrame, t_ns: int, log_time: int) -> None:
+    """A camera frame: colour (raw or JPEG), depth and both camera infos."""
+    bag, topics, camera = rec.bag, rec.topics, rec.camera
+    if rec.compressed:
+        ok, jpeg = cv2.imencode(
+            ".jpg", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
+        )
+        if not ok:
+            raise RuntimeError(f"JPEG encoding failed for the frame at t_ns={t_ns}")
+        color: dict[str, object] = {
+            "header": header(t_ns, OPTICAL_FRAME),
+            "format": "rgb8; jpeg compressed bgr8",
+            "data": jpeg.tobytes(),
+        }
+        bag.write(topics.color_compressed, "sensor_msgs/msg/CompressedImage", color, t_ns, log_time)
+    else:
+        color = _image(t_ns, camera, "rgb8", 3, frame.rgb.tobytes())
+        bag.write(topics.color, "sensor_msgs/msg/Image", color, t_ns, log_time)
+    depth = _image(t_ns, camera, "16UC1", 2, frame.depth_mm.tobytes())
+    bag.write(topics.depth, "sensor_msgs/msg/Image", depth, t_ns, log_time)
+    info = "sensor_msgs/msg/CameraInfo"
+    bag.write(topics.color_info, info, _camera_info(t_ns, camera), t_ns, log_time)
+    bag.write(topics.depth_info, info, _camera_info(t_ns, camera), t_ns, log_time)
+
+
+def _image(
+    t_ns: int, camera: Camera, encoding: str, bytes_per_pixel: int, data: bytes
+) -> dict[str, object]:
+    """A ``sensor_msgs/msg/Image`` in the optical frame."""
+    return {
+        "header": header(t_ns, OPTICAL_FRAME),
+        "height": camera.height,
+        "width": camera.width,
+        "encoding": encoding,
+        "is_bigendian": 0,
+        "step": bytes_per_pixel * camera.width,
+        "data": data,
+    }
