@@ -80,7 +80,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
             "links": len(result.estimate.links),
             "unplaced": {str(k): v for k, v in result.estimate.unplaced.items()},
             "converged": result.estimate.converged,
-            "notes": result.estimate.notes,
+            "notes": [note.text for note in result.estimate.notes],
             "diagnostics": diagnostics(
                 result.estimate, [s.frames for s in run.sessions] or run.frames
             ),

@@ -18,6 +18,7 @@ import gtsam
 import numpy as np
 
 from markergraph.common.errors import SettingsError
+from markergraph.common.notes import Note
 from markergraph.estimator import Estimate, Frames, Method, Trajectory, marker_heights
 from markergraph.estimator.sessions import (
     Localization,
@@ -148,7 +149,7 @@ def map_logs(
         seconds[method.value] = time.perf_counter() - start
         first_solved = first_solved or solved
         estimate = _as_estimate(solved, method, home_id)
-        estimate.notes = notes + estimate.notes
+        estimate.notes = [Note("sessions.map_logs", text) for text in notes] + estimate.notes
         marker_map = marker_map_of(estimate, ", ".join(map(str, logs)), config, heights)
         results.append(MethodResult(method, estimate, marker_map))
     assert first_solved is not None

@@ -12,6 +12,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.notes import Note
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     FactorResidual,
@@ -43,7 +44,8 @@ class Estimate:
             (EKF), for NEES against ground truth.
         innovations: (M, 3) innovation (bearing, theta, range) of each update (EKF only).
         nis: (M,) normalised innovation squared of each observation update (EKF only).
-        notes: diagnostics a person should read: what was skipped, what is disconnected.
+        notes: diagnostics a person should read: what was skipped, what is disconnected
+            (records: code and tests match their ``kind``, never their text).
         graph, values: the factor graph the GTSAM methods solved and its solution (None for
             the closed form and the EKF); robot poses in it are the camera's.
         pose_graph: makes the same solution as a plain pose graph of base poses and markers
@@ -66,7 +68,7 @@ class Estimate:
     trajectory_covariance: NDArray[np.float64] | None = None
     innovations: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)))
     nis: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
-    notes: list[str] = field(default_factory=list)
+    notes: list[Note] = field(default_factory=list)
     graph: gtsam.NonlinearFactorGraph | None = None
     values: gtsam.Values | None = None
     pose_graph: Callable[[], tuple[gtsam.NonlinearFactorGraph, gtsam.Values]] | None = None

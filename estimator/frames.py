@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common.errors import MarkerGraphError, RejectedObservationError
+from markergraph.common.notes import Note
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Observation, OdometryNoise, OdometrySample
 
@@ -48,13 +49,13 @@ class Frames:
         frames: frames with observations, in time order.
         home_id: the marker whose frame is the map frame.
         home_frame: index of the first frame that sees the home marker.
-        notes: what was dropped and why.
+        notes: what was dropped and why (kinds ``frames.*``).
     """
 
     frames: list[Frame]
     home_id: int
     home_frame: int
-    notes: list[str] = field(default_factory=list)
+    notes: list[Note] = field(default_factory=list)
 
     def marker_ids(self) -> list[int]:
         """Every marker id observed, in order of first sight."""
@@ -105,12 +106,18 @@ def build_frames(
         )
     notes = []
     if released:
-        notes.append(
+        notes.append(Note(
+            "frames.odometry_released",
             f"odometry released across {released} jump(s): those steps' odometry factors carry "
-            "no weight"
-        )
+            "no weight",
+            figure=released,
+        ))  # fmt: skip
     if skipped:
-        notes.append(f"{skipped} frame(s) outside the odometry's time span were skipped")
+        notes.append(Note(
+            "frames.outside_odometry",
+            f"{skipped} frame(s) outside the odometry's time span were skipped",
+            figure=skipped,
+        ))  # fmt: skip
     home, home_frame = _home(frames, home_id)
     return Frames(frames, home, home_frame, notes)
 

@@ -28,6 +28,7 @@ from gtsam.symbol_shorthand import L, X
 from numpy.typing import NDArray
 
 from markergraph.common.errors import EstimationError
+from markergraph.common.notes import Note
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.graph import (
     GraphBuilder,
@@ -86,7 +87,7 @@ class SessionsEstimate:
         pose_covariances: each placed session's (N, 3, 3) pose covariances, when asked for.
         apart: sessions that share no marker with this map, in their order.
         residuals: every factor's whitened error.
-        notes: what a person should read.
+        notes: what a person should read (kinds ``sessions.*``, ``marginals.*``).
         graph, values: the graph solved and its solution (robot poses are the camera's).
         pose_graph: makes the solution as a plain pose graph (``GraphBuilder.pose_graph``).
     """
@@ -96,7 +97,7 @@ class SessionsEstimate:
     pose_covariances: list[NDArray[np.float64] | None]
     apart: list[int]
     residuals: list[FactorResidual] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
+    notes: list[Note] = field(default_factory=list)
     graph: gtsam.NonlinearFactorGraph | None = None
     values: gtsam.Values | None = None
     pose_graph: Callable[[], tuple[gtsam.NonlinearFactorGraph, gtsam.Values]] | None = None
@@ -187,7 +188,7 @@ def solve_sessions(
         _Placing(builder, known, sessions, T_base_cameras, offsets, method, isam)
     )
     values = _solve(builder, isam, method)
-    notes: list[str] = []
+    notes: list[Note] = []
     marginals = marginals_or_note(builder.graph, values, notes)
     counts = Counter(
         o.marker_id for s in placed for f in sessions[s].frames for o in f.observations
@@ -214,10 +215,12 @@ def solve_sessions(
                 for key in keys
             ])  # fmt: skip
     if pending:
-        notes.append(
+        notes.append(Note(
+            "sessions.apart",
             f"session(s) {', '.join(str(s + 1) for s in pending)} share no marker with the "
-            "map and are left out of it"
-        )
+            "map and are left out of it",
+            figure=len(pending),
+        ))  # fmt: skip
     return SessionsEstimate(
         markers, trajectories, covariances, pending,
         read_residuals(builder.graph, values, builder.kinds), notes, builder.graph, values,
@@ -428,7 +431,9 @@ def localize(
         difference = saved[i].T_map_marker.localCoordinates(freed.markers[i].T_map_marker)
         fresh = freed.markers[i].covariance
         if fresh is None:
-            raise EstimationError(f"no covariance for marker {i}: {'; '.join(freed.notes)}")
+            raise EstimationError(
+                f"no covariance for marker {i}: {'; '.join(n.text for n in freed.notes)}"
+            )
         covariance = saved[i].covariance + fresh
         if float(difference @ np.linalg.solve(covariance, difference)) > MOVED_CHI2:
             moved_ids.append(i)
@@ -457,5 +462,5 @@ def _localization(
     trajectory, covariances = final.trajectories[0], final.pose_covariances[0]
     assert trajectory is not None
     if covariances is None:
-        raise EstimationError(f"no pose covariances: {'; '.join(final.notes)}")
+        raise EstimationError(f"no pose covariances: {'; '.join(n.text for n in final.notes)}")
     return Localization(trajectory, covariances, moved, new, dict(pulled), final)

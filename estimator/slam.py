@@ -12,6 +12,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from markergraph.common.errors import EstimationError
+from markergraph.common.notes import Note
 from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.gauge import relative_covariances
@@ -88,14 +89,16 @@ def marker_estimates(
 
 
 def marginals_or_note(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, notes: list[str]
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, notes: list[Note]
 ) -> gtsam.Marginals | None:
     """The solution's marginals, or None with a note saying why when the system is
     indeterminate (the means are kept)."""
     try:
         return gtsam.Marginals(graph, values)
     except RuntimeError as error:  # an indeterminate system: report, keep the means
-        notes.append(f"marginal covariances unavailable: {first_line(error)}")
+        notes.append(
+            Note("marginals.unavailable", f"marginal covariances unavailable: {first_line(error)}")
+        )
         return None
 
 
@@ -128,14 +131,26 @@ def _trajectory(values: gtsam.Values, frames: Frames, builder: GraphBuilder) -> 
     )
 
 
-def _slam_notes(frames: Frames, T_base_camera: gtsam.Pose2) -> tuple[list, list[str]]:
+def _slam_notes(frames: Frames, T_base_camera: gtsam.Pose2) -> tuple[list, list[Note]]:
     links = measure_links(frames, T_base_camera)
     groups = components(frames.marker_ids(), links)
-    notes = [
-        f"{sentence}; only odometry joins them to the map"
-        for sentence in describe_disconnected(groups, frames.home_id)
-    ]
+    notes = _disconnected_notes(
+        "slam.disconnected", groups, frames.home_id, "; only odometry joins them to the map"
+    )
     return link_counts(links), notes
+
+
+def _disconnected_notes(
+    kind: str, groups: list[list[int]], home_id: int, ending: str = ""
+) -> list[Note]:
+    """A note per group of markers no link chain joins to home (``describe_disconnected``'s
+    sentences), its figure the group's size."""
+    apart = [group for group in groups if home_id not in group]
+    sentences = describe_disconnected(groups, home_id)
+    return [
+        Note(kind, f"{sentence}{ending}", figure=len(group))
+        for group, sentence in zip(apart, sentences, strict=True)
+    ]
 
 
 def solve_slam(
@@ -147,9 +162,11 @@ def solve_slam(
     builder = build_slam_graph(frames, T_base_camera, robust)
     timings["build"] = time.perf_counter() - start
     result, converged = _optimise(builder, timings)
-    stop_note = (
+    stop_note = Note(
+        "slam.not_converged",
         f"Levenberg-Marquardt stopped after {MAX_ITERATIONS} iterations without "
-        "converging; the map is its last estimate"
+        "converging; the map is its last estimate",
+        figure=MAX_ITERATIONS,
     )
     return _slam_estimate(
         Method.SLAM, frames, T_base_camera, builder, result, converged, stop_note, timings
@@ -206,7 +223,7 @@ def _solved_estimate(
     marker_ids: list[int],
     trajectory: Trajectory,
     links: list,
-    notes: list[str],
+    notes: list[Note],
     converged: bool,
     timings: dict[str, float],
     unplaced: dict[int, str] | None = None,
@@ -244,7 +261,7 @@ def _slam_estimate(
     builder: GraphBuilder,
     result: gtsam.Values,
     converged: bool,
-    stop_note: str,
+    stop_note: Note,
     timings: dict[str, float],
 ) -> Estimate:
     """The Estimate of a solved SLAM graph, batch or incremental."""
@@ -374,14 +391,15 @@ def solve_isam2(
         builder,
         result,
         converged,
-        "iSAM2 did not come to rest, nor did a batch pass after it",
+        Note("isam2.not_converged", "iSAM2 did not come to rest, nor did a batch pass after it"),
         timings,
     )
     if polished and converged:
-        estimate.notes.append(
+        estimate.notes.append(Note(
+            "isam2.polished",
             "iSAM2's final relinearisations crept (a robust kernel reweights one step at a "
-            "time); a batch Levenberg-Marquardt pass from its estimate brought it to rest"
-        )
+            "time); a batch Levenberg-Marquardt pass from its estimate brought it to rest",
+        ))  # fmt: skip
     return estimate
 
 
@@ -414,15 +432,17 @@ def solve_marker_graph(
     marker_ids = frames.marker_ids()
     groups = components(marker_ids, links)
     placed = next(group for group in groups if frames.home_id in group)
-    notes = frames.notes + describe_disconnected(groups, frames.home_id)
+    notes = frames.notes + _disconnected_notes("marker_graph.disconnected", groups, frames.home_id)
     unlinked = sum(not linkable(o) for f in frames.frames for o in f.observations)
     if unlinked:
         total = sum(len(f.observations) for f in frames.frames)
-        notes.append(
+        notes.append(Note(
+            "marker_graph.unlinked",
             f"{unlinked} of {total} observations end no link: their theta's sigma is over "
             f"{math.degrees(MAX_LINK_SIGMA_THETA_RAD):.0f} deg (grazing views), and a link "
-            "turns on the theta at each end"
-        )
+            "turns on the theta at each end",
+            figure=unlinked,
+        ))  # fmt: skip
     unplaced = {
         i: "no chain of links reaches the home marker"
         for group in groups

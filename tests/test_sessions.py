@@ -105,7 +105,7 @@ def test_a_log_of_another_place_is_handed_back(office) -> None:
     )
     assert merged.apart == [1] and merged.trajectories[1] is None
     assert all(i < offset for i in merged.markers)
-    assert "share no marker" in merged.notes[0]
+    assert merged.notes[0].kind == "sessions.apart" and merged.notes[0].figure == 1
 
 
 @pytest.fixture(scope="module")
