@@ -38,13 +38,13 @@ from markergraph.estimator.graph import (
     read_residuals,
 )
 from markergraph.estimator.links import measure_links
-from markergraph.estimator.slam import (
+from markergraph.estimator.marker_graph import localise_on_markers
+from markergraph.estimator.slam import new_isam2
+from markergraph.estimator.solution import (
     first_line,
     lm_params,
-    localise_on_markers,
     marginals_or_note,
     marker_estimates,
-    new_isam2,
 )
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import FactorResidual, MarkerEstimate, Method

@@ -388,9 +388,9 @@ def test_odometry_noise_adds_over_split_steps() -> None:
 
 def test_optimiser_that_stops_early_says_so(noisy_run: SimulatedRun, monkeypatch) -> None:
     """With one Levenberg-Marquardt iteration allowed, the estimate is flagged unconverged."""
-    from markergraph.estimator import slam
+    from markergraph.estimator import solution
 
-    monkeypatch.setattr(slam, "MAX_ITERATIONS", 1)
+    monkeypatch.setattr(solution, "MAX_ITERATIONS", 1)
     run = noisy_run
     result = estimate(
         run.observations, run.odometry, Method.SLAM, T_base_camera=run.mount.T_base_camera
