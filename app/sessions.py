@@ -20,13 +20,8 @@ import numpy as np
 from markergraph.common.errors import SettingsError
 from markergraph.common.notes import Note
 from markergraph.estimator import Estimate, Frames, Method, Trajectory, marker_heights
-from markergraph.estimator.sessions import (
-    Localization,
-    MapPrior,
-    SessionsEstimate,
-    localize,
-    solve_sessions,
-)
+from markergraph.estimator.localization import Localization, localize
+from markergraph.estimator.sessions import MapPrior, SessionsEstimate, solve_sessions
 from markergraph.executors import extract_logs
 from markergraph.frontend import Extraction
 from markergraph.markermap import MarkerMap
@@ -267,7 +262,8 @@ def localize_log(
     progress: Callable[[int, int], None] | None = None,
     stage: Callable[[str], None] | None = None,
 ) -> LocalizationRun:
-    """A log's robot trajectory in a saved map (:func:`~markergraph.estimator.sessions.localize`).
+    """A log's robot trajectory in a saved map
+    (:func:`~markergraph.estimator.localization.localize`).
 
     Raises:
         MarkerGraphError: the log cannot be read, has no markers or odometry, or sees no
