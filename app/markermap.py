@@ -21,9 +21,9 @@ from numpy.typing import NDArray
 
 from markergraph.common.errors import MarkerGraphError
 from markergraph.common.files import written_whole
+from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.heights import MarkerHeight
 from markergraph.estimator.paper import Edge, Form, edge_from_pose2, heading
-from markergraph.estimator.types import Estimate
 
 __all__ = ["MAP_SCHEMA", "MapLink", "MapMarker", "MarkerMap", "MarkerMapError"]
 

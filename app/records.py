@@ -20,7 +20,7 @@ from markergraph.estimator import (
     Trajectory,
     TrajectoryError,
 )
-from markergraph.estimator.sessions import Localization
+from markergraph.estimator.localization import Localization
 from markergraph.frontend import Extraction
 from markergraph.markermap import MarkerMap
 from markergraph.settings import MapConfig

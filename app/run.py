@@ -16,7 +16,8 @@ from pathlib import Path
 
 from markergraph.common import EstimationError, Note, SettingsError
 from markergraph.estimator import Form, Method, estimate_frames, marker_heights
-from markergraph.estimator.sessions import localize, solve_sessions
+from markergraph.estimator.localization import localize
+from markergraph.estimator.sessions import solve_sessions
 from markergraph.executors import extract_logs
 from markergraph.frontend import Extraction
 from markergraph.markermap import MarkerMap

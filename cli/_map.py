@@ -166,8 +166,8 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
                 + (f" {trajectory.ate_rmse_m:>7.3f}" if trajectory else f" {'-':>7}")
             )
         print(line)
-        for note in estimate.notes:
-            print(f"  {method_result.label}: {note}")
+        for estimate_note in estimate.notes:
+            print(f"  {method_result.label}: {estimate_note.text}")
     for method_result in result.results:
         judgement = method_result.judgement
         print(f"verdict {method_result.label}: {judgement.verdict.value}", end="")

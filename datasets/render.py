@@ -269,6 +269,16 @@ class Renderer:
         plain_wall: NDArray[np.bool_],
     ) -> tuple[int, ...]:
         """Composite every marker facing the camera into ``gray``; returns the drawn ids."""
+        drawn = []
+        for index, pixels in self._markers_in_view(T_world_base):
+            marker_id = int(self._geometry.ids[index])
+            if self._draw_marker(gray, marker_id, pixels, pixel_wall, plain_wall):
+                drawn.append(marker_id)
+        return tuple(drawn)
+
+    def _markers_in_view(self, T_world_base: gtsam.Pose2) -> list[tuple[int, NDArray[np.float32]]]:
+        """The markers that face the camera and overlap the image: (index in the geometry,
+        (4, 2) its black square's corners in pixels, TL, TR, BR, BL)."""
         T_world_camera = T_world_base.compose(self.mount.T_base_camera)
         p_camera = np.array([T_world_camera.x(), T_world_camera.y()])
         width, height = self.camera.width, self.camera.height
@@ -281,7 +291,7 @@ class Renderer:
         ) > 0.05
         candidates = np.flatnonzero(in_front)
         if candidates.size == 0:
-            return ()
+            return []
         optical = self.mount.world_to_optical(
             T_world_base, geometry.corners[candidates].reshape(-1, 3)
         ).reshape(-1, 4, 3)
@@ -293,68 +303,62 @@ class Renderer:
         low, high = projected.min(axis=1), projected.max(axis=1)
         margin = 0.5 * (high - low).max(axis=1, keepdims=True)
         overlaps = np.all((high + margin >= 0) & (low - margin <= [width, height]), axis=1)
-        drawn = []
-        for index, pixels in zip(
-            candidates[overlaps], projected[overlaps].astype(np.float32), strict=True
-        ):
-            marker_id = int(geometry.ids[index])
-            side = max(
-                np.linalg.norm(pixels[0] - pixels[3]),
-                np.linalg.norm(pixels[1] - pixels[2]),
-                np.linalg.norm(pixels[0] - pixels[1]),
-            )
-            level = next(
-                (i for i, s in enumerate(_MARKER_LEVELS) if s >= side / 2.0),
-                len(_MARKER_LEVELS) - 1,
-            )
-            sheet, border = self._sheets[marker_id][level]
-            n = _MARKER_LEVELS[level]
-            # The sheet's black-square corners, TL, TR, BR, BL, in its own pixels (pixel centres
-            # at integers, so the square spans [border - 0.5, border + n - 0.5]).
-            source = np.array(
-                [
-                    [border - 0.5, border - 0.5],
-                    [border + n - 0.5, border - 0.5],
-                    [border + n - 0.5, border + n - 0.5],
-                    [border - 0.5, border + n - 0.5],
-                ],
-                dtype=np.float32,
-            )
-            H = cv2.getPerspectiveTransform(source, pixels)
-            sheet_side = sheet.shape[0]
-            far = sheet_side - 0.5
-            sheet_outline = np.array(
-                [[[-0.5, -0.5], [far, -0.5], [far, far], [-0.5, far]]], dtype=np.float32
-            )
-            outline = cv2.perspectiveTransform(sheet_outline, H)[0]
-            x0, y0 = np.floor(outline.min(axis=0)).astype(int)
-            x1, y1 = np.ceil(outline.max(axis=0)).astype(int) + 1
-            x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
-            if x0 >= x1 or y0 >= y1:
-                continue
-            shift = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], dtype=np.float64)
-            with_mask = np.dstack([sheet, np.full_like(sheet, 255)])
-            warped = cv2.warpPerspective(
-                with_mask,
-                shift @ H,
-                (x1 - x0, y1 - y0),
-                flags=cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_CONSTANT,
-                borderValue=0,
-            )
-            coverage = warped[..., 1].astype(np.float32) / 255.0
-            on_its_wall = plain_wall[y0:y1, x0:x1] & (
-                pixel_wall[y0:y1, x0:x1] == self._marker_walls[marker_id]
-            )
-            coverage *= on_its_wall
-            if not coverage.any():
-                continue
-            # Printed paper: black ink at ~25, white at ~235 grey levels.
-            ink = 25.0 + warped[..., 0].astype(np.float32) * (210.0 / 255.0)
-            region = gray[y0:y1, x0:x1]
-            region += coverage * (ink - region)
-            drawn.append(marker_id)
-        return tuple(drawn)
+        return list(zip(candidates[overlaps], projected[overlaps].astype(np.float32), strict=True))
+
+    def _draw_marker(
+        self,
+        gray: NDArray[np.float32],
+        marker_id: int,
+        pixels: NDArray[np.float32],
+        pixel_wall: NDArray[np.intp],
+        plain_wall: NDArray[np.bool_],
+    ) -> bool:
+        """Composite one marker's sheet, its black square at ``pixels``, into ``gray`` where
+        its own wall shows; False if none of it does."""
+        width, height = self.camera.width, self.camera.height
+        side = max(
+            np.linalg.norm(pixels[0] - pixels[3]),
+            np.linalg.norm(pixels[1] - pixels[2]),
+            np.linalg.norm(pixels[0] - pixels[1]),
+        )
+        level = next(
+            (i for i, s in enumerate(_MARKER_LEVELS) if s >= side / 2.0),
+            len(_MARKER_LEVELS) - 1,
+        )
+        sheet, border = self._sheets[marker_id][level]
+        H = cv2.getPerspectiveTransform(_square_corners(border, _MARKER_LEVELS[level]), pixels)
+        far = sheet.shape[0] - 0.5
+        sheet_outline = np.array(
+            [[[-0.5, -0.5], [far, -0.5], [far, far], [-0.5, far]]], dtype=np.float32
+        )
+        outline = cv2.perspectiveTransform(sheet_outline, H)[0]
+        x0, y0 = np.floor(outline.min(axis=0)).astype(int)
+        x1, y1 = np.ceil(outline.max(axis=0)).astype(int) + 1
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
+        if x0 >= x1 or y0 >= y1:
+            return False
+        shift = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], dtype=np.float64)
+        with_mask = np.dstack([sheet, np.full_like(sheet, 255)])
+        warped = cv2.warpPerspective(
+            with_mask,
+            shift @ H,
+            (x1 - x0, y1 - y0),
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )
+        coverage = warped[..., 1].astype(np.float32) / 255.0
+        on_its_wall = plain_wall[y0:y1, x0:x1] & (
+            pixel_wall[y0:y1, x0:x1] == self._marker_walls[marker_id]
+        )
+        coverage *= on_its_wall
+        if not coverage.any():
+            return False
+        # Printed paper: black ink at ~25, white at ~235 grey levels.
+        ink = 25.0 + warped[..., 0].astype(np.float32) * (210.0 / 255.0)
+        region = gray[y0:y1, x0:x1]
+        region += coverage * (ink - region)
+        return True
 
     def _noisy_depth(self, z: NDArray[np.float32], rng: np.random.Generator) -> NDArray[np.uint16]:
         noise = self.depth_noise
@@ -379,3 +383,17 @@ class Renderer:
         noisy += 0.5
         noisy[(z <= 0.0) | (z > noise.max_range_m) | dropped] = 0.0
         return noisy.astype(np.uint16)
+
+
+def _square_corners(border: int, n: int) -> NDArray[np.float32]:
+    """A marker sheet's black-square corners, TL, TR, BR, BL, in its own pixels (pixel centres
+    at integers, so the square spans [border - 0.5, border + n - 0.5])."""
+    return np.array(
+        [
+            [border - 0.5, border - 0.5],
+            [border + n - 0.5, border - 0.5],
+            [border + n - 0.5, border + n - 0.5],
+            [border - 0.5, border + n - 0.5],
+        ],
+        dtype=np.float32,
+    )

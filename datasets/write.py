@@ -30,16 +30,13 @@ import numpy as np
 from mcap.records import Schema
 from mcap.writer import CompressionType
 from mcap_ros2.writer import Writer
+from numpy.typing import NDArray
 
 from markergraph.common.files import written_whole
+from markergraph.datasets.capture import capture
 from markergraph.datasets.render import RenderedFrame, Renderer
 from markergraph.datasets.route import Drive, Route, WheelErrors, drive
-from markergraph.datasets.sensors import (
-    SensorEffects,
-    black_cells_without_depth,
-    motion_smear,
-    shutter_offsets,
-)
+from markergraph.datasets.sensors import SensorEffects
 from markergraph.datasets.simulate import SIMULATED_MOUNT
 from markergraph.datasets.world import World
 from markergraph.estimator.trajectory import Trajectory
@@ -53,7 +50,7 @@ from markergraph.frontend.ros2 import (
 )
 from markergraph.frontend.topics import TRUE_MARKERS, TRUE_POSE, TRUE_WORLD
 
-__all__ = ["LogSummary", "Topics", "capture", "write_log"]
+__all__ = ["LogSummary", "Topics", "write_log"]
 
 IMAGE_LATENCY_NS = 30_000_000  # capture to recording, for the MCAP log time
 ODOMETRY_LATENCY_NS = 2_000_000
@@ -191,8 +188,11 @@ def write_log(
         start = int(min(motion.odometry_t_ns[0], motion.frame_t_ns[0]))
         _write_static(bag, world, mount, topics, start, T_map_world, sensors)
         _write_stream(
-            bag, motion, renderer, camera, topics, T_map_world, compressed, sensors, rng, progress
-        )
+            _Recording(
+                bag, motion, renderer, camera, topics, T_map_world, compressed, sensors, rng,
+                progress,
+            )
+        )  # fmt: skip
         bag.writer.finish()
     return LogSummary(out, len(motion.frame_t_ns), dict(bag.counts), out.stat().st_size)
 
@@ -255,88 +255,48 @@ def _write_static(
     bag.write(topics.world, "std_msgs/msg/String", {"data": world.to_json()}, t_ns, t_ns)
 
 
-def capture(
-    renderer: Renderer,
-    truth: Trajectory,
-    t_ns: int,
-    sensors: SensorEffects,
-    rng: np.random.Generator,
-    exposure: float = 1.0,
-) -> RenderedFrame:
-    """One frame whose top row is captured at ``t_ns``, as the sensors take it: each row at its
-    readout time, smeared by the turn during the exposure, depth scaled and holed.
+@dataclass(frozen=True, slots=True)
+class _Recording:
+    """What writing the stream of a log works from."""
 
-    Under a rolling shutter the frame is rendered at :func:`shutter_offsets` and each row blended
-    linearly from the two renders about its time (a shift of under a pixel between them blends
-    into a shifted edge), so a marker's edges are straight skewed lines, not a staircase of
-    bands; every render draws the same noise. Depth is the nearer render's row."""
-    offsets = shutter_offsets(sensors.rolling_shutter_s)
-    # One noise draw for all renders of a frame (the global shutter's single render draws from
-    # ``rng`` itself, as it always has).
-    seed = None if len(offsets) == 1 else int(rng.integers(2**63))
-    renders = []
-    for after_s in offsets:
-        t_render = t_ns + round(after_s * 1e9)
-        pose = truth.at(t_render)
-        if pose is None:
-            raise ValueError(f"no true pose at {t_render} ns to render")
-        frame = renderer.render(
-            pose, rng if seed is None else np.random.default_rng(seed), exposure
-        )
-        if sensors.exposure_s > 0:
-            # The turn's smear (a translation's is left out: it is a fraction of it here).
-            rate = _yaw_rate(truth, t_render + round(sensors.exposure_s * 5e8))
-            length_px = abs(rate) * sensors.exposure_s * renderer.camera.fx
-            frame = RenderedFrame(
-                motion_smear(frame.rgb, length_px), frame.depth_mm, frame.drawn_ids
-            )
-        renders.append(frame)
-    if len(renders) == 1:
-        rgb, depth = renders[0].rgb, renders[0].depth_mm.copy()
-    else:
-        height = renderer.camera.height
-        position = np.arange(height) / height * (len(renders) - 1)  # in render intervals
-        first = np.floor(position).astype(int)
-        weight = (position - first)[:, None, None]
-        stack = np.stack([r.rgb for r in renders])
-        rows = np.arange(height)
-        before, after = stack[first, rows].astype(np.float32), stack[first + 1, rows]
-        blended = (1.0 - weight) * before + weight * after
-        rgb = np.clip(np.rint(blended), 0, 255).astype(np.uint8)
-        nearer = first + (weight[:, 0, 0] >= 0.5)
-        depth = np.stack([r.depth_mm for r in renders])[nearer, rows]
-    if sensors.depth_scale != 1.0:
-        scaled = np.rint(depth.astype(np.float64) * sensors.depth_scale)
-        depth = np.clip(scaled, 0, 65535).astype(np.uint16)
-    if sensors.black_cells_without_depth:
-        depth = black_cells_without_depth(rgb, depth)
-    drawn = sorted(set().union(*(r.drawn_ids for r in renders)))
-    return RenderedFrame(rgb, depth, tuple(drawn))
+    bag: _Bag
+    """The log being written."""
+    motion: Drive
+    """The drive: odometry and frame times, odometry and true poses."""
+    renderer: Renderer
+    """Renders the camera's frames."""
+    camera: Camera
+    """The camera's intrinsics (distortion included)."""
+    topics: Topics
+    """Topic names."""
+    T_map_world: gtsam.Pose2
+    """The world in the map (home marker's) frame, for the ground truth."""
+    compressed: bool
+    """JPEG colour on ``.../compressed`` instead of raw rgb8."""
+    sensors: SensorEffects
+    """The camera's and base's departures from ideal."""
+    rng: np.random.Generator
+    """The run's random stream (exposure, rendering noise)."""
+    progress: Callable[[int, int], None] | None
+    """Called with (frames done, frames in all), or None."""
 
 
-def _yaw_rate(truth: Trajectory, t_ns: int, half_window_ns: int = 10_000_000) -> float:
-    """The true turn rate about ``t_ns`` [rad/s]."""
-    before, after = truth.at(t_ns - half_window_ns), truth.at(t_ns + half_window_ns)
-    if before is None or after is None:
-        return 0.0
-    return before.between(after).theta() / (2 * half_window_ns * 1e-9)
+@dataclass(frozen=True, slots=True)
+class _Stamps:
+    """The stamps the sensors put on their messages, and the frames they drop."""
+
+    odometry: NDArray[np.int64]
+    """(N,) each odometry sample's header stamp, jittered [ns]."""
+    frames: NDArray[np.int64]
+    """(M,) each camera frame's header stamp, late and jittered [ns]."""
+    dropped: NDArray[np.bool_]
+    """(M,) whether each frame is dropped."""
 
 
-def _write_stream(
-    bag: _Bag,
-    motion: Drive,
-    renderer: Renderer,
-    camera: Camera,
-    topics: Topics,
-    T_map_world: gtsam.Pose2,
-    compressed: bool,
-    sensors: SensorEffects,
-    rng: np.random.Generator,
-    progress: Callable[[int, int], None] | None,
-) -> None:
-    """Odometry, tf, ground truth and camera frames, in the order they would be recorded."""
+def _stamps(motion: Drive, sensors: SensorEffects, rng: np.random.Generator) -> _Stamps:
+    """The sensors' stamps and dropped frames, drawn from a stream of their own so ideal logs
+    stay as they were."""
     odometry_t, frame_t = motion.odometry_t_ns, motion.frame_t_ns
-    # The sensors' own draws come from a stream of their own, so ideal logs stay as they were.
     sensor_rng = np.random.default_rng([int(rng.integers(2**31)), 7])
     odometry_stamps = odometry_t + np.rint(
         sensor_rng.normal(0.0, sensors.odometry_jitter_s * 1e9, len(odometry_t))
@@ -346,130 +306,122 @@ def _write_stream(
         * 1e9
     ).astype(np.int64)
     dropped = sensor_rng.random(len(frame_t)) < sensors.dropped_frames
+    return _Stamps(odometry_stamps, frame_stamps, dropped)
+
+
+def _write_stream(rec: _Recording) -> None:
+    """Odometry, tf, ground truth and camera frames, in the order they would be recorded."""
+    motion = rec.motion
+    odometry_t, frame_t = motion.odometry_t_ns, motion.frame_t_ns
+    stamps = _stamps(motion, rec.sensors, rec.rng)
     truth = Trajectory(odometry_t, motion.odometry_truth, "world")
-    base = BASE_FOOTPRINT if sensors.realsense_tf_tree else "base_link"
     i = j = 0
     exposure = 1.0
     while i < len(odometry_t) or j < len(frame_t):
         next_odometry = odometry_t[i] + ODOMETRY_LATENCY_NS if i < len(odometry_t) else math.inf
-        next_frame = frame_stamps[j] + IMAGE_LATENCY_NS if j < len(frame_t) else math.inf
+        next_frame = stamps.frames[j] + IMAGE_LATENCY_NS if j < len(frame_t) else math.inf
         if next_odometry <= next_frame:
-            t_ns = int(odometry_stamps[i])
-            x, y, yaw = motion.odometry[i]
-            bag.write(
-                topics.odom,
-                "nav_msgs/msg/Odometry",
-                {
-                    "header": header(t_ns, "odom"),
-                    "child_frame_id": base,
-                    "pose": {"pose": _pose(x, y, yaw), "covariance": [0.0] * 36},
-                    "twist": {
-                        "twist": {
-                            "linear": {"x": 0.0, "y": 0.0, "z": 0.0},
-                            "angular": {"x": 0.0, "y": 0.0, "z": 0.0},
-                        },
-                        "covariance": [0.0] * 36,
-                    },
-                },
-                t_ns,
-                int(next_odometry),
-            )
-            bag.write(
-                topics.tf,
-                "tf2_msgs/msg/TFMessage",
-                {
-                    "transforms": [
-                        transform_stamped(t_ns, "odom", base, (x, y, 0.0), quaternion_from_yaw(yaw))
-                    ]
-                },
-                t_ns,
-                int(next_odometry),
-            )
-            t_ns = int(odometry_t[i])  # the truth at its true time
-            T_map_base = T_map_world.compose(gtsam.Pose2(*motion.odometry_truth[i]))
-            bag.write(
-                topics.true_pose,
-                "geometry_msgs/msg/PoseStamped",
-                {
-                    "header": header(t_ns, "map"),
-                    "pose": _pose(T_map_base.x(), T_map_base.y(), T_map_base.theta()),
-                },
-                t_ns,
-                int(next_odometry),
-            )
+            _write_odometry(rec, i, int(stamps.odometry[i]), int(next_odometry))
             i += 1
             continue
         exposure = float(
-            np.clip(exposure + rng.normal(0.0, renderer.effects.exposure_sigma), 0.8, 1.2)
+            np.clip(exposure + rec.rng.normal(0.0, rec.renderer.effects.exposure_sigma), 0.8, 1.2)
         )
-        if dropped[j]:
+        if stamps.dropped[j]:
             j += 1
             continue
-        t_ns = int(frame_stamps[j])
-        frame = capture(renderer, truth, int(frame_t[j]), sensors, rng, exposure)
-        log_time = int(next_frame)
-        if compressed:
-            ok, jpeg = cv2.imencode(
-                ".jpg", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
-            )
-            if not ok:
-                raise RuntimeError(f"JPEG encoding failed for the frame at t_ns={t_ns}")
-            bag.write(
-                topics.color_compressed,
-                "sensor_msgs/msg/CompressedImage",
-                {
-                    "header": header(t_ns, OPTICAL_FRAME),
-                    "format": "rgb8; jpeg compressed bgr8",
-                    "data": jpeg.tobytes(),
-                },
-                t_ns,
-                log_time,
-            )
-        else:
-            bag.write(
-                topics.color,
-                "sensor_msgs/msg/Image",
-                {
-                    "header": header(t_ns, OPTICAL_FRAME),
-                    "height": camera.height,
-                    "width": camera.width,
-                    "encoding": "rgb8",
-                    "is_bigendian": 0,
-                    "step": 3 * camera.width,
-                    "data": frame.rgb.tobytes(),
-                },
-                t_ns,
-                log_time,
-            )
-        bag.write(
-            topics.depth,
-            "sensor_msgs/msg/Image",
-            {
-                "header": header(t_ns, OPTICAL_FRAME),
-                "height": camera.height,
-                "width": camera.width,
-                "encoding": "16UC1",
-                "is_bigendian": 0,
-                "step": 2 * camera.width,
-                "data": frame.depth_mm.tobytes(),
-            },
-            t_ns,
-            log_time,
-        )
-        bag.write(
-            topics.color_info,
-            "sensor_msgs/msg/CameraInfo",
-            _camera_info(t_ns, camera),
-            t_ns,
-            log_time,
-        )
-        bag.write(
-            topics.depth_info,
-            "sensor_msgs/msg/CameraInfo",
-            _camera_info(t_ns, camera),
-            t_ns,
-            log_time,
-        )
+        t_ns = int(stamps.frames[j])
+        frame = capture(rec.renderer, truth, int(frame_t[j]), rec.sensors, rec.rng, exposure)
+        _write_frame(rec, frame, t_ns, int(next_frame))
         j += 1
-        if progress is not None:
-            progress(j, len(frame_t))
+        if rec.progress is not None:
+            rec.progress(j, len(frame_t))
+
+
+def _write_odometry(rec: _Recording, i: int, t_ns: int, log_time: int) -> None:
+    """Odometry sample ``i`` on the odometry topic and /tf at its (jittered) stamp ``t_ns``,
+    and the true pose at its true time."""
+    bag, topics = rec.bag, rec.topics
+    base = BASE_FOOTPRINT if rec.sensors.realsense_tf_tree else "base_link"
+    x, y, yaw = rec.motion.odometry[i]
+    bag.write(
+        topics.odom,
+        "nav_msgs/msg/Odometry",
+        {
+            "header": header(t_ns, "odom"),
+            "child_frame_id": base,
+            "pose": {"pose": _pose(x, y, yaw), "covariance": [0.0] * 36},
+            "twist": {
+                "twist": {
+                    "linear": {"x": 0.0, "y": 0.0, "z": 0.0},
+                    "angular": {"x": 0.0, "y": 0.0, "z": 0.0},
+                },
+                "covariance": [0.0] * 36,
+            },
+        },
+        t_ns,
+        log_time,
+    )
+    bag.write(
+        topics.tf,
+        "tf2_msgs/msg/TFMessage",
+        {
+            "transforms": [
+                transform_stamped(t_ns, "odom", base, (x, y, 0.0), quaternion_from_yaw(yaw))
+            ]
+        },
+        t_ns,
+        log_time,
+    )
+    t_ns = int(rec.motion.odometry_t_ns[i])  # the truth at its true time
+    T_map_base = rec.T_map_world.compose(gtsam.Pose2(*rec.motion.odometry_truth[i]))
+    bag.write(
+        topics.true_pose,
+        "geometry_msgs/msg/PoseStamped",
+        {
+            "header": header(t_ns, "map"),
+            "pose": _pose(T_map_base.x(), T_map_base.y(), T_map_base.theta()),
+        },
+        t_ns,
+        log_time,
+    )
+
+
+def _write_frame(rec: _Recording, frame: RenderedFrame, t_ns: int, log_time: int) -> None:
+    """A camera frame: colour (raw or JPEG), depth and both camera infos."""
+    bag, topics, camera = rec.bag, rec.topics, rec.camera
+    if rec.compressed:
+        ok, jpeg = cv2.imencode(
+            ".jpg", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
+        )
+        if not ok:
+            raise RuntimeError(f"JPEG encoding failed for the frame at t_ns={t_ns}")
+        color: dict[str, object] = {
+            "header": header(t_ns, OPTICAL_FRAME),
+            "format": "rgb8; jpeg compressed bgr8",
+            "data": jpeg.tobytes(),
+        }
+        bag.write(topics.color_compressed, "sensor_msgs/msg/CompressedImage", color, t_ns, log_time)
+    else:
+        color = _image(t_ns, camera, "rgb8", 3, frame.rgb.tobytes())
+        bag.write(topics.color, "sensor_msgs/msg/Image", color, t_ns, log_time)
+    depth = _image(t_ns, camera, "16UC1", 2, frame.depth_mm.tobytes())
+    bag.write(topics.depth, "sensor_msgs/msg/Image", depth, t_ns, log_time)
+    info = "sensor_msgs/msg/CameraInfo"
+    bag.write(topics.color_info, info, _camera_info(t_ns, camera), t_ns, log_time)
+    bag.write(topics.depth_info, info, _camera_info(t_ns, camera), t_ns, log_time)
+
+
+def _image(
+    t_ns: int, camera: Camera, encoding: str, bytes_per_pixel: int, data: bytes
+) -> dict[str, object]:
+    """A ``sensor_msgs/msg/Image`` in the optical frame."""
+    return {
+        "header": header(t_ns, OPTICAL_FRAME),
+        "height": camera.height,
+        "width": camera.width,
+        "encoding": encoding,
+        "is_bigendian": 0,
+        "step": bytes_per_pixel * camera.width,
+        "data": data,
+    }

@@ -7,6 +7,7 @@ from markergraph.estimator.consistency import (
     odometry_nees,
     odometry_stretches,
 )
+from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.frames import Frame, Frames, build_frames
 from markergraph.estimator.graph import Robust
 from markergraph.estimator.heights import MarkerHeight, marker_heights
@@ -45,7 +46,6 @@ from markergraph.estimator.timing import (
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
     ODOMETRY_NOISE,
-    Estimate,
     FactorResidual,
     MarkerEstimate,
     MarkerLink,

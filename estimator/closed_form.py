@@ -24,7 +24,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.notes import Note
 from markergraph.estimator.angles import wrap
+from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.frames import Frame, Frames
 from markergraph.estimator.graph import observation_measurement
 from markergraph.estimator.paper import (
@@ -36,7 +38,6 @@ from markergraph.estimator.paper import (
 )
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
-    Estimate,
     MarkerEstimate,
     MarkerLink,
     Method,
@@ -181,10 +182,12 @@ def solve_closed_form(
     notes = list(frames.notes)
     for p in procedure.placements.values():
         if p.sigma_theta_rad > MAX_SIGMA_THETA_RAD:
-            notes.append(
+            notes.append(Note(
+                "closed_form.uncertain_theta",
                 f"closed form: marker {p.marker_id} placed from a view whose theta is uncertain "
-                f"by {math.degrees(p.sigma_theta_rad):.0f} deg (it had no better one)"
-            )
+                f"by {math.degrees(p.sigma_theta_rad):.0f} deg (it had no better one)",
+                figure=math.degrees(p.sigma_theta_rad),
+            ))  # fmt: skip
     stamps = sorted(procedure.poses)
     poses = [procedure.poses[k] for k in stamps]
     trajectory = np.array([[T.x(), T.y(), T.theta()] for T in poses])

@@ -23,12 +23,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.estimator.angles import wrap_array
+from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.graph import observation_measurement
 from markergraph.estimator.models import ekf_marker_init, ekf_motion, ekf_observation
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import (
-    Estimate,
     FactorResidual,
     MarkerEstimate,
     Method,

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.types import Estimate, Observation
+from markergraph.estimator.estimate import Estimate
+from markergraph.estimator.types import Observation
 
 __all__ = [
     "ResidualFit",

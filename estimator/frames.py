@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common.errors import MarkerGraphError, RejectedObservationError
+from markergraph.common.notes import Note
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Observation, OdometryNoise, OdometrySample
 
@@ -48,13 +49,13 @@ class Frames:
         frames: frames with observations, in time order.
         home_id: the marker whose frame is the map frame.
         home_frame: index of the first frame that sees the home marker.
-        notes: what was dropped and why.
+        notes: what was dropped and why (kinds ``frames.*``).
     """
 
     frames: list[Frame]
     home_id: int
     home_frame: int
-    notes: list[str] = field(default_factory=list)
+    notes: list[Note] = field(default_factory=list)
 
     def marker_ids(self) -> list[int]:
         """Every marker id observed, in order of first sight."""
@@ -89,6 +90,46 @@ def build_frames(
         RejectedObservationError: an observation is unusable (the message names it).
         MarkerGraphError: no odometry, no observation, or the home marker is never seen.
     """
+    by_stamp = _by_stamp(observations, marker_ids)
+    path = odometry if isinstance(odometry, Trajectory) else Trajectory.from_samples(odometry)
+    if not len(path):
+        raise MarkerGraphError("no odometry samples: the estimators need odometry")
+    if not by_stamp:
+        raise MarkerGraphError("no marker observations: nothing to map")
+    frames, skipped, released = _frames_on(by_stamp, path, odometry_noise, odometry_breaks)
+    if not frames:
+        first, last = min(by_stamp), max(by_stamp)
+        raise MarkerGraphError(
+            f"none of the {len(by_stamp)} frames with markers (stamps {first} to {last} ns) "
+            f"falls within the odometry's time span ({path.t_ns[0]} to {path.t_ns[-1]} ns): "
+            "do the camera and odometry stamps come from different clocks?"
+        )
+    notes = []
+    if released:
+        notes.append(Note(
+            "frames.odometry_released",
+            f"odometry released across {released} jump(s): those steps' odometry factors carry "
+            "no weight",
+            figure=released,
+        ))  # fmt: skip
+    if skipped:
+        notes.append(Note(
+            "frames.outside_odometry",
+            f"{skipped} frame(s) outside the odometry's time span were skipped",
+            figure=skipped,
+        ))  # fmt: skip
+    home, home_frame = _home(frames, home_id)
+    return Frames(frames, home, home_frame, notes)
+
+
+def _by_stamp(
+    observations: Iterable[Observation], marker_ids: Collection[int] | None
+) -> dict[int, dict[int, Observation]]:
+    """Validated observations by stamp, then by marker id (the nearer of two of one id).
+
+    Raises:
+        RejectedObservationError: an observation is unusable or of an id not allowed.
+    """
     by_stamp: dict[int, dict[int, Observation]] = {}
     for obs in observations:
         obs.validate()
@@ -100,11 +141,17 @@ def build_frames(
         current = by_stamp.setdefault(obs.t_ns, {}).get(obs.marker_id)
         if current is None or obs.range_m < current.range_m:
             by_stamp[obs.t_ns][obs.marker_id] = obs
-    path = odometry if isinstance(odometry, Trajectory) else Trajectory.from_samples(odometry)
-    if not len(path):
-        raise MarkerGraphError("no odometry samples: the estimators need odometry")
-    if not by_stamp:
-        raise MarkerGraphError("no marker observations: nothing to map")
+    return by_stamp
+
+
+def _frames_on(
+    by_stamp: dict[int, dict[int, Observation]],
+    path: Trajectory,
+    odometry_noise: OdometryNoise,
+    odometry_breaks: Collection[int],
+) -> tuple[list[Frame], int, int]:
+    """The frames within the odometry's time span, each with the motion's covariance since the
+    previous; (frames, how many were skipped, how many steps were released across a jump)."""
     frames: list[Frame] = []
     skipped = released = 0
     for t_ns in sorted(by_stamp):
@@ -126,21 +173,15 @@ def build_frames(
         else:
             covariance = np.zeros((3, 3))
         frames.append(Frame(t_ns, T_odom_base, tuple(by_stamp[t_ns].values()), covariance))
-    if not frames:
-        first, last = min(by_stamp), max(by_stamp)
-        raise MarkerGraphError(
-            f"none of the {len(by_stamp)} frames with markers (stamps {first} to {last} ns) "
-            f"falls within the odometry's time span ({path.t_ns[0]} to {path.t_ns[-1]} ns): "
-            "do the camera and odometry stamps come from different clocks?"
-        )
-    notes = []
-    if released:
-        notes.append(
-            f"odometry released across {released} jump(s): those steps' odometry factors carry "
-            "no weight"
-        )
-    if skipped:
-        notes.append(f"{skipped} frame(s) outside the odometry's time span were skipped")
+    return frames, skipped, released
+
+
+def _home(frames: list[Frame], home_id: int | None) -> tuple[int, int]:
+    """The home marker (given, or the first seen) and the first frame that sees it.
+
+    Raises:
+        MarkerGraphError: the home marker is never observed.
+    """
     first_seen = next((obs.marker_id for f in frames for obs in f.observations), None)
     home = first_seen if home_id is None else home_id
     home_frame = next(
@@ -149,7 +190,7 @@ def build_frames(
     )
     if home is None or home_frame is None:
         raise MarkerGraphError(f"the home marker {home} is never observed: no map frame")
-    return Frames(frames, home, home_frame, notes)
+    return home, home_frame
 
 
 def _xyt(T: gtsam.Pose2) -> list[float]:

@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.estimator.angles import angle_diff, wrap_array
-from markergraph.estimator.types import Estimate
+from markergraph.estimator.estimate import Estimate
 
 __all__ = [
     "ELLIPSE_95_D2",

@@ -8,12 +8,13 @@ import gtsam
 
 from markergraph.estimator.closed_form import solve_closed_form
 from markergraph.estimator.ekf import solve_ekf
+from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.frames import Frames, build_frames
 from markergraph.estimator.graph import Robust
+from markergraph.estimator.marker_graph import solve_marker_graph
 from markergraph.estimator.paper import Form
-from markergraph.estimator.slam import solve_isam2, solve_marker_graph, solve_slam
+from markergraph.estimator.slam import solve_isam2, solve_slam
 from markergraph.estimator.types import (
-    Estimate,
     Method,
     Observation,
     OdometryNoise,

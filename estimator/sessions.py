@@ -1,23 +1,15 @@
-"""Many logs of one place: several sessions in one graph, a saved map's markers as priors, and
-localisation against a saved map that finds moved and new markers.
+"""Many logs of one place: several sessions in one graph, a saved map's markers as priors
+(localisation against a saved map, built on it, is in localization.py).
 
 Each session keeps its own odometry chain: nothing joins the last pose of one log to the first
 of the next, because a robot switched off, pushed or carried between logs has no odometry for
 it. Markers seen in several sessions tie them together. A session that shares no marker with
 the map built so far cannot be placed in it and is handed back, to be mapped on its own.
-
-Localisation is the same graph with the saved map's markers entering as priors at their
-covariances (so the map's own uncertainty reaches the robot's poses) and solved in one batch:
-offline the whole log is in hand, and the smoothed solution is what iSAM2 would hold after the
-last frame, with every pose's marginal covariance. A marker that was moved since the map was
-made shows as observations that disagree with its prior; it is found by its residuals, freed
-from its prior and placed anew, so it cannot pull the trajectory.
 """
 
 from __future__ import annotations
 
-import math
-from collections import Counter, defaultdict
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -28,6 +20,7 @@ from gtsam.symbol_shorthand import L, X
 from numpy.typing import NDArray
 
 from markergraph.common.errors import EstimationError
+from markergraph.common.notes import Note
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.graph import (
     GraphBuilder,
@@ -37,33 +30,22 @@ from markergraph.estimator.graph import (
     read_residuals,
 )
 from markergraph.estimator.links import measure_links
-from markergraph.estimator.slam import (
-    _lm_params,
-    _localise_on_markers,
-    _marginals,
+from markergraph.estimator.marker_graph import localise_on_markers
+from markergraph.estimator.slam import new_isam2
+from markergraph.estimator.solution import (
     first_line,
+    lm_params,
+    marginals_or_note,
     marker_estimates,
-    new_isam2,
 )
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import FactorResidual, MarkerEstimate, Method
 
 __all__ = [
-    "Localization",
     "MapPrior",
-    "MovedMarker",
     "SessionsEstimate",
-    "localize",
     "solve_sessions",
 ]
-
-# A map marker is a suspect when its prior's whitened error (how hard the observations pull it)
-# or the median of its observations' (how hard the prior holds them off) exceeds this; honest
-# data give about 1.5 (3 degrees of freedom). A suspect is moved when the map's pose and the
-# pose this log alone gives it differ beyond chi-square's 99.9 % point for 3 dof.
-SUSPECT_WHITENED = 3.0
-MOVED_CHI2 = 16.27
-MIN_OBSERVATIONS_TO_MOVE = 3
 
 
 @dataclass(frozen=True)
@@ -86,7 +68,7 @@ class SessionsEstimate:
         pose_covariances: each placed session's (N, 3, 3) pose covariances, when asked for.
         apart: sessions that share no marker with this map, in their order.
         residuals: every factor's whitened error.
-        notes: what a person should read.
+        notes: what a person should read (kinds ``sessions.*``, ``marginals.*``).
         graph, values: the graph solved and its solution (robot poses are the camera's).
         pose_graph: makes the solution as a plain pose graph (``GraphBuilder.pose_graph``).
     """
@@ -96,7 +78,7 @@ class SessionsEstimate:
     pose_covariances: list[NDArray[np.float64] | None]
     apart: list[int]
     residuals: list[FactorResidual] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
+    notes: list[Note] = field(default_factory=list)
     graph: gtsam.NonlinearFactorGraph | None = None
     values: gtsam.Values | None = None
     pose_graph: Callable[[], tuple[gtsam.NonlinearFactorGraph, gtsam.Values]] | None = None
@@ -152,7 +134,7 @@ def _isam2_to_rest(isam: gtsam.ISAM2, builder: GraphBuilder) -> gtsam.Values:
     for _ in range(5):
         isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), params)
     start = isam.calculateEstimate()
-    return gtsam.LevenbergMarquardtOptimizer(builder.graph, start, _lm_params()).optimize()
+    return gtsam.LevenbergMarquardtOptimizer(builder.graph, start, lm_params()).optimize()
 
 
 def solve_sessions(
@@ -180,72 +162,26 @@ def solve_sessions(
     Raises:
         EstimationError: no session can be placed, or GTSAM cannot solve the graph.
     """
-    builder = GraphBuilder(T_base_cameras[0], robust)
-    known: dict[int, gtsam.Pose2] = {}
-    if priors:
-        for marker_id, prior in sorted(priors.items()):
-            builder.add_marker_prior(marker_id, prior.T_map_marker, prior.covariance)
-            known[marker_id] = prior.T_map_marker
-    else:
-        home = sessions[0].home_id if home_id is None else home_id
-        builder.add_home_prior(home)
-        known[home] = gtsam.Pose2()
+    builder, known = _start_graph(sessions, T_base_cameras[0], robust, priors, home_id)
     offsets = np.concatenate([[0], np.cumsum([len(s.frames) for s in sessions])]).astype(int)
-    pending, placed = list(range(len(sessions))), []
     isam = new_isam2() if method is Method.ISAM2 else None
-    progress = True
-    while pending and progress:
-        progress = False
-        for s in list(pending):
-            T_map_odom = _anchor(sessions[s], known, T_base_cameras[s])
-            if T_map_odom is None:
-                continue
-            builder.T_base_camera = T_base_cameras[s]
-            if method is Method.MARKER_GRAPH:
-                _add_links(builder, sessions[s], T_base_cameras[s], T_map_odom)
-            else:
-                for k in range(len(sessions[s].frames)):
-                    builder.add_frame(sessions[s], k, T_map_odom, int(offsets[s]))
-                    if isam is not None:
-                        _update(isam, builder)
-            for marker_id in sessions[s].marker_ids():
-                known.setdefault(marker_id, builder.values.atPose2(L(marker_id)))
-            pending.remove(s)
-            placed.append(s)
-            progress = True
-    if not placed:
-        raise EstimationError(
-            "no session sees a marker of the map (or the home marker): nothing to place"
-        )
-    if isam is not None:
-        _update(isam, builder)
-    try:
-        if isam is not None:
-            values = _isam2_to_rest(isam, builder)
-        else:
-            start = (
-                builder.values if method is Method.MARKER_GRAPH
-                else builder.warm_start(_lm_params())
-            )  # fmt: skip
-            optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, start, _lm_params())
-            values = optimizer.optimize()
-    except RuntimeError as error:
-        raise EstimationError(f"GTSAM could not solve the graph: {first_line(error)}") from None
-    notes: list[str] = []
-    marginals = _marginals(builder.graph, values, notes)
-    counts: defaultdict[int, int] = defaultdict(int)
-    for s in placed:
-        for frame in sessions[s].frames:
-            for obs in frame.observations:
-                counts[obs.marker_id] += 1
+    placed, pending = _place_sessions(
+        _Placing(builder, known, sessions, T_base_cameras, offsets, method, isam)
+    )
+    values = _solve(builder, isam, method)
+    notes: list[Note] = []
+    marginals = marginals_or_note(builder.graph, values, notes)
+    counts = Counter(
+        o.marker_id for s in placed for f in sessions[s].frames for o in f.observations
+    )
     markers = marker_estimates(
-        values, [i for i in sorted(known) if values.exists(L(i))], Counter(counts), marginals
+        values, [i for i in sorted(known) if values.exists(L(i))], counts, marginals
     )
     trajectories: list[Trajectory | None] = [None] * len(sessions)
     covariances: list[NDArray[np.float64] | None] = [None] * len(sessions)
     for s in placed:
         if method is Method.MARKER_GRAPH:  # no robot poses: each frame on its nearest marker
-            trajectories[s] = _localise_on_markers(
+            trajectories[s] = localise_on_markers(
                 sessions[s], values, set(markers), T_base_cameras[s]
             )
             continue
@@ -260,10 +196,12 @@ def solve_sessions(
                 for key in keys
             ])  # fmt: skip
     if pending:
-        notes.append(
+        notes.append(Note(
+            "sessions.apart",
             f"session(s) {', '.join(str(s + 1) for s in pending)} share no marker with the "
-            "map and are left out of it"
-        )
+            "map and are left out of it",
+            figure=len(pending),
+        ))  # fmt: skip
     return SessionsEstimate(
         markers, trajectories, covariances, pending,
         read_residuals(builder.graph, values, builder.kinds), notes, builder.graph, values,
@@ -271,136 +209,102 @@ def solve_sessions(
     )  # fmt: skip
 
 
-@dataclass(frozen=True)
-class MovedMarker:
-    """A saved map's marker that is no longer where the map puts it.
-
-    Attributes:
-        marker_id: its id.
-        T_map_before: where the map has it.
-        T_map_now: where this log's observations put it.
-        displacement_m: how far its centre moved [m].
-        prior_whitened: how many sigmas the log's observations pulled the map's pose.
-    """
-
-    marker_id: int
-    T_map_before: gtsam.Pose2
-    T_map_now: gtsam.Pose2
-    displacement_m: float
-    prior_whitened: float
-
-
-@dataclass
-class Localization:
-    """A log's robot trajectory in a saved map's frame.
-
-    Attributes:
-        trajectory: the robot's poses in the map frame.
-        pose_covariances: (N, 3, 3) their marginal covariances.
-        moved: the map's markers that were moved, left out of the localisation.
-        new: markers the map does not know, placed by this log.
-        checked: for each map marker, how many sigmas this log pulled it from the map.
-        estimate: the final solution (residuals, graph, markers).
-    """
-
-    trajectory: Trajectory
-    pose_covariances: NDArray[np.float64]
-    moved: list[MovedMarker]
-    new: dict[int, MarkerEstimate]
-    checked: dict[int, float]
-    estimate: SessionsEstimate
-
-
-def _median_whitened(residuals: Sequence[FactorResidual]) -> dict[int, tuple[float, int]]:
-    errors: defaultdict[int, list[float]] = defaultdict(list)
-    for r in residuals:
-        if r.kind == "observation":
-            for key in r.keys:
-                if key.startswith("m"):
-                    errors[int(key[1:])].append(r.whitened_error)
-    return {i: (float(np.median(e)), len(e)) for i, e in errors.items()}
-
-
-def _prior_whitened(residuals: Sequence[FactorResidual]) -> dict[int, float]:
-    return {int(r.keys[0][1:]): r.whitened_error for r in residuals if r.kind == "prior"}
-
-
-def localize(
-    frames: Frames,
+def _start_graph(
+    sessions: Sequence[Frames],
     T_base_camera: gtsam.Pose2,
-    saved: Mapping[int, MapPrior],
-    *,
-    robust: Robust = Robust.HUBER,
-) -> Localization:
-    """The robot's trajectory in a saved map, its markers held at their covariances.
+    robust: Robust,
+    priors: Mapping[int, MapPrior] | None,
+    home_id: int | None,
+) -> tuple[GraphBuilder, dict[int, gtsam.Pose2]]:
+    """The graph before any session: the saved map's priors, or the home marker fixed at the
+    origin; and the markers it places (id -> pose in the map)."""
+    builder = GraphBuilder(T_base_camera, robust)
+    known: dict[int, gtsam.Pose2] = {}
+    if priors:
+        for marker_id, prior in sorted(priors.items()):
+            builder.add_marker_prior(marker_id, prior.T_map_marker, prior.covariance)
+            known[marker_id] = prior.T_map_marker
+    else:
+        home = sessions[0].home_id if home_id is None else home_id
+        builder.add_home_prior(home)
+        known[home] = gtsam.Pose2()
+    return builder, known
 
-    A map marker seen at least :data:`MIN_OBSERVATIONS_TO_MOVE` times whose prior or
-    observations are more than :data:`SUSPECT_WHITENED` sigmas off is freed and placed by this
-    log alone; if that pose differs from the map's beyond chi-square's 99.9 % point
-    (:data:`MOVED_CHI2`, both covariances), it is reported as moved and the trajectory is solved
-    without its prior, so it cannot pull the robot. Markers the map does not know are placed and
-    reported as new.
+
+@dataclass(frozen=True, slots=True)
+class _Placing:
+    """What placing the sessions in the graph works on."""
+
+    builder: GraphBuilder
+    """The graph, grown session by session."""
+    known: dict[int, gtsam.Pose2]
+    """Markers placed so far -> their pose in the map; grows as sessions are placed."""
+    sessions: Sequence[Frames]
+    """Each log's frames."""
+    T_base_cameras: Sequence[gtsam.Pose2]
+    """Each session's camera mount."""
+    offsets: NDArray[np.int_]
+    """Each session's first pose key (``X(offset)``)."""
+    method: Method
+    """SLAM, ISAM2 or MARKER_GRAPH."""
+    isam: gtsam.ISAM2 | None
+    """The incremental solver (``Method.ISAM2``), updated after every frame; else None."""
+
+
+def _place_sessions(placing: _Placing) -> tuple[list[int], list[int]]:
+    """Add every session that sees a marker already in the map, again until none more can be
+    placed; (placed, pending) session indices.
 
     Raises:
-        EstimationError: the log sees no marker of the map.
+        EstimationError: no session can be placed.
     """
-    first = solve_sessions(
-        [frames], [T_base_camera], robust=robust, priors=saved, pose_covariances=True
-    )
-    seen = set(frames.marker_ids()) & set(saved)
-    observed = _median_whitened(first.residuals)
-    pulled = _prior_whitened(first.residuals)
-    # Suspects: a prior the observations pull hard on, or observations the prior holds off.
-    suspects = sorted(
-        i for i in seen
-        if observed.get(i, (0.0, 0))[1] >= MIN_OBSERVATIONS_TO_MOVE
-        and (pulled.get(i, 0.0) > SUSPECT_WHITENED or observed[i][0] > SUSPECT_WHITENED)
-    )  # fmt: skip
-    if not suspects:
-        return _localization(first, [], saved, pulled)
-    if not (seen - set(suspects)):
+    builder, known, sessions = placing.builder, placing.known, placing.sessions
+    pending, placed = list(range(len(sessions))), []
+    progress = True
+    while pending and progress:
+        progress = False
+        for s in list(pending):
+            T_map_odom = _anchor(sessions[s], known, placing.T_base_cameras[s])
+            if T_map_odom is None:
+                continue
+            builder.T_base_camera = placing.T_base_cameras[s]
+            if placing.method is Method.MARKER_GRAPH:
+                _add_links(builder, sessions[s], placing.T_base_cameras[s], T_map_odom)
+            else:
+                for k in range(len(sessions[s].frames)):
+                    builder.add_frame(sessions[s], k, T_map_odom, int(placing.offsets[s]))
+                    if placing.isam is not None:
+                        _update(placing.isam, builder)
+            for marker_id in sessions[s].marker_ids():
+                known.setdefault(marker_id, builder.values.atPose2(L(marker_id)))
+            pending.remove(s)
+            placed.append(s)
+            progress = True
+    if not placed:
         raise EstimationError(
-            f"every map marker this log sees ({', '.join(map(str, suspects))}) disagrees with "
-            "the map: nothing to localise against"
+            "no session sees a marker of the map (or the home marker): nothing to place"
         )
-    freed = solve_sessions(
-        [frames], [T_base_camera], robust=robust,
-        priors={i: p for i, p in saved.items() if i not in suspects}, pose_covariances=True,
-    )  # fmt: skip
-    moved_ids = []
-    for i in suspects:
-        # The map's pose against this log's, each with its own covariance: chi-square, 3 dof.
-        difference = saved[i].T_map_marker.localCoordinates(freed.markers[i].T_map_marker)
-        fresh = freed.markers[i].covariance
-        if fresh is None:
-            raise EstimationError(f"no covariance for marker {i}: {'; '.join(freed.notes)}")
-        covariance = saved[i].covariance + fresh
-        if float(difference @ np.linalg.solve(covariance, difference)) > MOVED_CHI2:
-            moved_ids.append(i)
-    if not moved_ids:
-        return _localization(first, [], saved, pulled)
-    final = freed if moved_ids == suspects else solve_sessions(
-        [frames], [T_base_camera], robust=robust,
-        priors={i: p for i, p in saved.items() if i not in moved_ids}, pose_covariances=True,
-    )  # fmt: skip
-    return _localization(final, moved_ids, saved, pulled)
+    return placed, pending
 
 
-def _localization(
-    final: SessionsEstimate,
-    moved_ids: list[int],
-    saved: Mapping[int, MapPrior],
-    pulled: Mapping[int, float],
-) -> Localization:
-    moved = []
-    for i in moved_ids:
-        before, now = saved[i].T_map_marker, final.markers[i].T_map_marker
-        moved.append(MovedMarker(
-            i, before, now, math.hypot(now.x() - before.x(), now.y() - before.y()), pulled[i]
-        ))  # fmt: skip
-    new = {i: m for i, m in final.markers.items() if i not in saved}
-    trajectory, covariances = final.trajectories[0], final.pose_covariances[0]
-    assert trajectory is not None
-    if covariances is None:
-        raise EstimationError(f"no pose covariances: {'; '.join(final.notes)}")
-    return Localization(trajectory, covariances, moved, new, dict(pulled), final)
+def _solve(builder: GraphBuilder, isam: gtsam.ISAM2 | None, method: Method) -> gtsam.Values:
+    """The placed sessions' solution: iSAM2 brought to rest, or batch Levenberg-Marquardt
+    (from the pose-graph form's solution for SLAM, from the links' initial values for the
+    marker graph).
+
+    Raises:
+        EstimationError: GTSAM cannot solve the graph.
+    """
+    if isam is not None:
+        _update(isam, builder)
+    try:
+        if isam is not None:
+            return _isam2_to_rest(isam, builder)
+        start = (
+            builder.values if method is Method.MARKER_GRAPH
+            else builder.warm_start(lm_params())
+        )  # fmt: skip
+        optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, start, lm_params())
+        return optimizer.optimize()
+    except RuntimeError as error:
+        raise EstimationError(f"GTSAM could not solve the graph: {first_line(error)}") from None

@@ -1,50 +1,42 @@
-"""The GTSAM methods: MARKER_GRAPH (markers only), SLAM (batch) and ISAM2 (incremental)."""
+"""The SLAM methods: SLAM (batch Levenberg-Marquardt) and ISAM2 (incremental), over robot
+poses and markers."""
 
 from __future__ import annotations
 
-import math
 import time
-from collections import Counter, deque
-from functools import partial
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import L, X
+from gtsam.symbol_shorthand import X
 
 from markergraph.common.errors import EstimationError
+from markergraph.common.notes import Note
+from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.frames import Frames
-from markergraph.estimator.gauge import relative_covariances
 from markergraph.estimator.graph import (
     GraphBuilder,
     Robust,
     base_pose,
     observation_measurement,
-    read_residuals,
 )
-from markergraph.estimator.links import (
-    MAX_LINK_SIGMA_THETA_RAD,
-    components,
-    describe_disconnected,
-    link_counts,
-    linkable,
-    measure_links,
+from markergraph.estimator.links import components, link_counts, measure_links
+from markergraph.estimator.solution import (
+    disconnected_notes,
+    not_converged_note,
+    optimise,
+    solved_estimate,
 )
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import Estimate, MarkerEstimate, Method
+from markergraph.estimator.types import Method
 
-__all__ = ["IncrementalSlam", "slam_cost", "solve_isam2", "solve_marker_graph", "solve_slam"]
-
-MAX_ITERATIONS = 100
-
-
-def _lm_params() -> gtsam.LevenbergMarquardtParams:
-    # Tighter tolerances buy nothing measurable and cost rejected steps at convergence
-    # (1.5 s instead of 0.36 s on the 10,000-pose benchmark).
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(MAX_ITERATIONS)
-    params.setRelativeErrorTol(1e-10)
-    params.setAbsoluteErrorTol(1e-12)
-    return params
+__all__ = [
+    "IncrementalSlam",
+    "build_slam_graph",
+    "new_isam2",
+    "slam_cost",
+    "solve_isam2",
+    "solve_slam",
+]
 
 
 def _T_map_odom(frames: Frames, T_base_camera: gtsam.Pose2) -> gtsam.Pose2:
@@ -53,46 +45,6 @@ def _T_map_odom(frames: Frames, T_base_camera: gtsam.Pose2) -> gtsam.Pose2:
     home = next(o for o in frame.observations if o.marker_id == frames.home_id)
     T_base_home, _ = observation_measurement(home, T_base_camera)
     return T_base_home.inverse().compose(frame.T_odom_base.inverse())
-
-
-def marker_estimates(
-    values: gtsam.Values,
-    marker_ids: list[int],
-    counts: Counter[int],
-    marginals: gtsam.Marginals | None,
-) -> dict[int, MarkerEstimate]:
-    poses = [values.atPose2(L(i)) for i in marker_ids]
-    if marginals is None:
-        return {
-            i: MarkerEstimate(i, T, None, counts[i]) for i, T in zip(marker_ids, poses, strict=True)
-        }
-    keys = gtsam.KeyVector([L(i) for i in marker_ids])
-    joint = marginals.jointMarginalCovariance(keys).fullMatrix()
-    relative = relative_covariances(poses, joint)
-    return {
-        i: MarkerEstimate(i, T, joint[3 * k : 3 * k + 3, 3 * k : 3 * k + 3].copy(), counts[i],
-                          relative[k])
-        for k, (i, T) in enumerate(zip(marker_ids, poses, strict=True))
-    }  # fmt: skip
-
-
-def _marginals(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, notes: list[str]
-) -> gtsam.Marginals | None:
-    try:
-        return gtsam.Marginals(graph, values)
-    except RuntimeError as error:  # an indeterminate system: report, keep the means
-        notes.append(f"marginal covariances unavailable: {first_line(error)}")
-        return None
-
-
-def first_line(error: Exception) -> str:
-    """GTSAM's messages start with a blank line: the first line that says something."""
-    return next((line.strip() for line in str(error).splitlines() if line.strip()), repr(error))
-
-
-def _observation_counts(frames: Frames) -> Counter[int]:
-    return Counter(o.marker_id for f in frames.frames for o in f.observations)
 
 
 def build_slam_graph(
@@ -115,13 +67,12 @@ def _trajectory(values: gtsam.Values, frames: Frames, builder: GraphBuilder) -> 
     )
 
 
-def _slam_notes(frames: Frames, T_base_camera: gtsam.Pose2) -> tuple[list, list[str]]:
+def _slam_notes(frames: Frames, T_base_camera: gtsam.Pose2) -> tuple[list, list[Note]]:
     links = measure_links(frames, T_base_camera)
     groups = components(frames.marker_ids(), links)
-    notes = [
-        f"{sentence}; only odometry joins them to the map"
-        for sentence in describe_disconnected(groups, frames.home_id)
-    ]
+    notes = disconnected_notes(
+        "slam.disconnected", groups, frames.home_id, "; only odometry joins them to the map"
+    )
     return link_counts(links), notes
 
 
@@ -133,14 +84,11 @@ def solve_slam(
     start = time.perf_counter()
     builder = build_slam_graph(frames, T_base_camera, robust)
     timings["build"] = time.perf_counter() - start
-    result, converged = _optimise(builder, timings)
-    stop_note = (
-        f"Levenberg-Marquardt stopped after {MAX_ITERATIONS} iterations without "
-        "converging; the map is its last estimate"
-    )
+    result, converged = optimise(builder, timings)
     return _slam_estimate(
-        Method.SLAM, frames, T_base_camera, builder, result, converged, stop_note, timings
-    )
+        Method.SLAM, frames, T_base_camera, builder, result, converged, not_converged_note(),
+        timings,
+    )  # fmt: skip
 
 
 def slam_cost(
@@ -160,68 +108,10 @@ def slam_cost(
     keys = builder.values.keys()  # a gtsam KeyVector
     if near is not None and near.size() == len(keys) and all(near.exists(k) for k in keys):
         builder.values = near
-        result, _ = _optimise(builder, {}, warm=False)
+        result, _ = optimise(builder, {}, warm=False)
     else:
-        result, _ = _optimise(builder, {})
+        result, _ = optimise(builder, {})
     return float(builder.graph.error(result)), result
-
-
-def _optimise(
-    builder: GraphBuilder, timings: dict[str, float], warm: bool = True
-) -> tuple[gtsam.Values, bool]:
-    """Levenberg-Marquardt from the builder's initial values, or (``warm``) from its pose-graph
-    form's solution (:meth:`GraphBuilder.warm_start`); (solution, converged)."""
-    start = time.perf_counter()
-    try:
-        start_values = builder.warm_start(_lm_params()) if warm else builder.values
-        optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, start_values, _lm_params())
-        result = optimizer.optimize()
-    except RuntimeError as error:  # GTSAM's IndeterminantLinearSystemException
-        raise EstimationError(
-            f"GTSAM could not solve the graph: {str(error).splitlines()[0]}"
-        ) from None
-    timings["optimize"] = time.perf_counter() - start
-    return result, optimizer.iterations() < MAX_ITERATIONS
-
-
-def _solved_estimate(
-    method: Method,
-    frames: Frames,
-    builder: GraphBuilder,
-    result: gtsam.Values,
-    *,
-    marker_ids: list[int],
-    trajectory: Trajectory,
-    links: list,
-    notes: list[str],
-    converged: bool,
-    timings: dict[str, float],
-    unplaced: dict[int, str] | None = None,
-    observations_unlinked: int | None = None,
-) -> Estimate:
-    """The Estimate of a solved factor graph: markers with their joint marginals, the
-    trajectory, residuals, links and notes, and the graph and solution themselves."""
-    graph = builder.graph
-    start = time.perf_counter()
-    marginals = _marginals(graph, result, notes)
-    estimate = Estimate(
-        method=method,
-        home_id=frames.home_id,
-        markers=marker_estimates(result, marker_ids, _observation_counts(frames), marginals),
-        trajectory=trajectory,
-        residuals=read_residuals(graph, result, builder.kinds),
-        links=links,
-        unplaced=unplaced or {},
-        converged=converged,
-        notes=notes,
-        graph=graph,
-        values=result,
-        pose_graph=partial(builder.pose_graph, result),
-        observations_unlinked=observations_unlinked,
-    )
-    timings["marginals"] = time.perf_counter() - start
-    estimate.timings_s = timings
-    return estimate
 
 
 def _slam_estimate(
@@ -231,12 +121,12 @@ def _slam_estimate(
     builder: GraphBuilder,
     result: gtsam.Values,
     converged: bool,
-    stop_note: str,
+    stop_note: Note,
     timings: dict[str, float],
 ) -> Estimate:
     """The Estimate of a solved SLAM graph, batch or incremental."""
     links, notes = _slam_notes(frames, T_base_camera)
-    return _solved_estimate(
+    return solved_estimate(
         method,
         frames,
         builder,
@@ -353,7 +243,7 @@ def solve_isam2(
     if polished:
         polish = GraphBuilder(T_base_camera, robust)
         polish.graph, polish.values = builder.graph, result
-        result, converged = _optimise(polish, timings, warm=False)
+        result, converged = optimise(polish, timings, warm=False)
     estimate = _slam_estimate(
         Method.ISAM2,
         frames,
@@ -361,92 +251,13 @@ def solve_isam2(
         builder,
         result,
         converged,
-        "iSAM2 did not come to rest, nor did a batch pass after it",
+        Note("isam2.not_converged", "iSAM2 did not come to rest, nor did a batch pass after it"),
         timings,
     )
     if polished and converged:
-        estimate.notes.append(
+        estimate.notes.append(Note(
+            "isam2.polished",
             "iSAM2's final relinearisations crept (a robust kernel reweights one step at a "
-            "time); a batch Levenberg-Marquardt pass from its estimate brought it to rest"
-        )
+            "time); a batch Levenberg-Marquardt pass from its estimate brought it to rest",
+        ))  # fmt: skip
     return estimate
-
-
-def _localise_on_markers(
-    frames: Frames, values: gtsam.Values, placed: set[int], T_base_camera: gtsam.Pose2
-) -> Trajectory:
-    """The robot in each frame, from its nearest placed marker: the marker graph keeps no
-    robot poses, so this is how the paper's robot localises on the map. Only observations whose
-    theta was measured place it: the robot's heading is the marker's yaw turned by theta."""
-    t_ns, rows = [], []
-    for frame in frames.frames:
-        seen = [o for o in frame.observations if o.marker_id in placed and linkable(o)]
-        if not seen:
-            continue
-        nearest = min(seen, key=lambda o: o.range_m)
-        T_base_marker, _ = observation_measurement(nearest, T_base_camera)
-        T_map_base = values.atPose2(L(nearest.marker_id)).compose(T_base_marker.inverse())
-        t_ns.append(frame.t_ns)
-        rows.append([T_map_base.x(), T_map_base.y(), T_map_base.theta()])
-    return Trajectory(np.array(t_ns, dtype=np.int64), np.array(rows))
-
-
-def solve_marker_graph(
-    frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE
-) -> Estimate:
-    """``Method.MARKER_GRAPH``: the paper's node graph, every measured E_ab a between factor."""
-    timings: dict[str, float] = {}
-    start = time.perf_counter()
-    links = measure_links(frames, T_base_camera)
-    marker_ids = frames.marker_ids()
-    groups = components(marker_ids, links)
-    placed = next(group for group in groups if frames.home_id in group)
-    notes = frames.notes + describe_disconnected(groups, frames.home_id)
-    unlinked = sum(not linkable(o) for f in frames.frames for o in f.observations)
-    if unlinked:
-        total = sum(len(f.observations) for f in frames.frames)
-        notes.append(
-            f"{unlinked} of {total} observations end no link: their theta's sigma is over "
-            f"{math.degrees(MAX_LINK_SIGMA_THETA_RAD):.0f} deg (grazing views), and a link "
-            "turns on the theta at each end"
-        )
-    unplaced = {
-        i: "no chain of links reaches the home marker"
-        for group in groups
-        if frames.home_id not in group
-        for i in group
-    }
-    builder = GraphBuilder(T_base_camera, robust)
-    builder.add_home_prior(frames.home_id)
-    for link in links:
-        if link.marker_a in placed:
-            builder.add_link(link.marker_a, link.marker_b, link.T_a_b, link.covariance)
-    # Initial values: compose the first link found outward from home (a spanning tree).
-    builder.set_initial(frames.home_id, gtsam.Pose2())
-    by_marker: dict[int, list] = {}
-    for link in links:
-        by_marker.setdefault(link.marker_a, []).append((link.marker_b, link.T_a_b))
-        by_marker.setdefault(link.marker_b, []).append((link.marker_a, link.T_a_b.inverse()))
-    queue = deque([frames.home_id])
-    while queue:
-        a = queue.popleft()
-        for b, T_a_b in by_marker.get(a, []):
-            if not builder.values.exists(L(b)):
-                builder.set_initial(b, builder.values.atPose2(L(a)).compose(T_a_b))
-                queue.append(b)
-    timings["build"] = time.perf_counter() - start
-    result, converged = _optimise(builder, timings, warm=False)  # links are relative poses
-    return _solved_estimate(
-        Method.MARKER_GRAPH,
-        frames,
-        builder,
-        result,
-        marker_ids=placed,
-        trajectory=_localise_on_markers(frames, result, set(placed), T_base_camera),
-        links=link_counts(links),
-        notes=notes,
-        converged=converged,
-        timings=timings,
-        unplaced=unplaced,
-        observations_unlinked=unlinked,
-    )

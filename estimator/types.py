@@ -1,12 +1,12 @@
-"""The estimator's records: what goes in (observations, odometry) and what comes out (Estimate)."""
+"""The estimator's records: what goes in (observations, odometry) and the per-marker records that
+come out (the :class:`~markergraph.estimator.estimate.Estimate` holding them is in estimate.py)."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -14,12 +14,8 @@ from numpy.typing import NDArray
 
 from markergraph.common.errors import RejectedObservationError
 
-if TYPE_CHECKING:  # trajectory.py builds on these records
-    from markergraph.estimator.trajectory import Trajectory
-
 __all__ = [
     "ODOMETRY_NOISE",
-    "Estimate",
     "FactorResidual",
     "MarkerEstimate",
     "MarkerLink",
@@ -251,52 +247,3 @@ class FactorResidual:
     def marker_ids(self) -> list[int]:
         """The markers it joins (from keys ``"m<id>"``)."""
         return [int(k[1:]) for k in self.keys if k.startswith("m")]
-
-
-@dataclass
-class Estimate:
-    """What every method returns.
-
-    Attributes:
-        method: the method that made it.
-        home_id: the marker whose frame is the map frame.
-        markers: marker id -> its estimate.
-        trajectory: the estimated robot base poses in the map frame.
-        residuals: per-factor whitened errors (empty for methods without factors).
-        links: which markers are linked and by how many measurements.
-        unplaced: marker id -> why it could not be placed.
-        placements: marker id -> how the closed form reached it (empty for other methods).
-        timings_s: stage name -> seconds.
-        converged: False when an optimiser stopped without converging (the estimate is its last).
-        trajectory_covariance: (N, 3, 3) robot pose covariances where the method keeps them
-            (EKF), for NEES against ground truth.
-        innovations: (M, 3) innovation (bearing, theta, range) of each update (EKF only).
-        nis: (M,) normalised innovation squared of each observation update (EKF only).
-        notes: diagnostics a person should read: what was skipped, what is disconnected.
-        graph, values: the factor graph the GTSAM methods solved and its solution (None for
-            the closed form and the EKF); robot poses in it are the camera's.
-        pose_graph: makes the same solution as a plain pose graph of base poses and markers
-            (``GraphBuilder.pose_graph``: g2o's form), or None.
-        observations_unlinked: the marker graph's observations that end no link because
-            their theta was not measured (:func:`~markergraph.estimator.links.linkable`); None
-            for the other methods.
-    """
-
-    method: Method
-    home_id: int
-    markers: dict[int, MarkerEstimate]
-    trajectory: Trajectory
-    residuals: list[FactorResidual] = field(default_factory=list)
-    links: list[MarkerLink] = field(default_factory=list)
-    unplaced: dict[int, str] = field(default_factory=dict)
-    placements: dict[int, Placement] = field(default_factory=dict)
-    timings_s: dict[str, float] = field(default_factory=dict)
-    converged: bool = True
-    trajectory_covariance: NDArray[np.float64] | None = None
-    innovations: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)))
-    nis: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
-    notes: list[str] = field(default_factory=list)
-    graph: gtsam.NonlinearFactorGraph | None = None
-    values: gtsam.Values | None = None
-    pose_graph: Callable[[], tuple[gtsam.NonlinearFactorGraph, gtsam.Values]] | None = None
-    observations_unlinked: int | None = None

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import gtsam
@@ -456,9 +457,6 @@ def to_foxglove(source: Path, target: Path) -> None:
     """Rewrite a simulated ROS 2 log with Foxglove's protobuf schemas, on topics of other names."""
     from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-    from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
-    from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
-    from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
     from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
     from google.protobuf.timestamp_pb2 import Timestamp
     from mcap_protobuf.writer import Writer as ProtobufWriter
@@ -499,26 +497,10 @@ def to_foxglove(source: Path, target: Path) -> None:
                 )
                 topic = "/front/calibration"
             elif message.topic == "/odom":
-                pose = m.pose.pose
-                out = PoseInFrame(timestamp=timestamp(m), frame_id="odom")
-                out.pose.position.x, out.pose.position.y = pose.position.x, pose.position.y
-                q = pose.orientation
-                out.pose.orientation.x, out.pose.orientation.y = q.x, q.y
-                out.pose.orientation.z, out.pose.orientation.w = q.z, q.w
+                out = _foxglove_pose(m.pose.pose, timestamp(m))
                 topic = "/base/pose"
             elif message.topic == "/tf_static":
-                out = FrameTransforms()
-                for transform in m.transforms:
-                    moved = transform.transform
-                    item = FrameTransform(
-                        parent_frame_id=transform.header.frame_id,
-                        child_frame_id=transform.child_frame_id,
-                    )
-                    t, q = moved.translation, moved.rotation
-                    item.translation.x, item.translation.y, item.translation.z = t.x, t.y, t.z
-                    item.rotation.x, item.rotation.y = q.x, q.y
-                    item.rotation.z, item.rotation.w = q.z, q.w
-                    out.transforms.append(item)
+                out = _foxglove_transforms(m.transforms)
                 topic = "/transforms"
             else:
                 out = RawImage(
@@ -533,6 +515,38 @@ def to_foxglove(source: Path, target: Path) -> None:
                 topic = "/front/depth"
             writer.write_message(topic, out, log_time=message.log_time_ns)
         writer.finish()
+
+
+def _foxglove_pose(pose: Any, timestamp: Any) -> Any:
+    """A ROS ``geometry_msgs/msg/Pose`` as Foxglove's ``PoseInFrame`` in ``odom``."""
+    from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+
+    out = PoseInFrame(timestamp=timestamp, frame_id="odom")
+    out.pose.position.x, out.pose.position.y = pose.position.x, pose.position.y
+    q = pose.orientation
+    out.pose.orientation.x, out.pose.orientation.y = q.x, q.y
+    out.pose.orientation.z, out.pose.orientation.w = q.z, q.w
+    return out
+
+
+def _foxglove_transforms(transforms: Any) -> Any:
+    """ROS ``TransformStamped``s as Foxglove's ``FrameTransforms``."""
+    from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+    from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+
+    out = FrameTransforms()
+    for transform in transforms:
+        moved = transform.transform
+        item = FrameTransform(
+            parent_frame_id=transform.header.frame_id,
+            child_frame_id=transform.child_frame_id,
+        )
+        t, q = moved.translation, moved.rotation
+        item.translation.x, item.translation.y, item.translation.z = t.x, t.y, t.z
+        item.rotation.x, item.rotation.y = q.x, q.y
+        item.rotation.z, item.rotation.w = q.z, q.w
+        out.transforms.append(item)
+    return out
 
 
 def test_foxglove_log_gives_the_same_observations(simulated, tmp_path: Path) -> None:

@@ -30,6 +30,7 @@ from markergraph.estimator import (
 )
 from markergraph.estimator.closed_form import solve_closed_form
 from markergraph.frontend import messages
+from markergraph.frontend.camera import Camera
 from markergraph.frontend.detections import DETECTION_DEFINITIONS
 from markergraph.frontend.rig import read_camera_poses, read_kalibr_cameras, read_tagslam
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, quaternion_from_matrix
@@ -226,30 +227,7 @@ def ros2_mcap_of_test_21(bag: Path, target: Path, clockwise: bool = False) -> No
     T_odom_rig = T_rig_odom.inverse()
     with open(target, "wb") as stream:
         writer = Writer(stream)
-        schemas = {
-            "apriltag_msgs/msg/AprilTagDetectionArray": writer.register_msgdef(
-                "apriltag_msgs/msg/AprilTagDetectionArray",
-                DETECTION_DEFINITIONS["apriltag_msgs/msg/AprilTagDetectionArray"],
-            ),
-            **{
-                name: writer.register_msgdef(name, MESSAGE_DEFINITIONS[name])
-                for name in (
-                    "sensor_msgs/msg/CameraInfo",
-                    "nav_msgs/msg/Odometry",
-                    "tf2_msgs/msg/TFMessage",
-                )
-            },
-        }
-
-        def transform(parent: str, child: str, pose: Any, t_ns: int) -> dict[str, Any]:
-            return {
-                "header": {"stamp": {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9},
-                           "frame_id": parent},
-                "child_frame_id": child,
-                "transform": {"translation": dict(zip("xyz", map(float, pose.t), strict=True)),
-                              "rotation": quaternion_from_matrix(pose.R)},
-            }  # fmt: skip
-
+        schemas = _test_21_schemas(writer)
         started = False
         for message in messages(bag, ["/t265/fisheye1/tags", "/vio_node/odom"]):
             m, t_ns = message.decoded, message.log_time_ns
@@ -257,60 +235,98 @@ def ros2_mcap_of_test_21(bag: Path, target: Path, clockwise: bool = False) -> No
             if not started:
                 started = True
                 chain = [
-                    transform("basalt_pose_frame", "rig", T_odom_rig, t_ns),
-                    transform("rig", m.header.frame_id or "t265_fisheye1_optical_frame",
-                              T_rig_cam0, t_ns),
+                    _transform("basalt_pose_frame", "rig", T_odom_rig, t_ns),
+                    _transform("rig", m.header.frame_id or "t265_fisheye1_optical_frame",
+                               T_rig_cam0, t_ns),
                 ]  # fmt: skip
                 writer.write_message("/tf_static", schemas["tf2_msgs/msg/TFMessage"],
                                      {"transforms": chain}, t_ns, t_ns)  # fmt: skip
             if message.topic == "/vio_node/odom":
-                pose = m.pose.pose
-                odometry = {
-                    "header": {"stamp": stamp, "frame_id": "world"},
-                    "child_frame_id": "basalt_pose_frame",
-                    "pose": {
-                        "pose": {
-                            "position": {k: getattr(pose.position, k) for k in "xyz"},
-                            "orientation": {k: getattr(pose.orientation, k) for k in "xyzw"},
-                        }
-                    },
-                }
                 writer.write_message(
-                    "/vio_node/odom", schemas["nav_msgs/msg/Odometry"], odometry, t_ns, t_ns
-                )
+                    "/vio_node/odom", schemas["nav_msgs/msg/Odometry"],
+                    _odometry(m.pose.pose, stamp), t_ns, t_ns,
+                )  # fmt: skip
                 continue
-            camera = cam0.camera
             writer.write_message(
-                "/t265/fisheye1/camera_info",
-                schemas["sensor_msgs/msg/CameraInfo"],
-                {
-                    "header": {"stamp": stamp, "frame_id": m.header.frame_id},
-                    "height": camera.height,
-                    "width": camera.width,
-                    "distortion_model": "equidistant",
-                    "d": list(camera.distortion),
-                    "k": [camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0],
-                },
-                t_ns,
-                t_ns,
-            )
-            detections = [
-                {"family": "tag36h11", "id": int(tag.id), "hamming": 0, "goodness": 0.0,
-                 "decision_margin": 50.0, "centre": {"x": tag.center.x, "y": tag.center.y},
-                 "corners": [{"x": p.x, "y": p.y}
-                             for p in (tag.corners[::-1] if clockwise else tag.corners)],
-                 "homography": [0.0] * 9}
-                for tag in m.apriltags
-            ]  # fmt: skip
+                "/t265/fisheye1/camera_info", schemas["sensor_msgs/msg/CameraInfo"],
+                _fisheye_info(cam0.camera, stamp, m.header.frame_id), t_ns, t_ns,
+            )  # fmt: skip
             writer.write_message(
                 "/t265/fisheye1/detections",
                 schemas["apriltag_msgs/msg/AprilTagDetectionArray"],
                 {"header": {"stamp": stamp, "frame_id": m.header.frame_id},
-                 "detections": detections},
+                 "detections": _detections(m.apriltags, clockwise)},
                 t_ns,
                 t_ns,
             )  # fmt: skip
         writer.finish()
+
+
+def _test_21_schemas(writer: Writer) -> dict[str, Any]:
+    """The schemas of :func:`ros2_mcap_of_test_21`'s topics, registered with ``writer``."""
+    return {
+        "apriltag_msgs/msg/AprilTagDetectionArray": writer.register_msgdef(
+            "apriltag_msgs/msg/AprilTagDetectionArray",
+            DETECTION_DEFINITIONS["apriltag_msgs/msg/AprilTagDetectionArray"],
+        ),
+        **{
+            name: writer.register_msgdef(name, MESSAGE_DEFINITIONS[name])
+            for name in (
+                "sensor_msgs/msg/CameraInfo",
+                "nav_msgs/msg/Odometry",
+                "tf2_msgs/msg/TFMessage",
+            )
+        },
+    }
+
+
+def _transform(parent: str, child: str, pose: Any, t_ns: int) -> dict[str, Any]:
+    """A ``geometry_msgs/msg/TransformStamped`` of a 3-D pose (``.t``, ``.R``)."""
+    return {
+        "header": {"stamp": {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9},
+                   "frame_id": parent},
+        "child_frame_id": child,
+        "transform": {"translation": dict(zip("xyz", map(float, pose.t), strict=True)),
+                      "rotation": quaternion_from_matrix(pose.R)},
+    }  # fmt: skip
+
+
+def _odometry(pose: Any, stamp: dict[str, int]) -> dict[str, Any]:
+    """A ``nav_msgs/msg/Odometry`` of the recording's VIO pose."""
+    return {
+        "header": {"stamp": stamp, "frame_id": "world"},
+        "child_frame_id": "basalt_pose_frame",
+        "pose": {
+            "pose": {
+                "position": {k: getattr(pose.position, k) for k in "xyz"},
+                "orientation": {k: getattr(pose.orientation, k) for k in "xyzw"},
+            }
+        },
+    }
+
+
+def _fisheye_info(camera: Camera, stamp: dict[str, int], frame_id: str) -> dict[str, Any]:
+    """The fisheye's ``sensor_msgs/msg/CameraInfo`` (equidistant distortion)."""
+    return {
+        "header": {"stamp": stamp, "frame_id": frame_id},
+        "height": camera.height,
+        "width": camera.width,
+        "distortion_model": "equidistant",
+        "d": list(camera.distortion),
+        "k": [camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0],
+    }
+
+
+def _detections(tags: Any, clockwise: bool) -> list[dict[str, Any]]:
+    """apriltag_ros's detections of the recording's tags; ``clockwise``: corners reversed."""
+    return [
+        {"family": "tag36h11", "id": int(tag.id), "hamming": 0, "goodness": 0.0,
+         "decision_margin": 50.0, "centre": {"x": tag.center.x, "y": tag.center.y},
+         "corners": [{"x": p.x, "y": p.y}
+                     for p in (tag.corners[::-1] if clockwise else tag.corners)],
+         "homography": [0.0] * 9}
+        for tag in tags
+    ]  # fmt: skip
 
 
 @pytest.mark.parametrize("clockwise", [False, True], ids=["apriltag-order", "opencv-order"])

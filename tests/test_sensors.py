@@ -17,9 +17,9 @@ from mcap_ros2.decoder import DecoderFactory
 
 import markergraph as mg
 from markergraph.datasets import Marker, Wall, World, scenario, write_log
+from markergraph.datasets.capture import capture
 from markergraph.datasets.render import Renderer
 from markergraph.datasets.sensors import D435_DISTORTION, D435I_ON_DIFF_DRIVE, SensorEffects
-from markergraph.datasets.write import capture
 from markergraph.estimator import Trajectory
 from markergraph.frontend import FrontendConfig, extract
 from markergraph.frontend.detect import Detector

@@ -12,7 +12,8 @@ import pytest
 
 from markergraph.datasets import scenario, simulate_fast
 from markergraph.estimator import Method, build_frames, estimate_frames, map_error
-from markergraph.estimator.sessions import MapPrior, localize, solve_sessions
+from markergraph.estimator.localization import localize
+from markergraph.estimator.sessions import MapPrior, solve_sessions
 
 MOVED_ID, MOVED_BY_M = 7, 0.3
 
@@ -105,7 +106,7 @@ def test_a_log_of_another_place_is_handed_back(office) -> None:
     )
     assert merged.apart == [1] and merged.trajectories[1] is None
     assert all(i < offset for i in merged.markers)
-    assert "share no marker" in merged.notes[0]
+    assert merged.notes[0].kind == "sessions.apart" and merged.notes[0].figure == 1
 
 
 @pytest.fixture(scope="module")

@@ -91,6 +91,10 @@ def pipeline_rate(path: Path, workers: int) -> tuple[float, float, int]:
     )
 
 
+COLUMNS = ("floor", "fast floor", "1 process", "2 processes")
+"""The rates each round prints."""
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profile", action="store_true", help="profile the one-process pipeline")
@@ -103,87 +107,104 @@ def main() -> None:
         world, route = scenario("office")
         write_log(world, route, path, seed=3, duration_s=180.0, compressed=True)
         jpegs = [bytes(m.decoded.data) for m in messages(path, [TOPIC])]
-        greys = [grey(jpeg) for jpeg in jpegs]
-        full, fast = Detector(mode=DetectorMode.FULL), Detector(mode=DetectorMode.FAST)
-        total, recall, median, p95 = agreement(
-            [full.detect(g) for g in greys], [fast.detect(g) for g in greys]
-        )
-        print(
-            f"fast against FULL on the same {len(jpegs)} frames: {100 * recall:.2f} % of {total} "
-            f"detections, corner distance median {median:.1e} px, p95 {p95:.1e} px"
-        )
-        del greys
-        # Other work shares this machine and its speed drifts from minute to minute: each round
-        # measures the floors and the pipeline back to back, and the ratios within a round are
-        # what compare. Wall-clock rates say what a user gets; rates per CPU second of this
-        # process what the code costs.
-        columns = ("floor", "fast floor", "1 process", "2 processes")
-        rows: list[dict[str, float]] = []
-        halves = [jpegs[: len(jpegs) // 2], jpegs[len(jpegs) // 2 :]]
-        with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
-            list(pool.map(floor_seconds, [h[:5] for h in halves]))  # start-up not counted
-            for round_ in range(1, arguments.rounds + 1):
-                row: dict[str, float] = {}
-                for name, mode in (("floor", DetectorMode.FULL), ("fast floor", DetectorMode.FAST)):
-                    wall, cpu = floor_times(jpegs, mode)
-                    row[name], row[f"{name} cpu"] = len(jpegs) / wall, len(jpegs) / cpu
-                # What the machine gives a second process now: the floor loop twice at once.
-                start = time.perf_counter()
-                list(pool.map(floor_seconds, halves))
-                row["second core"] = len(jpegs) / (time.perf_counter() - start) / row["floor"]
-                row["1 process"], row["1 process cpu"], observations = pipeline_rate(path, 1)
-                row["2 processes"], _, _ = pipeline_rate(path, 2)
-                rows.append(row)
-                print(
-                    f"round {round_}: "
-                    + ", ".join(f"{name} {row[name]:.0f}" for name in columns)
-                    + f" frames/s; the floor in two processes at once {row['second core']:.2f}x "
-                    f"one; {observations} observations"
-                )
-        median_of = {key: float(np.median([row[key] for row in rows])) for key in rows[0]}
-
-        def ratio(a: str, b: str) -> float:
-            """The median over the rounds of each round's ``a / b``."""
-            return float(np.median([row[a] / row[b] for row in rows]))
-
-        print(f"medians over {len(rows)} rounds (ratios: the median of each round's ratio):")
-        print(
-            "  default floor (JPEG decode + detectMarkers, FULL): "
-            f"{median_of['floor']:.0f} frames/s"
-        )
-        print(
-            f"  fast floor (JPEG decode + FAST detector): {median_of['fast floor']:.0f} frames/s "
-            f"({ratio('fast floor', 'floor'):.2f}x the default floor; per CPU second "
-            f"{ratio('fast floor cpu', 'floor cpu'):.2f}x)"
-        )
-        print(
-            f"  pipeline, 1 process: {median_of['1 process']:.0f} frames/s "
-            f"({ratio('1 process', 'floor'):.2f} of the default floor, "
-            f"{ratio('1 process', 'fast floor'):.2f} of its own); "
-            f"{median_of['1 process cpu']:.0f} per CPU second "
-            f"({ratio('1 process cpu', 'floor cpu'):.2f} of the default floor's, "
-            f"{ratio('1 process cpu', 'fast floor cpu'):.2f} of its own)"
-        )
-        print(
-            f"  pipeline, 2 processes: {median_of['2 processes']:.0f} frames/s "
-            f"({ratio('2 processes', 'floor'):.2f} of the default floor, "
-            f"{ratio('2 processes', 'fast floor'):.2f} of its own; "
-            f"{ratio('2 processes', '1 process'):.2f}x one process)"
-        )
-        print(
-            f"  the default floor in two processes at once: {median_of['second core']:.2f}x one "
-            "(how much of a second core this machine gives: the pipeline's reading thread needs it)"
-        )
+        print_agreement(jpegs)
+        rows = measure_rounds(path, jpegs, arguments.rounds)
+        print_medians(rows)
         start = time.perf_counter()
         subprocess.run([sys.executable, "-c", "import markergraph.frontend.pipeline"], check=True)
         print(f"a worker's start-up (spawn, imports): {time.perf_counter() - start:.2f} s")
         if arguments.profile:
-            profiler = cProfile.Profile()
-            profiler.runcall(extract, path, FrontendConfig())
-            text = io.StringIO()
-            pstats.Stats(profiler, stream=text).sort_stats("tottime").print_stats(15)
-            print("one-process pipeline, main thread, top items by own time (cProfile):")
-            print(text.getvalue())
+            print_profile(path)
+
+
+def print_agreement(jpegs: list[bytes]) -> None:
+    """The fast detector's recall and corner distance against FULL's on the same frames."""
+    greys = [grey(jpeg) for jpeg in jpegs]
+    full, fast = Detector(mode=DetectorMode.FULL), Detector(mode=DetectorMode.FAST)
+    total, recall, median, p95 = agreement(
+        [full.detect(g) for g in greys], [fast.detect(g) for g in greys]
+    )
+    print(
+        f"fast against FULL on the same {len(jpegs)} frames: {100 * recall:.2f} % of {total} "
+        f"detections, corner distance median {median:.1e} px, p95 {p95:.1e} px"
+    )
+
+
+def measure_rounds(path: Path, jpegs: list[bytes], rounds: int) -> list[dict[str, float]]:
+    """Each round's rates (frames/s; ``... cpu``: per CPU second of this process), printed as
+    they come."""
+    # Other work shares this machine and its speed drifts from minute to minute: each round
+    # measures the floors and the pipeline back to back, and the ratios within a round are
+    # what compare. Wall-clock rates say what a user gets; rates per CPU second of this
+    # process what the code costs.
+    rows: list[dict[str, float]] = []
+    halves = [jpegs[: len(jpegs) // 2], jpegs[len(jpegs) // 2 :]]
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        list(pool.map(floor_seconds, [h[:5] for h in halves]))  # start-up not counted
+        for round_ in range(1, rounds + 1):
+            row: dict[str, float] = {}
+            for name, mode in (("floor", DetectorMode.FULL), ("fast floor", DetectorMode.FAST)):
+                wall, cpu = floor_times(jpegs, mode)
+                row[name], row[f"{name} cpu"] = len(jpegs) / wall, len(jpegs) / cpu
+            # What the machine gives a second process now: the floor loop twice at once.
+            start = time.perf_counter()
+            list(pool.map(floor_seconds, halves))
+            row["second core"] = len(jpegs) / (time.perf_counter() - start) / row["floor"]
+            row["1 process"], row["1 process cpu"], observations = pipeline_rate(path, 1)
+            row["2 processes"], _, _ = pipeline_rate(path, 2)
+            rows.append(row)
+            print(
+                f"round {round_}: "
+                + ", ".join(f"{name} {row[name]:.0f}" for name in COLUMNS)
+                + f" frames/s; the floor in two processes at once {row['second core']:.2f}x "
+                f"one; {observations} observations"
+            )
+    return rows
+
+
+def print_medians(rows: list[dict[str, float]]) -> None:
+    """The medians of the rates over the rounds, and of each round's ratios."""
+    median_of = {key: float(np.median([row[key] for row in rows])) for key in rows[0]}
+
+    def ratio(a: str, b: str) -> float:
+        """The median over the rounds of each round's ``a / b``."""
+        return float(np.median([row[a] / row[b] for row in rows]))
+
+    print(f"medians over {len(rows)} rounds (ratios: the median of each round's ratio):")
+    print(f"  default floor (JPEG decode + detectMarkers, FULL): {median_of['floor']:.0f} frames/s")
+    print(
+        f"  fast floor (JPEG decode + FAST detector): {median_of['fast floor']:.0f} frames/s "
+        f"({ratio('fast floor', 'floor'):.2f}x the default floor; per CPU second "
+        f"{ratio('fast floor cpu', 'floor cpu'):.2f}x)"
+    )
+    print(
+        f"  pipeline, 1 process: {median_of['1 process']:.0f} frames/s "
+        f"({ratio('1 process', 'floor'):.2f} of the default floor, "
+        f"{ratio('1 process', 'fast floor'):.2f} of its own); "
+        f"{median_of['1 process cpu']:.0f} per CPU second "
+        f"({ratio('1 process cpu', 'floor cpu'):.2f} of the default floor's, "
+        f"{ratio('1 process cpu', 'fast floor cpu'):.2f} of its own)"
+    )
+    print(
+        f"  pipeline, 2 processes: {median_of['2 processes']:.0f} frames/s "
+        f"({ratio('2 processes', 'floor'):.2f} of the default floor, "
+        f"{ratio('2 processes', 'fast floor'):.2f} of its own; "
+        f"{ratio('2 processes', '1 process'):.2f}x one process)"
+    )
+    print(
+        f"  the default floor in two processes at once: {median_of['second core']:.2f}x one "
+        "(how much of a second core this machine gives: the pipeline's reading thread needs it)"
+    )
+
+
+def print_profile(path: Path) -> None:
+    """The one-process pipeline's main thread profiled: the top items by own time."""
+    profiler = cProfile.Profile()
+    profiler.runcall(extract, path, FrontendConfig())
+    text = io.StringIO()
+    pstats.Stats(profiler, stream=text).sort_stats("tottime").print_stats(15)
+    print("one-process pipeline, main thread, top items by own time (cProfile):")
+    print(text.getvalue())
 
 
 if __name__ == "__main__":

@@ -15,7 +15,8 @@ import numpy as np
 
 from markergraph.datasets import scenario, simulate_fast
 from markergraph.estimator import Method, build_frames, estimate_frames, map_error
-from markergraph.estimator.sessions import MapPrior, localize, solve_sessions
+from markergraph.estimator.localization import localize
+from markergraph.estimator.sessions import MapPrior, solve_sessions
 
 MOVED_ID, MOVED_BY_M = 7, 0.3
 

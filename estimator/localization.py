@@ -1,0 +1,174 @@
+"""Localisation against a saved map that finds moved and new markers.
+
+Localisation is the same graph with the saved map's markers entering as priors at their
+covariances (so the map's own uncertainty reaches the robot's poses) and solved in one batch:
+offline the whole log is in hand, and the smoothed solution is what iSAM2 would hold after the
+last frame, with every pose's marginal covariance. A marker that was moved since the map was
+made shows as observations that disagree with its prior; it is found by its residuals, freed
+from its prior and placed anew, so it cannot pull the trajectory.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.common.errors import EstimationError
+from markergraph.estimator.frames import Frames
+from markergraph.estimator.graph import Robust
+from markergraph.estimator.sessions import MapPrior, SessionsEstimate, solve_sessions
+from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.types import FactorResidual, MarkerEstimate
+
+__all__ = ["Localization", "MovedMarker", "localize"]
+
+# A map marker is a suspect when its prior's whitened error (how hard the observations pull it)
+# or the median of its observations' (how hard the prior holds them off) exceeds this; honest
+# data give about 1.5 (3 degrees of freedom). A suspect is moved when the map's pose and the
+# pose this log alone gives it differ beyond chi-square's 99.9 % point for 3 dof.
+SUSPECT_WHITENED = 3.0
+MOVED_CHI2 = 16.27
+MIN_OBSERVATIONS_TO_MOVE = 3
+
+
+@dataclass(frozen=True)
+class MovedMarker:
+    """A saved map's marker that is no longer where the map puts it.
+
+    Attributes:
+        marker_id: its id.
+        T_map_before: where the map has it.
+        T_map_now: where this log's observations put it.
+        displacement_m: how far its centre moved [m].
+        prior_whitened: how many sigmas the log's observations pulled the map's pose.
+    """
+
+    marker_id: int
+    T_map_before: gtsam.Pose2
+    T_map_now: gtsam.Pose2
+    displacement_m: float
+    prior_whitened: float
+
+
+@dataclass
+class Localization:
+    """A log's robot trajectory in a saved map's frame.
+
+    Attributes:
+        trajectory: the robot's poses in the map frame.
+        pose_covariances: (N, 3, 3) their marginal covariances.
+        moved: the map's markers that were moved, left out of the localisation.
+        new: markers the map does not know, placed by this log.
+        checked: for each map marker, how many sigmas this log pulled it from the map.
+        estimate: the final solution (residuals, graph, markers).
+    """
+
+    trajectory: Trajectory
+    pose_covariances: NDArray[np.float64]
+    moved: list[MovedMarker]
+    new: dict[int, MarkerEstimate]
+    checked: dict[int, float]
+    estimate: SessionsEstimate
+
+
+def _median_whitened(residuals: Sequence[FactorResidual]) -> dict[int, tuple[float, int]]:
+    errors: defaultdict[int, list[float]] = defaultdict(list)
+    for r in residuals:
+        if r.kind == "observation":
+            for key in r.keys:
+                if key.startswith("m"):
+                    errors[int(key[1:])].append(r.whitened_error)
+    return {i: (float(np.median(e)), len(e)) for i, e in errors.items()}
+
+
+def _prior_whitened(residuals: Sequence[FactorResidual]) -> dict[int, float]:
+    return {int(r.keys[0][1:]): r.whitened_error for r in residuals if r.kind == "prior"}
+
+
+def localize(
+    frames: Frames,
+    T_base_camera: gtsam.Pose2,
+    saved: Mapping[int, MapPrior],
+    *,
+    robust: Robust = Robust.HUBER,
+) -> Localization:
+    """The robot's trajectory in a saved map, its markers held at their covariances.
+
+    A map marker seen at least :data:`MIN_OBSERVATIONS_TO_MOVE` times whose prior or
+    observations are more than :data:`SUSPECT_WHITENED` sigmas off is freed and placed by this
+    log alone; if that pose differs from the map's beyond chi-square's 99.9 % point
+    (:data:`MOVED_CHI2`, both covariances), it is reported as moved and the trajectory is solved
+    without its prior, so it cannot pull the robot. Markers the map does not know are placed and
+    reported as new.
+
+    Raises:
+        EstimationError: the log sees no marker of the map.
+    """
+    first = solve_sessions(
+        [frames], [T_base_camera], robust=robust, priors=saved, pose_covariances=True
+    )
+    seen = set(frames.marker_ids()) & set(saved)
+    observed = _median_whitened(first.residuals)
+    pulled = _prior_whitened(first.residuals)
+    # Suspects: a prior the observations pull hard on, or observations the prior holds off.
+    suspects = sorted(
+        i for i in seen
+        if observed.get(i, (0.0, 0))[1] >= MIN_OBSERVATIONS_TO_MOVE
+        and (pulled.get(i, 0.0) > SUSPECT_WHITENED or observed[i][0] > SUSPECT_WHITENED)
+    )  # fmt: skip
+    if not suspects:
+        return _localization(first, [], saved, pulled)
+    if not (seen - set(suspects)):
+        raise EstimationError(
+            f"every map marker this log sees ({', '.join(map(str, suspects))}) disagrees with "
+            "the map: nothing to localise against"
+        )
+    freed = solve_sessions(
+        [frames], [T_base_camera], robust=robust,
+        priors={i: p for i, p in saved.items() if i not in suspects}, pose_covariances=True,
+    )  # fmt: skip
+    moved_ids = []
+    for i in suspects:
+        # The map's pose against this log's, each with its own covariance: chi-square, 3 dof.
+        difference = saved[i].T_map_marker.localCoordinates(freed.markers[i].T_map_marker)
+        fresh = freed.markers[i].covariance
+        if fresh is None:
+            raise EstimationError(
+                f"no covariance for marker {i}: {'; '.join(n.text for n in freed.notes)}"
+            )
+        covariance = saved[i].covariance + fresh
+        if float(difference @ np.linalg.solve(covariance, difference)) > MOVED_CHI2:
+            moved_ids.append(i)
+    if not moved_ids:
+        return _localization(first, [], saved, pulled)
+    final = freed if moved_ids == suspects else solve_sessions(
+        [frames], [T_base_camera], robust=robust,
+        priors={i: p for i, p in saved.items() if i not in moved_ids}, pose_covariances=True,
+    )  # fmt: skip
+    return _localization(final, moved_ids, saved, pulled)
+
+
+def _localization(
+    final: SessionsEstimate,
+    moved_ids: list[int],
+    saved: Mapping[int, MapPrior],
+    pulled: Mapping[int, float],
+) -> Localization:
+    moved = []
+    for i in moved_ids:
+        before, now = saved[i].T_map_marker, final.markers[i].T_map_marker
+        moved.append(MovedMarker(
+            i, before, now, math.hypot(now.x() - before.x(), now.y() - before.y()), pulled[i]
+        ))  # fmt: skip
+    new = {i: m for i, m in final.markers.items() if i not in saved}
+    trajectory, covariances = final.trajectories[0], final.pose_covariances[0]
+    assert trajectory is not None
+    if covariances is None:
+        raise EstimationError(f"no pose covariances: {'; '.join(n.text for n in final.notes)}")
+    return Localization(trajectory, covariances, moved, new, dict(pulled), final)

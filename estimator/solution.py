@@ -1,0 +1,174 @@
+"""What the GTSAM methods share once a graph is built: Levenberg-Marquardt's settings and
+solve, the marginals, and the :class:`~markergraph.estimator.estimate.Estimate` of a solved
+graph with its notes."""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from functools import partial
+
+import gtsam
+from gtsam.symbol_shorthand import L
+
+from markergraph.common.errors import EstimationError
+from markergraph.common.notes import Note
+from markergraph.estimator.estimate import Estimate
+from markergraph.estimator.frames import Frames
+from markergraph.estimator.gauge import relative_covariances
+from markergraph.estimator.graph import GraphBuilder, read_residuals
+from markergraph.estimator.links import describe_disconnected
+from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.types import MarkerEstimate, Method
+
+__all__ = [
+    "MAX_ITERATIONS",
+    "disconnected_notes",
+    "first_line",
+    "lm_params",
+    "marginals_or_note",
+    "marker_estimates",
+    "not_converged_note",
+    "observation_counts",
+    "optimise",
+    "solved_estimate",
+]
+
+MAX_ITERATIONS = 100
+"""Levenberg-Marquardt's iteration limit: a solve that reaches it has not converged."""
+
+
+def lm_params() -> gtsam.LevenbergMarquardtParams:
+    """Levenberg-Marquardt's settings for every batch solve here and in sessions.py."""
+    # Tighter tolerances buy nothing measurable and cost rejected steps at convergence
+    # (1.5 s instead of 0.36 s on the 10,000-pose benchmark).
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(MAX_ITERATIONS)
+    params.setRelativeErrorTol(1e-10)
+    params.setAbsoluteErrorTol(1e-12)
+    return params
+
+
+def first_line(error: Exception) -> str:
+    """GTSAM's messages start with a blank line: the first line that says something."""
+    return next((line.strip() for line in str(error).splitlines() if line.strip()), repr(error))
+
+
+def marginals_or_note(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, notes: list[Note]
+) -> gtsam.Marginals | None:
+    """The solution's marginals, or None with a note saying why when the system is
+    indeterminate (the means are kept)."""
+    try:
+        return gtsam.Marginals(graph, values)
+    except RuntimeError as error:  # an indeterminate system: report, keep the means
+        notes.append(
+            Note("marginals.unavailable", f"marginal covariances unavailable: {first_line(error)}")
+        )
+        return None
+
+
+def marker_estimates(
+    values: gtsam.Values,
+    marker_ids: list[int],
+    counts: Counter[int],
+    marginals: gtsam.Marginals | None,
+) -> dict[int, MarkerEstimate]:
+    poses = [values.atPose2(L(i)) for i in marker_ids]
+    if marginals is None:
+        return {
+            i: MarkerEstimate(i, T, None, counts[i]) for i, T in zip(marker_ids, poses, strict=True)
+        }
+    keys = gtsam.KeyVector([L(i) for i in marker_ids])
+    joint = marginals.jointMarginalCovariance(keys).fullMatrix()
+    relative = relative_covariances(poses, joint)
+    return {
+        i: MarkerEstimate(i, T, joint[3 * k : 3 * k + 3, 3 * k : 3 * k + 3].copy(), counts[i],
+                          relative[k])
+        for k, (i, T) in enumerate(zip(marker_ids, poses, strict=True))
+    }  # fmt: skip
+
+
+def observation_counts(frames: Frames) -> Counter[int]:
+    return Counter(o.marker_id for f in frames.frames for o in f.observations)
+
+
+def optimise(
+    builder: GraphBuilder, timings: dict[str, float], warm: bool = True
+) -> tuple[gtsam.Values, bool]:
+    """Levenberg-Marquardt from the builder's initial values, or (``warm``) from its pose-graph
+    form's solution (:meth:`GraphBuilder.warm_start`); (solution, converged)."""
+    start = time.perf_counter()
+    try:
+        start_values = builder.warm_start(lm_params()) if warm else builder.values
+        optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, start_values, lm_params())
+        result = optimizer.optimize()
+    except RuntimeError as error:  # GTSAM's IndeterminantLinearSystemException
+        raise EstimationError(
+            f"GTSAM could not solve the graph: {str(error).splitlines()[0]}"
+        ) from None
+    timings["optimize"] = time.perf_counter() - start
+    return result, optimizer.iterations() < MAX_ITERATIONS
+
+
+def solved_estimate(
+    method: Method,
+    frames: Frames,
+    builder: GraphBuilder,
+    result: gtsam.Values,
+    *,
+    marker_ids: list[int],
+    trajectory: Trajectory,
+    links: list,
+    notes: list[Note],
+    converged: bool,
+    timings: dict[str, float],
+    unplaced: dict[int, str] | None = None,
+    observations_unlinked: int | None = None,
+) -> Estimate:
+    """The Estimate of a solved factor graph: markers with their joint marginals, the
+    trajectory, residuals, links and notes, and the graph and solution themselves."""
+    graph = builder.graph
+    start = time.perf_counter()
+    marginals = marginals_or_note(graph, result, notes)
+    estimate = Estimate(
+        method=method,
+        home_id=frames.home_id,
+        markers=marker_estimates(result, marker_ids, observation_counts(frames), marginals),
+        trajectory=trajectory,
+        residuals=read_residuals(graph, result, builder.kinds),
+        links=links,
+        unplaced=unplaced or {},
+        converged=converged,
+        notes=notes,
+        graph=graph,
+        values=result,
+        pose_graph=partial(builder.pose_graph, result),
+        observations_unlinked=observations_unlinked,
+    )
+    timings["marginals"] = time.perf_counter() - start
+    estimate.timings_s = timings
+    return estimate
+
+
+def disconnected_notes(
+    kind: str, groups: list[list[int]], home_id: int, ending: str = ""
+) -> list[Note]:
+    """A note per group of markers no link chain joins to home (``describe_disconnected``'s
+    sentences), its figure the group's size."""
+    apart = [group for group in groups if home_id not in group]
+    sentences = describe_disconnected(groups, home_id)
+    return [
+        Note(kind, f"{sentence}{ending}", figure=len(group))
+        for group, sentence in zip(apart, sentences, strict=True)
+    ]
+
+
+def not_converged_note() -> Note:
+    """The note of a Levenberg-Marquardt solve that stopped at :data:`MAX_ITERATIONS`."""
+    return Note(
+        "slam.not_converged",
+        f"Levenberg-Marquardt stopped after {MAX_ITERATIONS} iterations without "
+        "converging; the map is its last estimate",
+        figure=MAX_ITERATIONS,
+    )
