@@ -55,7 +55,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
             for i, c in sorted(extraction.marker_detections.items())
         },
         "inputs": extraction.input_evidence(),
-        "notes": extraction.notes + extraction.warnings,
+        "notes": [n.text for n in extraction.notes] + extraction.warnings,
         "ground_truth": bool(run.true_markers),
         "seconds": run.seconds,
         "settings": dict(run.config.values),

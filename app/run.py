@@ -14,6 +14,7 @@ import gtsam
 import numpy as np
 
 from markergraph.common.errors import EstimationError, MarkerGraphError
+from markergraph.common.notes import Note
 from markergraph.estimator import (
     Estimate,
     Form,
@@ -234,14 +235,21 @@ def _timed(
         if chosen.delay_ns is None:
             delay_ns = 0
             extraction.notes.append(
-                f"camera stamps taken as they are against {extraction.topics.odom}: SLAM's "
-                "residuals have no minimum between -50 and +100 ms (--camera-delay sets a delay)"
+                Note(
+                    "app.camera_delay.none",
+                    f"camera stamps taken as they are against {extraction.topics.odom}: SLAM's "
+                    "residuals have no minimum between -50 and +100 ms (--camera-delay sets a "
+                    "delay)",
+                )
             )
         else:
             delay_ns = chosen.delay_ns
             extraction.notes.append(
-                f"camera stamps {delay_ns / 1e6:+.1f} ms against {extraction.topics.odom} "
-                "(chosen by SLAM's residuals over -50..+100 ms; --camera-delay sets it)"
+                Note(
+                    "app.camera_delay.chosen",
+                    f"camera stamps {delay_ns / 1e6:+.1f} ms against {extraction.topics.odom} "
+                    "(chosen by SLAM's residuals over -50..+100 ms; --camera-delay sets it)",
+                )
             )
     else:
         delay_ns = round(v["camera.delay_ms"] * 1e6)
@@ -275,7 +283,11 @@ def prepare(
         )
     if not len(extraction.odometry):
         topic = extraction.topics.odom
-        dropped = [n for n in extraction.notes if topic and n.startswith("dropped") and topic in n]
+        dropped = [
+            n.text
+            for n in extraction.notes
+            if n.kind.startswith("odometry.dropped") and n.topic == topic
+        ]
         raise MarkerGraphError(
             f"{log}: no usable odometry on {topic} ({'; '.join(dropped) or 'no samples'})"
             if topic
@@ -285,25 +297,36 @@ def prepare(
     seen = {o.marker_id for o in extraction.observations}
     if len(seen) == 1:
         extraction.notes.append(
-            f"only marker {seen.pop()} was seen: the map is that marker alone, with the robot's "
-            "path in its frame; there is nothing to link"
+            Note(
+                "app.single_marker",
+                f"only marker {seen.pop()} was seen: the map is that marker alone, with the "
+                "robot's path in its frame; there is nothing to link",
+            )
         )
     jumps = extraction.odometry.jumps()
     for t_ns, size_m in jumps:
         after_s = (t_ns - int(extraction.odometry.t_ns[0])) * 1e-9
         extraction.notes.append(
-            f"odometry on {extraction.topics.odom} jumped {size_m:.2f} m at {after_s:.2f} s into "
-            "the log (a visual-inertial reset or relocalisation): that step is left to the "
-            "observations"
+            Note(
+                "app.odometry_jump",
+                f"odometry on {extraction.topics.odom} jumped {size_m:.2f} m at {after_s:.2f} s "
+                "into the log (a visual-inertial reset or relocalisation): that step is left to "
+                "the observations",
+                extraction.topics.odom,
+                size_m,
+            )
         )
     evidence = extraction.odometry_evidence
     source, odometry_noise = config.odometry_noise(extraction.topics.odom, evidence)
     _, why = config.odometry_source(extraction.topics.odom, evidence)
     extraction.odometry_model_reason = why
     extraction.notes.append(
-        f"odometry noise: the {source} model ({100 * odometry_noise.per_m:.1f} cm and "
-        f"{math.degrees(odometry_noise.yaw_per_m):.2f} deg per sqrt(m), "
-        f"{math.degrees(odometry_noise.yaw_per_rad):.2f} deg per sqrt(rad) turned): {why}"
+        Note(
+            "app.odometry_noise",
+            f"odometry noise: the {source} model ({100 * odometry_noise.per_m:.1f} cm and "
+            f"{math.degrees(odometry_noise.yaw_per_m):.2f} deg per sqrt(m), "
+            f"{math.degrees(odometry_noise.yaw_per_rad):.2f} deg per sqrt(rad) turned): {why}",
+        )
     )
     breaks = [t for t, _ in jumps]
     if config.values["camera.delay_ms"] is None:
@@ -344,15 +367,23 @@ def _odometry_scale(
     topic = extraction.topics.odom
     if found.chosen is None:
         extraction.notes.append(
-            f"odometry on {topic} taken at its scale: SLAM's residuals have no minimum between "
-            "0.95 and 1.05 (--odometry-scale sets one)"
+            Note(
+                "app.odometry_scale.none",
+                f"odometry on {topic} taken at its scale: SLAM's residuals have no minimum "
+                "between 0.95 and 1.05 (--odometry-scale sets one)",
+            )
         )
         return 1.0
     off = 100 * (1 / found.chosen - 1)
     extraction.notes.append(
-        f"odometry on {topic} reads distances {abs(off):.2f} % {'long' if off > 0 else 'short'}: "
-        f"its steps are scaled by {found.chosen:.4f} (chosen by SLAM's residuals over "
-        "0.95..1.05; --odometry-scale sets it)"
+        Note(
+            "app.odometry_scale.chosen",
+            f"odometry on {topic} reads distances {abs(off):.2f} % "
+            f"{'long' if off > 0 else 'short'}: its steps are scaled by {found.chosen:.4f} "
+            "(chosen by SLAM's residuals over 0.95..1.05; --odometry-scale sets it)",
+            topic,
+            found.chosen,
+        )
     )
     return found.chosen
 

@@ -278,7 +278,7 @@ def localize_log(
     (extraction,) = extract_logs([log], config.frontend, workers=config.workers,
                                  progress=progress)  # fmt: skip
     frames = prepare(log, extraction, config, stage).frames
-    notes = list(extraction.notes)
+    notes = [n.text for n in extraction.notes]
     priors = priors_of(saved, notes)
     stage("localising against the saved map")
     localization = localize(frames, extraction.mount.T_base_camera, priors, robust=config.robust)

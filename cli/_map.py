@@ -185,5 +185,5 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
             f"separate map {n}: {len(marker_map.markers)} markers from {', '.join(map(str, logs))}"
         )
     if not quiet:
-        for note in extraction.notes + extraction.warnings:
+        for note in [n.text for n in extraction.notes] + extraction.warnings:
             print(f"note: {note}", file=sys.stderr)

@@ -280,7 +280,10 @@ def test_tilted_base_is_levelled_with_the_odometrys_attitude(simulated, tmp_path
     tilted = extract(tilted_log, FrontendConfig(allowed_ids=tuple(range(30))))
     assert tilted.mount.roll_rad < -math.radians(7.0)  # the mount as /tf_static now says
     assert tilted.levelled_frames == tilted.frames
-    assert any("levelled with /odom's attitude" in note for note in tilted.notes)
+    assert any(
+        n.kind == "frames.levelled" and n.topic == "/odom" and n.figure == tilted.levelled_frames
+        for n in tilted.notes
+    )
     assert {o.marker_id for o in tilted.observations} == {o.marker_id for o in level.observations}
     rows = errors_against_truth(tilted)
     oblique = np.abs(rows[:, 1]) >= math.radians(15.0)
@@ -686,7 +689,7 @@ def test_configured_mount_stands_in_for_missing_tf_static(simulated, tmp_path: P
         MapConfig.from_values({**ids, "camera.height": 0.6, "camera.pitch_deg": 10}).frontend,
     )
     level = extract(stripped, MapConfig.from_values({**ids, "camera.pitch_deg": 0.0}).frontend)
-    assert true.topics.tf_static is None and any("/tf_static" in n for n in true.notes)
+    assert true.topics.tf_static is None and any(n.kind == "mount.no_tf_static" for n in true.notes)
     assert [o.range_m for o in true.observations] == pytest.approx(
         [o.range_m for o in result.observations], abs=1e-9
     )
@@ -856,33 +859,36 @@ def test_workers_auto_uses_a_second_process_only_where_it_helps(monkeypatch) -> 
     """Auto: a process per 1.5 idle cores (its reading thread keeps a second core busy) and per
     1,500 frames: one on a 2-core machine, a short log or a busy machine (by the load average
     where busy cores cannot be measured); a number asked for is kept, capped at the cores."""
-    from markergraph.frontend import pipeline
+    from markergraph.common import pool
 
-    monkeypatch.setattr(pipeline, "busy_cores", lambda: 0.2)
-    monkeypatch.setattr(pipeline, "available_cores", lambda: 2)
-    workers, note = pipeline.choose_workers(9000, None)
-    assert workers == 1 and note is not None and "2 cores" in note
-    monkeypatch.setattr(pipeline, "available_cores", lambda: 4)
-    assert pipeline.choose_workers(9000, None)[0] == 2  # 3.8 idle cores
-    assert pipeline.choose_workers(2000, None)[0] == 1  # 2,000 frames: one worker's worth
-    monkeypatch.setattr(pipeline, "available_cores", lambda: 8)
-    assert pipeline.choose_workers(9000, None)[0] == 5  # 7.8 idle cores
-    assert pipeline.choose_workers(4500, None)[0] == 3  # 1,500 frames each
-    monkeypatch.setattr(pipeline, "busy_cores", lambda: 6.2)
-    workers, note = pipeline.choose_workers(9000, None)
-    assert workers == 1 and note is not None and "1.8 of 8 cores idle, 6.2 busy" in note
-    monkeypatch.setattr(pipeline, "busy_cores", lambda: None)
-    monkeypatch.setattr(pipeline.os, "getloadavg", lambda: (3.5, 3.5, 3.5))
-    workers, note = pipeline.choose_workers(9000, None)
-    assert workers == 3 and note is not None and "load average 3.5" in note
-    assert pipeline.choose_workers(100, 2) == (2, None)
-    assert pipeline.choose_workers(100, 9)[0] == 8
+    monkeypatch.setattr(pool, "busy_cores", lambda: 0.2)
+    monkeypatch.setattr(pool, "available_cores", lambda: 2)
+    workers, note = pool.choose_workers(9000, None)
+    assert workers == 1 and note is not None and note.kind == "workers.auto"
+    assert note.figure == 1 and "2 cores" in note.text
+    monkeypatch.setattr(pool, "available_cores", lambda: 4)
+    assert pool.choose_workers(9000, None)[0] == 2  # 3.8 idle cores
+    assert pool.choose_workers(2000, None)[0] == 1  # 2,000 frames: one worker's worth
+    monkeypatch.setattr(pool, "available_cores", lambda: 8)
+    assert pool.choose_workers(9000, None)[0] == 5  # 7.8 idle cores
+    assert pool.choose_workers(4500, None)[0] == 3  # 1,500 frames each
+    monkeypatch.setattr(pool, "busy_cores", lambda: 6.2)
+    workers, note = pool.choose_workers(9000, None)
+    assert workers == 1 and note is not None and note.kind == "workers.auto"
+    assert note.figure == 1 and "1.8 of 8 cores idle, 6.2 busy" in note.text
+    monkeypatch.setattr(pool, "busy_cores", lambda: None)
+    monkeypatch.setattr(pool.os, "getloadavg", lambda: (3.5, 3.5, 3.5))
+    workers, note = pool.choose_workers(9000, None)
+    assert workers == 3 and note is not None and note.kind == "workers.auto"
+    assert note.figure == 3 and "load average 3.5" in note.text
+    assert pool.choose_workers(100, 2) == (2, None)
+    assert pool.choose_workers(100, 9)[0] == 8
 
 
 def test_core_ticks_read_proc_stat() -> None:
     """Each core's idle ticks are idle plus iowait, its total the first eight fields (user to
     steal: guest is inside user); the all-cores line and other lines are passed over."""
-    from markergraph.frontend.pipeline import core_ticks
+    from markergraph.common.pool import core_ticks
 
     text = (
         "cpu  100 2 30 400 5 6 7 8 9 10\n"
@@ -896,7 +902,7 @@ def test_core_ticks_read_proc_stat() -> None:
 
 def test_busy_cores_sees_a_process_spinning_on_our_cores() -> None:
     """A process spinning beside us shows as about one more busy core than before it ran."""
-    from markergraph.frontend.pipeline import available_cores, busy_cores
+    from markergraph.common.pool import available_cores, busy_cores
 
     quiet = busy_cores(0.3)
     if quiet is None:

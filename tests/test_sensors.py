@@ -22,6 +22,7 @@ from markergraph.datasets.sensors import D435_DISTORTION, D435I_ON_DIFF_DRIVE, S
 from markergraph.datasets.write import capture
 from markergraph.estimator import Trajectory
 from markergraph.frontend import FrontendConfig, extract
+from markergraph.frontend.depth_scale import DEPTH_SCALE_RESOLUTION
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import (
     Flags,
@@ -29,7 +30,6 @@ from markergraph.frontend.observe import (
     _marker_depth,
     observe_detections,
 )
-from markergraph.frontend.pipeline import DEPTH_SCALE_RESOLUTION
 
 RATE = 1.0  # turn rate in the capture tests [rad/s]
 
@@ -210,7 +210,7 @@ def test_depth_scale_is_the_steady_markers_robust_mean_ratio() -> None:
     off (depth from the wall behind), are read back as k within 0.05 %; pairs taken while the
     robot turned at 1 rad/s, 5 % off, are left out."""
     from markergraph.estimator import Trajectory
-    from markergraph.frontend.pipeline import depth_scale_from_markers
+    from markergraph.frontend.depth_scale import depth_scale_from_markers
 
     rng = np.random.default_rng(5)
     k = 1.012
