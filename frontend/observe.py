@@ -23,7 +23,14 @@ from markergraph.frontend.yaw import (
     yaw_sigma,
 )
 
-__all__ = ["DepthModel", "Flags", "ObservationModel", "observe", "observe_detections"]
+__all__ = [
+    "DepthModel",
+    "Flags",
+    "ObservationModel",
+    "marker_depth",
+    "observe",
+    "observe_detections",
+]
 
 
 class Flags:
@@ -123,7 +130,7 @@ def robust_least_squares(
     marker's 300-500 depth pixels that costs half of ``lstsq``'s SVD. An exactly singular
     system falls back to ``lstsq``'s least-norm solution; a nearly singular one (a marker's
     pixels all in one row) gives an arbitrary intercept, as ``lstsq`` did, which
-    :func:`_marker_depth` refuses when it falls outside the depths fitted."""
+    :func:`marker_depth` refuses when it falls outside the depths fitted."""
     kept = np.ones(len(b), dtype=bool)
     for fit in range(passes):
         A_kept, b_kept = (A, b) if fit == 0 else (A[kept], b[kept])
@@ -150,7 +157,7 @@ def _median(values: NDArray[np.float64]) -> float:
     return float(low + high) / 2.0
 
 
-def _marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthModel) -> float | None:
+def marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthModel) -> float | None:
     """Depth [m] at the marker's centre, from the valid pixels inside it (shrunk by a fifth
     toward its centre to stay clear of the edge where depth mixes with the wall); None without
     a valid pixel.
@@ -252,7 +259,7 @@ def _observe_one(
         return None  # PAPER has no solution here; nothing honest to report
     # Depth is aligned to the colour image as recorded: look it up at the detected
     # (distorted) corners, not the undistorted ones.
-    z = None if depth is None else _marker_depth(depth, detection.corners, model.depth_model)
+    z = None if depth is None else marker_depth(depth, detection.corners, model.depth_model)
     well_placed = abs(theta) < GRAZING_RAD and not edge_flags
     placed = well_placed and pose is not None and pose[1][2] > 0
     if size_ratios is not None and z is not None and placed and pose is not None:

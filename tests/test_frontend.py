@@ -798,7 +798,7 @@ def test_theta_sigma_from_one_pnp_solve_matches_re_solving() -> None:
 
     from markergraph.frontend.yaw import (
         YawMethod,
-        _marker_object_points,
+        marker_object_points,
         pnp_pose,
         pnp_theta,
         pnp_theta_sigma,
@@ -813,7 +813,7 @@ def test_theta_sigma_from_one_pnp_solve_matches_re_solving() -> None:
         # About y by pi plus up to 70 deg: the marker faces the camera, seen obliquely.
         rvec = np.array([0.05 * rng.standard_normal(), math.pi + rng.uniform(-1.2, 1.2), 0.0])
         tvec = np.array([rng.uniform(-0.25, 0.25) * z, 0.1 * rng.standard_normal(), z])
-        corners = cv2.projectPoints(_marker_object_points(0.2), rvec, tvec, camera.K, None)[0]
+        corners = cv2.projectPoints(marker_object_points(0.2), rvec, tvec, camera.K, None)[0]
         corners = corners.reshape(4, 2)
         pose = pnp_pose(corners, camera, 0.2)
         if pose is None or abs(pnp_theta(pose)) < math.radians(12.0):
@@ -827,7 +827,7 @@ def test_theta_sigma_from_one_pnp_solve_matches_re_solving() -> None:
 def test_theta_sigma_gradient_is_theta_differentiated() -> None:
     """theta's sigma uses theta's analytic gradient in the pose; it equals the sigma from
     central differences of theta itself (through Rodrigues) to 1e-6."""
-    from markergraph.frontend.yaw import _marker_object_points, pnp_pose, pnp_theta, pnp_theta_sigma
+    from markergraph.frontend.yaw import marker_object_points, pnp_pose, pnp_theta, pnp_theta_sigma
 
     camera = Camera()
     rng = np.random.default_rng(5)
@@ -835,7 +835,7 @@ def test_theta_sigma_gradient_is_theta_differentiated() -> None:
         z = rng.uniform(0.8, 5.0)
         rvec = np.array([0.1 * rng.standard_normal(), math.pi + rng.uniform(-1.2, 1.2), 0.05])
         tvec = np.array([rng.uniform(-0.25, 0.25) * z, 0.1 * rng.standard_normal(), z])
-        corners = cv2.projectPoints(_marker_object_points(0.2), rvec, tvec, camera.K, None)[0]
+        corners = cv2.projectPoints(marker_object_points(0.2), rvec, tvec, camera.K, None)[0]
         pose = pnp_pose(corners.reshape(4, 2), camera, 0.2)
         assert pose is not None
         r, _ = cv2.Rodrigues(pose[0])
@@ -849,7 +849,7 @@ def test_theta_sigma_gradient_is_theta_differentiated() -> None:
                 pnp_theta((cv2.Rodrigues(ahead[:3])[0], ahead[3:]))
                 - pnp_theta((cv2.Rodrigues(behind[:3])[0], behind[3:]))
             ) / 2e-6
-        _, jacobian = cv2.projectPoints(_marker_object_points(0.2), r, pose[1], camera.K, None)
+        _, jacobian = cv2.projectPoints(marker_object_points(0.2), r, pose[1], camera.K, None)
         J = jacobian[:, :6]
         expected = 0.3 * math.sqrt(gradient @ np.linalg.solve(J.T @ J, gradient))
         assert pnp_theta_sigma(pose, camera, 0.2, 0.3) == pytest.approx(expected, rel=1e-6)

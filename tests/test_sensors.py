@@ -27,7 +27,7 @@ from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import (
     Flags,
     ObservationModel,
-    _marker_depth,
+    marker_depth,
     observe_detections,
 )
 
@@ -196,7 +196,7 @@ def test_depth_at_an_oblique_marker_with_black_cells_is_its_centres(wall_marker)
                                  mount=renderer.mount)  # fmt: skip
     assert Flags.NO_DEPTH not in seen.flags
     u, v = np.rint(detection.corners.mean(axis=0)).astype(int)
-    z = _marker_depth(frame.depth_mm, detection.corners, model.depth_model)
+    z = marker_depth(frame.depth_mm, detection.corners, model.depth_model)
     assert z == pytest.approx(true_z, abs=0.005)  # the white cells' median: 24 mm off
     assert np.count_nonzero(frame.depth_mm[v - 20 : v + 20, u - 20 : u + 20] == 0) > 100
     wrong = np.full_like(frame.depth_mm, round(700 * true_z))  # 30 % short
