@@ -156,9 +156,7 @@ def _import_ray() -> ModuleType:
 
 def _extract_on_worker(path: Path, config: FrontendConfig) -> Extraction:
     """One log's front end in a Ray worker: one OpenCV thread, as a Ray task asks for one CPU."""
-    import cv2  # the application layer leaves OpenCV to the front end; this runs in its place
-
-    cv2.setNumThreads(1)
+    one_opencv_thread()
     return extract(path, config)
 
 

@@ -23,7 +23,7 @@ MAX_SPEED_MPS = 50.0
 MAX_COORDINATE_M = 1e7
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class CleanPath:
     """A path without its corrupted samples, and what was dropped."""
 

@@ -69,12 +69,14 @@ __all__ = [
 MAX_ATTITUDES = 64  # the latest odometry attitudes kept to level frames with
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class ColourFrame:
     """A colour message with its grey image, or why the image does not decode."""
 
     message: Message
+    """The colour message as read."""
     image: NDArray[np.uint8] | LogError
+    """Its grey image, or why it does not decode."""
 
 
 _Job = tuple[int, ColourFrame, "NDArray | None"]  # (stamp, colour frame, paired depth)
@@ -89,6 +91,7 @@ class Pairing:
         self.depth: deque[tuple[int, NDArray]] = deque(maxlen=16)
 
     def matched_depth(self, t_ns: int) -> NDArray | None:
+        """The waiting depth image nearest ``t_ns``, if within the tolerance."""
         best = min(self.depth, key=lambda d: abs(d[0] - t_ns), default=None)
         return best[1] if best is not None and abs(best[0] - t_ns) <= self.tolerance else None
 
@@ -120,15 +123,18 @@ def detector_for(config: FrontendConfig) -> Detector:
     return _DETECTORS[key]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Span:
     """A stretch of a log: the colour frames, odometry and ground truth whose log times fall in
     [start_ns, end_ns); None for an open end."""
 
     start_ns: int | None = None
+    """The first log time in it [ns]; None: from the log's start."""
     end_ns: int | None = None
+    """The first log time after it [ns]; None: to the log's end."""
 
     def holds(self, t_ns: int) -> bool:
+        """Whether log time ``t_ns`` falls inside."""
         return (self.start_ns is None or t_ns >= self.start_ns) and (
             self.end_ns is None or t_ns < self.end_ns
         )
@@ -178,6 +184,8 @@ class SpanReader:
         self.attitudes: deque[tuple[int, NDArray[np.float64]]] = deque(maxlen=MAX_ATTITUDES)
 
     def read(self, span: Span, progress: Callable[[int, int], None] | None) -> Part:
+        """The stretch's observations, odometry and truth; ``progress`` called with (colour
+        frames read, frames in all)."""
         left_out_before = Counter(self.detector.left_out)
         self._read_once_topics()
         streamed = [
@@ -275,6 +283,7 @@ class SpanReader:
             self.part.true_pose_log_ns.append(message.log_time_ns)
 
     def _drain(self, latest_ns: int, flush: bool = False) -> None:
+        """The colour frames paired (or past waiting for depth) observed."""
         ready = self.pairing.ready(latest_ns, flush)
         if ready:
             self._settle_mount()
@@ -360,6 +369,8 @@ class SpanReader:
 def read_span(
     arguments: tuple[Path, FrontendConfig, TopicChoice, dict[str, int], Span],
 ) -> Part:
+    """One worker's stretch (:class:`SpanReader`), its arguments in one tuple for
+    ``pool.map``."""
     path, config, choice, counts, span = arguments
     return SpanReader(path, config, choice, counts).read(span, None)
 
