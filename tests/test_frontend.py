@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import gtsam
@@ -455,12 +456,30 @@ def test_worker_processes_give_the_same_observations(simulated) -> None:
     assert parallel.frames_with_depth == result.frames_with_depth
 
 
+def foxglove_transforms(decoded: Any) -> Any:
+    """A ROS 2 TFMessage as Foxglove's FrameTransforms."""
+    from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+    from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+
+    out = FrameTransforms()
+    for transform in decoded.transforms:
+        moved = transform.transform
+        item = FrameTransform(
+            parent_frame_id=transform.header.frame_id,
+            child_frame_id=transform.child_frame_id,
+        )
+        t, q = moved.translation, moved.rotation
+        item.translation.x, item.translation.y, item.translation.z = t.x, t.y, t.z
+        item.rotation.x, item.rotation.y = q.x, q.y
+        item.rotation.z, item.rotation.w = q.z, q.w
+        out.transforms.append(item)
+    return out
+
+
 def to_foxglove(source: Path, target: Path) -> None:
     """Rewrite a simulated ROS 2 log with Foxglove's protobuf schemas, on topics of other names."""
     from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-    from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
-    from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
     from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
     from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
     from google.protobuf.timestamp_pb2 import Timestamp
@@ -510,19 +529,7 @@ def to_foxglove(source: Path, target: Path) -> None:
                 out.pose.orientation.z, out.pose.orientation.w = q.z, q.w
                 topic = "/base/pose"
             elif message.topic == "/tf_static":
-                out = FrameTransforms()
-                for transform in m.transforms:
-                    moved = transform.transform
-                    item = FrameTransform(
-                        parent_frame_id=transform.header.frame_id,
-                        child_frame_id=transform.child_frame_id,
-                    )
-                    t, q = moved.translation, moved.rotation
-                    item.translation.x, item.translation.y, item.translation.z = t.x, t.y, t.z
-                    item.rotation.x, item.rotation.y = q.x, q.y
-                    item.rotation.z, item.rotation.w = q.z, q.w
-                    out.transforms.append(item)
-                topic = "/transforms"
+                out, topic = foxglove_transforms(m), "/transforms"
             else:
                 out = RawImage(
                     timestamp=timestamp(m),

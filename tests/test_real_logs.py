@@ -213,6 +213,30 @@ def test_outdoor_recording_and_tagslams_odometry_convention(bags: Path) -> None:
         assert yaw_rad < TWO_TAGS_YAW_22_RAD, label
 
 
+def transform(parent: str, child: str, pose: Any, t_ns: int) -> dict[str, Any]:
+    """A tf2 transform message from ``parent`` to ``child`` (a gtsam Pose3), as a dict."""
+    return {
+        "header": {"stamp": {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9}, "frame_id": parent},
+        "child_frame_id": child,
+        "transform": {"translation": dict(zip("xyz", map(float, pose.t), strict=True)),
+                      "rotation": quaternion_from_matrix(pose.R)},
+    }  # fmt: skip
+
+
+def odometry_message(pose: Any, stamp: dict[str, int]) -> dict[str, Any]:
+    """A nav_msgs/Odometry message of the VIO's body in ``world``, as a dict."""
+    return {
+        "header": {"stamp": stamp, "frame_id": "world"},
+        "child_frame_id": "basalt_pose_frame",
+        "pose": {
+            "pose": {
+                "position": {k: getattr(pose.position, k) for k in "xyz"},
+                "orientation": {k: getattr(pose.orientation, k) for k in "xyzw"},
+            }
+        },
+    }
+
+
 def ros2_mcap_of_test_21(bag: Path, target: Path, clockwise: bool = False) -> None:
     """The recording as a ROS 2 robot would log it: apriltag_ros's detection arrays (Point[4]
     corners), fisheye camera_info, 3-D odometry, and a /tf_static chain from the odometry's
@@ -241,15 +265,6 @@ def ros2_mcap_of_test_21(bag: Path, target: Path, clockwise: bool = False) -> No
             },
         }
 
-        def transform(parent: str, child: str, pose: Any, t_ns: int) -> dict[str, Any]:
-            return {
-                "header": {"stamp": {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9},
-                           "frame_id": parent},
-                "child_frame_id": child,
-                "transform": {"translation": dict(zip("xyz", map(float, pose.t), strict=True)),
-                              "rotation": quaternion_from_matrix(pose.R)},
-            }  # fmt: skip
-
         started = False
         for message in messages(bag, ["/t265/fisheye1/tags", "/vio_node/odom"]):
             m, t_ns = message.decoded, message.log_time_ns
@@ -264,17 +279,7 @@ def ros2_mcap_of_test_21(bag: Path, target: Path, clockwise: bool = False) -> No
                 writer.write_message("/tf_static", schemas["tf2_msgs/msg/TFMessage"],
                                      {"transforms": chain}, t_ns, t_ns)  # fmt: skip
             if message.topic == "/vio_node/odom":
-                pose = m.pose.pose
-                odometry = {
-                    "header": {"stamp": stamp, "frame_id": "world"},
-                    "child_frame_id": "basalt_pose_frame",
-                    "pose": {
-                        "pose": {
-                            "position": {k: getattr(pose.position, k) for k in "xyz"},
-                            "orientation": {k: getattr(pose.orientation, k) for k in "xyzw"},
-                        }
-                    },
-                }
+                odometry = odometry_message(m.pose.pose, stamp)
                 writer.write_message(
                     "/vio_node/odom", schemas["nav_msgs/msg/Odometry"], odometry, t_ns, t_ns
                 )
