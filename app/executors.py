@@ -11,21 +11,22 @@ Ray is an optional extra (``pip install "markergraph[ray]"``) imported only when
 from __future__ import annotations
 
 import importlib
-import multiprocessing
 import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, as_completed
 from enum import Enum
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 from markergraph.common.errors import MarkerGraphError, SettingsError
+from markergraph.common.pool import MIN_FRAMES_PER_WORKER, choose_workers, process_pool
 from markergraph.frontend import Extraction, FrontendConfig, extract
 
-# The front end's own worker start (one OpenCV thread, and a watchdog that ends the worker when
-# its parent dies): the same safety for a process per log as for a process per stretch.
-from markergraph.frontend.pipeline import MIN_FRAMES_PER_WORKER, _start_worker, choose_workers
+# The front end's own worker set-up (one OpenCV thread; the pool adds a watchdog that ends the
+# worker when its parent dies): the same safety for a process per log as for a process per
+# stretch.
+from markergraph.frontend.spans import one_opencv_thread
 
 __all__ = ["Executor", "extract_logs"]
 
@@ -126,12 +127,7 @@ def _in_processes(
     """A ``spawn``ed process per log, ``workers`` at a time (forking after OpenCV has run can
     deadlock)."""
     results: list[Extraction | None] = [None] * len(paths)
-    pool = ProcessPoolExecutor(
-        workers,
-        mp_context=multiprocessing.get_context("spawn"),
-        initializer=_start_worker,
-        initargs=(os.getpid(),),
-    )
+    pool = process_pool(workers, one_opencv_thread)
     try:
         futures: dict[Future[Extraction], int] = {
             pool.submit(extract, path, config): i for i, path in enumerate(paths)
@@ -160,9 +156,7 @@ def _import_ray() -> ModuleType:
 
 def _extract_on_worker(path: Path, config: FrontendConfig) -> Extraction:
     """One log's front end in a Ray worker: one OpenCV thread, as a Ray task asks for one CPU."""
-    import cv2  # the application layer leaves OpenCV to the front end; this runs in its place
-
-    cv2.setNumThreads(1)
+    one_opencv_thread()
     return extract(path, config)
 
 

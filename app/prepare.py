@@ -101,8 +101,11 @@ def _check_usable(log: Path, extraction: Extraction, config: MapConfig) -> None:
         )
     if not len(extraction.odometry):
         topic = extraction.topics.odom
-        dropped = [str(n) for n in extraction.notes if topic and str(n).startswith("dropped")]
-        dropped = [n for n in dropped if topic and topic in n]
+        dropped = [
+            n.text
+            for n in extraction.notes
+            if n.kind.startswith("odometry.dropped") and n.topic == topic
+        ]
         raise MarkerGraphError(
             f"{log}: no usable odometry on {topic} ({'; '.join(dropped) or 'no samples'})"
             if topic

@@ -43,7 +43,7 @@ from markergraph.estimator.timing import (
     retimed,
     widened_for_motion,
 )
-from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.trajectory import Trajectory, turn_rate
 from markergraph.estimator.types import (
     ODOMETRY_NOISE,
     FactorResidual,
@@ -106,6 +106,7 @@ __all__ = [
     "odometry_stretches",
     "retimed",
     "trajectory_error",
+    "turn_rate",
     "widened_for_motion",
     "wrap",
     "wrap_array",

@@ -19,22 +19,18 @@ import gtsam
 import numpy as np
 
 from markergraph.estimator.residual_search import SlamInputs, cheapest_on_grid
-from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.trajectory import Trajectory, turn_rate
 from markergraph.estimator.types import Observation
 
 __all__ = [
     "CameraDelay",
     "camera_delay_by_residuals",
     "retimed",
-    "turn_rate",
     "widened_for_motion",
 ]
 
 DELAYS_S = tuple(np.arange(-0.05, 0.1001, 0.01))  # the grid searched first [s]
 COARSE_STRIDE = 3  # the grid is first searched at every third delay (30 ms)
-
-
-RATE_WINDOW_NS = 20_000_000  # the turn rate is the odometry's heading change over +-this
 
 
 def retimed(
@@ -51,15 +47,6 @@ def retimed(
             row_ns = round(readout_ns * min(max(row / image_height, 0.0), 1.0))
         moved.append(replace(o, t_ns=o.t_ns - delay_ns + row_ns))
     return moved
-
-
-def turn_rate(odometry: Trajectory, t_ns: int) -> float:
-    """The odometry's heading rate about ``t_ns`` [rad/s]; 0 where it does not reach."""
-    before = odometry.at(t_ns - RATE_WINDOW_NS)
-    after = odometry.at(t_ns + RATE_WINDOW_NS)
-    if before is None or after is None:
-        return 0.0
-    return before.between(after).theta() / (2 * RATE_WINDOW_NS * 1e-9)
 
 
 def widened_for_motion(

@@ -12,13 +12,20 @@ from numpy.typing import NDArray
 from markergraph.estimator.models import interpolate_pose
 from markergraph.estimator.types import OdometrySample
 
-__all__ = ["MAX_EXTRAPOLATION_NS", "MAX_ODOMETRY_SPEED_MPS", "Trajectory"]
+__all__ = [
+    "MAX_EXTRAPOLATION_NS",
+    "MAX_ODOMETRY_SPEED_MPS",
+    "RATE_WINDOW_NS",
+    "Trajectory",
+    "turn_rate",
+]
 
 # Stamps this far outside a trajectory's time span still take its first or last pose.
 MAX_EXTRAPOLATION_NS = 100_000_000
 # Faster than a wheeled robot drives or a person walks with a rig: a step this fast between two
 # odometry poses is a jump of the odometry itself.
 MAX_ODOMETRY_SPEED_MPS = 5.0
+RATE_WINDOW_NS = 20_000_000  # the turn rate is the odometry's heading change over +-this
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,3 +134,12 @@ class Trajectory:
         if mine is None or theirs is None:
             return None
         return mine.compose(theirs.inverse())
+
+
+def turn_rate(odometry: Trajectory, t_ns: int) -> float:
+    """The odometry's heading rate about ``t_ns`` [rad/s]; 0 where it does not reach."""
+    before = odometry.at(t_ns - RATE_WINDOW_NS)
+    after = odometry.at(t_ns + RATE_WINDOW_NS)
+    if before is None or after is None:
+        return 0.0
+    return before.between(after).theta() / (2 * RATE_WINDOW_NS * 1e-9)

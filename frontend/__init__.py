@@ -3,15 +3,18 @@
 Modules: ``sources`` (log files, topics, messages), ``decode`` (images, depth, odometry),
 ``tf`` (camera mount, odometry from /tf), ``topics`` (which topic plays which role),
 ``camera``, ``detect``, ``yaw``, ``observe`` (one frame to observations), ``pipeline`` (a log to
-observations), ``config`` (how to read a log), ``files`` (writing whole or not at all).
+observations: ``extract``), ``spans`` (reading a stretch of a log), ``extraction`` (what a log
+gave), ``cleaning`` (bad samples and stamps dropped), ``depth_scale`` (depth's scale against the
+markers' size), ``config`` (how to read a log).
 """
 
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_depth, decode_image, odometry_sample, stamp_ns
 from markergraph.frontend.detect import Detection, Detector, load_dictionary
+from markergraph.frontend.extraction import Extraction
 from markergraph.frontend.observe import DepthModel, ObservationModel, observe, observe_detections
-from markergraph.frontend.pipeline import Extraction, extract
+from markergraph.frontend.pipeline import extract
 from markergraph.frontend.sources import LogError, LogTopic, Message, log_topics, messages
 from markergraph.frontend.tf import mount_from_transforms, odometry_from_tf, transforms_of
 from markergraph.frontend.topics import TopicChoice, choose_topics

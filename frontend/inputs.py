@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.notes import Note
 from markergraph.frontend.camera import Camera, majority_camera
 from markergraph.frontend.observe import robust_least_squares
 from markergraph.frontend.sources import DecodeFailures, messages
@@ -38,15 +39,18 @@ class CameraJudgement:
     agreeing: int
     set_aside: dict[str, int] = field(default_factory=dict)
 
-    def note(self, topic: str) -> str | None:
-        """What was set aside and why, for the run's notes; None when nothing was."""
+    def note(self, topic: str) -> Note | None:
+        """What was set aside and why, for the run's notes (its figure: the messages set
+        aside); None when nothing was."""
         if not self.set_aside:
             return None
         reasons = "; ".join(f"{n}: {why}" for why, n in self.set_aside.items())
-        return (
-            f"camera_info: {sum(self.set_aside.values())} of {self.read} messages on {topic} set "
+        set_aside = sum(self.set_aside.values())
+        text = (
+            f"camera_info: {set_aside} of {self.read} messages on {topic} set "
             f"aside ({reasons}); using the model the other {self.agreeing} agree on"
         )
+        return Note("camera_info.set_aside", text, topic, set_aside)
 
 
 def judge_camera_info(path: Path, topic: str, failures: DecodeFailures) -> CameraJudgement:

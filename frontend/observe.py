@@ -23,7 +23,14 @@ from markergraph.frontend.yaw import (
     yaw_sigma,
 )
 
-__all__ = ["DepthModel", "Flags", "ObservationModel", "observe", "observe_detections"]
+__all__ = [
+    "DepthModel",
+    "Flags",
+    "ObservationModel",
+    "marker_depth",
+    "observe",
+    "observe_detections",
+]
 
 
 class Flags:
@@ -123,7 +130,7 @@ def robust_least_squares(
     marker's 300-500 depth pixels that costs half of ``lstsq``'s SVD. An exactly singular
     system falls back to ``lstsq``'s least-norm solution; a nearly singular one (a marker's
     pixels all in one row) gives an arbitrary intercept, as ``lstsq`` did, which
-    :func:`_marker_depth` refuses when it falls outside the depths fitted."""
+    :func:`marker_depth` refuses when it falls outside the depths fitted."""
     kept = np.ones(len(b), dtype=bool)
     for fit in range(passes):
         A_kept, b_kept = (A, b) if fit == 0 else (A[kept], b[kept])
@@ -150,7 +157,7 @@ def _median(values: NDArray[np.float64]) -> float:
     return float(low + high) / 2.0
 
 
-def _marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthModel) -> float | None:
+def marker_depth(depth: NDArray, corners: NDArray[np.float64], model: DepthModel) -> float | None:
     """Depth [m] at the marker's centre, from the valid pixels inside it (shrunk by a fifth
     toward its centre to stay clear of the edge where depth mixes with the wall); None without
     a valid pixel.
@@ -215,95 +222,133 @@ def observe_detections(
     ratio times the marker's given size is its size, however wrong the given one.
     """
     observations = []
-    R_base_optical = mount.R_base_optical
-    method, corner_sigma_px, depth_model = model.method, model.corner_sigma_px, model.depth_model
     for detection in detections:
-        length_m = model.length_of(detection.marker_id)
-        corners = camera.undistort(detection.corners)
-        edge_flags = corner_flags(detection.corners, camera)
-        # One PnP solve serves theta (the default method), the range without depth and the
-        # depth's scale.
-        pose = pnp_pose(corners, camera, length_m)
-        theta = (
-            pnp_theta(pose)
-            if method is YawMethod.PNP
-            else yaw_from_corners(corners, method, camera, length_m)
+        observation = _observe_one(
+            detection, camera, model, depth, mount, t_ns, depth_ratios, size_ratios
         )
-        if not math.isfinite(theta):
-            continue  # PAPER has no solution here; nothing honest to report
-        centre = marker_centre(corners)
-        ray = np.array(
-            [(centre[0] - camera.cx) / camera.fx, (centre[1] - camera.cy) / camera.fy, 1.0]
-        )
-        left = float(np.linalg.norm(corners[0] - corners[3]))
-        right = float(np.linalg.norm(corners[1] - corners[2]))
-        flags = set()
-        # Depth is aligned to the colour image as recorded: look it up at the detected
-        # (distorted) corners, not the undistorted ones.
-        z = None if depth is None else _marker_depth(depth, detection.corners, depth_model)
-        well_placed = abs(theta) < GRAZING_RAD and not edge_flags
-        placed = well_placed and pose is not None and pose[1][2] > 0
-        if size_ratios is not None and z is not None and placed and pose is not None:
-            size_ratios.append((detection.marker_id, z / float(pose[1][2])))
-        if (
-            z is not None
-            and pose is not None
-            and abs(z - pose[1][2]) > DEPTH_DISAGREES * pose[1][2]
-        ):
-            z = None  # depth saw something else (a door frame in front, the wall behind)
-        if z is None:
-            # Without depth: the marker's full pose from its corners and size (PnP); a pitched
-            # camera or an oblique marker foreshortens the edges, which a size-only range would
-            # read as distance. Its sigma: the mean vertical edge images f * L / Z.
-            flags.add(Flags.NO_DEPTH)
-            z = (
-                float(pose[1][2])
-                if pose is not None
-                else camera.fy * length_m / ((left + right) / 2.0)
-            )
-            if pose is not None:
-                ray = pose[1] / pose[1][2]
-            sigma_z = z * corner_sigma_px * math.sqrt(2.0) / ((left + right) / 2.0)
-        else:
-            sigma_z = depth_model.sigma(z)
-            if depth_ratios is not None and well_placed and pose is not None and pose[1][2] > 0:
-                depth_ratios.append((t_ns, z, float(pose[1][2])))
-        # The centre in the base frame, then horizontal range and bearing from the camera.
-        p_base = R_base_optical @ (z * ray)
-        range_m = math.hypot(p_base[0], p_base[1])
-        bearing = math.atan2(p_base[1], p_base[0]) - mount.yaw_rad
-        sigma_range = sigma_z * range_m / z  # the horizontal range scales with Z
-        if method is YawMethod.PNP and pose is not None and abs(theta) > NEAR_FRONTAL_RAD:
-            sigma_theta = pnp_theta_sigma(pose, camera, length_m, corner_sigma_px)
-        else:  # near frontal, IPPE's two poses meet and only re-solving shows how far apart
-            sigma_theta = yaw_sigma(corners, method, corner_sigma_px, camera, length_m)
-        sigma_theta = math.hypot(sigma_theta, THETA_FLOOR_RAD)
-        if abs(theta) > GRAZING_RAD:
-            # A foreshortened square's two planar poses reproject alike; beyond 60 degrees
-            # the detector's corners cannot tell them apart and theta may be mirrored. Keep
-            # bearing and range, which stay accurate, and let theta weigh next to nothing.
-            sigma_theta = max(sigma_theta, GRAZING_SIGMA_RAD)
-        flags |= edge_flags
-        if abs(theta) > GRAZING_RAD:
-            flags.add(Flags.GRAZING)
-        if abs(theta) < AMBIGUOUS_RAD:
-            flags.add(Flags.AMBIGUOUS)
-        observations.append(
-            Observation(
-                t_ns,
-                detection.marker_id,
-                float(bearing),
-                float(theta),
-                float(range_m),
-                corner_sigma_px / camera.fx,
-                float(sigma_theta),
-                float(sigma_range),
-                tuple((float(u), float(v)) for u, v in detection.corners),
-                frozenset(flags),
-                float(mount.height_m + p_base[2]),
-            )
-        )
+        if observation is not None:
+            observations.append(observation)
     return observations
+
+
+def _observe_one(
+    detection: Detection,
+    camera: Camera,
+    model: ObservationModel,
+    depth: NDArray | None,
+    mount: CameraMount,
+    t_ns: int,
+    depth_ratios: list[tuple[int, float, float]] | None,
+    size_ratios: list[tuple[int, float]] | None,
+) -> Observation | None:
+    """One detection's observation (:func:`observe_detections`); None where theta has no
+    solution."""
+    method, corner_sigma_px = model.method, model.corner_sigma_px
+    length_m = model.length_of(detection.marker_id)
+    corners = camera.undistort(detection.corners)
+    edge_flags = corner_flags(detection.corners, camera)
+    # One PnP solve serves theta (the default method), the range without depth and the
+    # depth's scale.
+    pose = pnp_pose(corners, camera, length_m)
+    theta = (
+        pnp_theta(pose)
+        if method is YawMethod.PNP
+        else yaw_from_corners(corners, method, camera, length_m)
+    )
+    if not math.isfinite(theta):
+        return None  # PAPER has no solution here; nothing honest to report
+    # Depth is aligned to the colour image as recorded: look it up at the detected
+    # (distorted) corners, not the undistorted ones.
+    z = None if depth is None else marker_depth(depth, detection.corners, model.depth_model)
+    well_placed = abs(theta) < GRAZING_RAD and not edge_flags
+    placed = well_placed and pose is not None and pose[1][2] > 0
+    if size_ratios is not None and z is not None and placed and pose is not None:
+        size_ratios.append((detection.marker_id, z / float(pose[1][2])))
+    if z is not None and pose is not None and abs(z - pose[1][2]) > DEPTH_DISAGREES * pose[1][2]:
+        z = None  # depth saw something else (a door frame in front, the wall behind)
+    no_depth = z is None
+    z, ray, sigma_z = _centre_depth(corners, camera, pose, z, length_m, model)
+    if not no_depth and depth_ratios is not None and placed and pose is not None:
+        depth_ratios.append((t_ns, z, float(pose[1][2])))
+    # The centre in the base frame, then horizontal range and bearing from the camera.
+    p_base = mount.R_base_optical @ (z * ray)
+    range_m = math.hypot(p_base[0], p_base[1])
+    bearing = math.atan2(p_base[1], p_base[0]) - mount.yaw_rad
+    sigma_range = sigma_z * range_m / z  # the horizontal range scales with Z
+    sigma_theta = _theta_sigma(theta, pose, corners, camera, length_m, model)
+    flags = set(edge_flags) | ({Flags.NO_DEPTH} if no_depth else set())
+    if abs(theta) > GRAZING_RAD:
+        flags.add(Flags.GRAZING)
+    if abs(theta) < AMBIGUOUS_RAD:
+        flags.add(Flags.AMBIGUOUS)
+    return Observation(
+        t_ns,
+        detection.marker_id,
+        float(bearing),
+        float(theta),
+        float(range_m),
+        corner_sigma_px / camera.fx,
+        float(sigma_theta),
+        float(sigma_range),
+        tuple((float(u), float(v)) for u, v in detection.corners),
+        frozenset(flags),
+        float(mount.height_m + p_base[2]),
+    )
+
+
+def _mean_side_px(corners: NDArray[np.float64]) -> float:
+    """The mean of the marker's two vertical edges in the image [px]."""
+    left = float(np.linalg.norm(corners[0] - corners[3]))
+    right = float(np.linalg.norm(corners[1] - corners[2]))
+    return (left + right) / 2.0
+
+
+def _centre_depth(
+    corners: NDArray[np.float64],
+    camera: Camera,
+    pose: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
+    z: float | None,
+    length_m: float,
+    model: ObservationModel,
+) -> tuple[float, NDArray[np.float64], float]:
+    """The marker centre's depth Z [m] (from depth when given as ``z``, else from its corners),
+    its ray (Z = 1) in the optical frame, and Z's sigma [m]."""
+    centre = marker_centre(corners)
+    ray = np.array([(centre[0] - camera.cx) / camera.fx, (centre[1] - camera.cy) / camera.fy, 1.0])
+    if z is not None:
+        return z, ray, model.depth_model.sigma(z)
+    # Without depth: the marker's full pose from its corners and size (PnP); a pitched
+    # camera or an oblique marker foreshortens the edges, which a size-only range would
+    # read as distance. Its sigma: the mean vertical edge images f * L / Z.
+    side_px = _mean_side_px(corners)
+    z = float(pose[1][2]) if pose is not None else camera.fy * length_m / side_px
+    if pose is not None:
+        ray = pose[1] / pose[1][2]
+    return z, ray, z * model.corner_sigma_px * math.sqrt(2.0) / side_px
+
+
+def _theta_sigma(
+    theta: float,
+    pose: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
+    corners: NDArray[np.float64],
+    camera: Camera,
+    length_m: float,
+    model: ObservationModel,
+) -> float:
+    """Theta's sigma [rad]: from PnP's pose, or re-solving near frontal; floored, and made
+    to weigh next to nothing at a grazing view."""
+    method, corner_sigma_px = model.method, model.corner_sigma_px
+    if method is YawMethod.PNP and pose is not None and abs(theta) > NEAR_FRONTAL_RAD:
+        sigma_theta = pnp_theta_sigma(pose, camera, length_m, corner_sigma_px)
+    else:  # near frontal, IPPE's two poses meet and only re-solving shows how far apart
+        sigma_theta = yaw_sigma(corners, method, corner_sigma_px, camera, length_m)
+    sigma_theta = math.hypot(sigma_theta, THETA_FLOOR_RAD)
+    if abs(theta) > GRAZING_RAD:
+        # A foreshortened square's two planar poses reproject alike; beyond 60 degrees
+        # the detector's corners cannot tell them apart and theta may be mirrored. Keep
+        # bearing and range, which stay accurate, and let theta weigh next to nothing.
+        sigma_theta = max(sigma_theta, GRAZING_SIGMA_RAD)
+    return sigma_theta
 
 
 def observe(

@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.notes import Note
 from markergraph.estimator.types import Observation
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import Detection
@@ -335,8 +336,10 @@ def tally_detections(frames: list[LevelledFrame]) -> dict[int, MarkerDetections]
     }
 
 
-def drop_notes(counts: dict[int, MarkerDetections]) -> list[str]:
-    """What was dropped of each marker, and whether that leaves it out of the map."""
+def drop_notes(counts: dict[int, MarkerDetections]) -> list[Note]:
+    """What was dropped of each marker, and whether that leaves it out of the map (kinds
+    ``detections.marker_left_out`` and ``detections.dropped``; figure: the detections
+    dropped)."""
     notes = []
     for c in counts.values():
         if not c.dropped:
@@ -348,10 +351,11 @@ def drop_notes(counts: dict[int, MarkerDetections]) -> list[str]:
                 if c.detections == 1
                 else (f"every one of its {c.detections:,} detections has")
             )
-            notes.append(
+            text = (
                 f"marker {c.marker_id} left out of the 2-D map: {every} its normal {elevation} "
                 "(median; a floor or ceiling tag)"
             )
+            notes.append(Note("detections.marker_left_out", text, figure=c.dropped))
             continue
         parts = []
         if c.off_wall:
@@ -362,13 +366,15 @@ def drop_notes(counts: dict[int, MarkerDetections]) -> list[str]:
         if c.no_pose:
             parts.append(f"{c.no_pose:,} without a PnP pose")
         if c.left_out:
-            notes.append(
+            text = (
                 f"marker {c.marker_id} left out of the 2-D map: every one of its "
                 f"{c.detections:,} detections dropped ({', '.join(parts)})"
             )
+            notes.append(Note("detections.marker_left_out", text, figure=c.dropped))
         else:
-            notes.append(
+            text = (
                 f"{c.dropped:,} of {c.detections:,} detections of marker {c.marker_id} dropped "
                 f"({', '.join(parts)}); the marker is mapped from the rest"
             )
+            notes.append(Note("detections.dropped", text, figure=c.dropped))
     return notes

@@ -17,7 +17,15 @@ from numpy.typing import NDArray
 
 from markergraph.frontend.camera import Camera
 
-__all__ = ["YawMethod", "marker_centre", "pnp_pose", "pnp_theta", "yaw_from_corners", "yaw_sigma"]
+__all__ = [
+    "YawMethod",
+    "marker_centre",
+    "marker_object_points",
+    "pnp_pose",
+    "pnp_theta",
+    "yaw_from_corners",
+    "yaw_sigma",
+]
 
 
 class YawMethod(Enum):
@@ -125,7 +133,7 @@ def pnp_pose(
     """The marker's pose in the optical frame, (R (3, 3), t (3,) [m]), from its undistorted
     corners (OpenCV's order) by ``solvePnP`` with IPPE for squares; None if it finds none."""
     ok, rvec, tvec = cv2.solvePnP(
-        _marker_object_points(marker_length_m),
+        marker_object_points(marker_length_m),
         corners,
         camera.K,
         None,
@@ -137,7 +145,7 @@ def pnp_pose(
     return np.asarray(R, dtype=np.float64), np.asarray(tvec, dtype=np.float64).ravel()
 
 
-def _marker_object_points(marker_length_m: float) -> NDArray[np.float64]:
+def marker_object_points(marker_length_m: float) -> NDArray[np.float64]:
     half = marker_length_m / 2.0
     # OpenCV's marker frame: x to the viewer's right, y up, z out of the marker toward the viewer.
     return np.array(
@@ -159,7 +167,7 @@ def pnp_theta_sigma(
     solve's cost instead of nine."""
     R, t = pose
     rvec, _ = cv2.Rodrigues(R)
-    _, jacobian = cv2.projectPoints(_marker_object_points(marker_length_m), rvec, t, camera.K, None)
+    _, jacobian = cv2.projectPoints(marker_object_points(marker_length_m), rvec, t, camera.K, None)
     J = jacobian[:, :6]  # d(pixels)/d(rvec, tvec)
     # theta = atan2(c_x, c_z) of the camera in the marker, c = -R^T t: its gradient in c, and
     # c's in the pose (Rodrigues gives R's entries, row by row, in rvec).

@@ -281,7 +281,10 @@ def test_tilted_base_is_levelled_with_the_odometrys_attitude(simulated, tmp_path
     tilted = extract(tilted_log, FrontendConfig(allowed_ids=tuple(range(30))))
     assert tilted.mount.roll_rad < -math.radians(7.0)  # the mount as /tf_static now says
     assert tilted.levelled_frames == tilted.frames
-    assert any("levelled with /odom's attitude" in note for note in tilted.notes)
+    assert any(
+        n.kind == "frames.levelled" and n.topic == "/odom" and n.figure == tilted.levelled_frames
+        for n in tilted.notes
+    )
     assert {o.marker_id for o in tilted.observations} == {o.marker_id for o in level.observations}
     rows = errors_against_truth(tilted)
     oblique = np.abs(rows[:, 1]) >= math.radians(15.0)
@@ -700,7 +703,7 @@ def test_configured_mount_stands_in_for_missing_tf_static(simulated, tmp_path: P
         MapConfig.from_values({**ids, "camera.height": 0.6, "camera.pitch_deg": 10}).frontend,
     )
     level = extract(stripped, MapConfig.from_values({**ids, "camera.pitch_deg": 0.0}).frontend)
-    assert true.topics.tf_static is None and any("/tf_static" in n for n in true.notes)
+    assert true.topics.tf_static is None and any(n.kind == "mount.no_tf_static" for n in true.notes)
     assert [o.range_m for o in true.observations] == pytest.approx(
         [o.range_m for o in result.observations], abs=1e-9
     )
@@ -809,7 +812,7 @@ def test_theta_sigma_from_one_pnp_solve_matches_re_solving() -> None:
 
     from markergraph.frontend.yaw import (
         YawMethod,
-        _marker_object_points,
+        marker_object_points,
         pnp_pose,
         pnp_theta,
         pnp_theta_sigma,
@@ -824,7 +827,7 @@ def test_theta_sigma_from_one_pnp_solve_matches_re_solving() -> None:
         # About y by pi plus up to 70 deg: the marker faces the camera, seen obliquely.
         rvec = np.array([0.05 * rng.standard_normal(), math.pi + rng.uniform(-1.2, 1.2), 0.0])
         tvec = np.array([rng.uniform(-0.25, 0.25) * z, 0.1 * rng.standard_normal(), z])
-        corners = cv2.projectPoints(_marker_object_points(0.2), rvec, tvec, camera.K, None)[0]
+        corners = cv2.projectPoints(marker_object_points(0.2), rvec, tvec, camera.K, None)[0]
         corners = corners.reshape(4, 2)
         pose = pnp_pose(corners, camera, 0.2)
         if pose is None or abs(pnp_theta(pose)) < math.radians(12.0):
@@ -838,7 +841,7 @@ def test_theta_sigma_from_one_pnp_solve_matches_re_solving() -> None:
 def test_theta_sigma_gradient_is_theta_differentiated() -> None:
     """theta's sigma uses theta's analytic gradient in the pose; it equals the sigma from
     central differences of theta itself (through Rodrigues) to 1e-6."""
-    from markergraph.frontend.yaw import _marker_object_points, pnp_pose, pnp_theta, pnp_theta_sigma
+    from markergraph.frontend.yaw import marker_object_points, pnp_pose, pnp_theta, pnp_theta_sigma
 
     camera = Camera()
     rng = np.random.default_rng(5)
@@ -846,7 +849,7 @@ def test_theta_sigma_gradient_is_theta_differentiated() -> None:
         z = rng.uniform(0.8, 5.0)
         rvec = np.array([0.1 * rng.standard_normal(), math.pi + rng.uniform(-1.2, 1.2), 0.05])
         tvec = np.array([rng.uniform(-0.25, 0.25) * z, 0.1 * rng.standard_normal(), z])
-        corners = cv2.projectPoints(_marker_object_points(0.2), rvec, tvec, camera.K, None)[0]
+        corners = cv2.projectPoints(marker_object_points(0.2), rvec, tvec, camera.K, None)[0]
         pose = pnp_pose(corners.reshape(4, 2), camera, 0.2)
         assert pose is not None
         r, _ = cv2.Rodrigues(pose[0])
@@ -860,7 +863,7 @@ def test_theta_sigma_gradient_is_theta_differentiated() -> None:
                 pnp_theta((cv2.Rodrigues(ahead[:3])[0], ahead[3:]))
                 - pnp_theta((cv2.Rodrigues(behind[:3])[0], behind[3:]))
             ) / 2e-6
-        _, jacobian = cv2.projectPoints(_marker_object_points(0.2), r, pose[1], camera.K, None)
+        _, jacobian = cv2.projectPoints(marker_object_points(0.2), r, pose[1], camera.K, None)
         J = jacobian[:, :6]
         expected = 0.3 * math.sqrt(gradient @ np.linalg.solve(J.T @ J, gradient))
         assert pnp_theta_sigma(pose, camera, 0.2, 0.3) == pytest.approx(expected, rel=1e-6)
@@ -870,33 +873,36 @@ def test_workers_auto_uses_a_second_process_only_where_it_helps(monkeypatch) -> 
     """Auto: a process per 1.5 idle cores (its reading thread keeps a second core busy) and per
     1,500 frames: one on a 2-core machine, a short log or a busy machine (by the load average
     where busy cores cannot be measured); a number asked for is kept, capped at the cores."""
-    from markergraph.frontend import pipeline
+    from markergraph.common import pool
 
-    monkeypatch.setattr(pipeline, "busy_cores", lambda: 0.2)
-    monkeypatch.setattr(pipeline, "available_cores", lambda: 2)
-    workers, note = pipeline.choose_workers(9000, None)
-    assert workers == 1 and note is not None and "2 cores" in note
-    monkeypatch.setattr(pipeline, "available_cores", lambda: 4)
-    assert pipeline.choose_workers(9000, None)[0] == 2  # 3.8 idle cores
-    assert pipeline.choose_workers(2000, None)[0] == 1  # 2,000 frames: one worker's worth
-    monkeypatch.setattr(pipeline, "available_cores", lambda: 8)
-    assert pipeline.choose_workers(9000, None)[0] == 5  # 7.8 idle cores
-    assert pipeline.choose_workers(4500, None)[0] == 3  # 1,500 frames each
-    monkeypatch.setattr(pipeline, "busy_cores", lambda: 6.2)
-    workers, note = pipeline.choose_workers(9000, None)
-    assert workers == 1 and note is not None and "1.8 of 8 cores idle, 6.2 busy" in note
-    monkeypatch.setattr(pipeline, "busy_cores", lambda: None)
-    monkeypatch.setattr(pipeline.os, "getloadavg", lambda: (3.5, 3.5, 3.5))
-    workers, note = pipeline.choose_workers(9000, None)
-    assert workers == 3 and note is not None and "load average 3.5" in note
-    assert pipeline.choose_workers(100, 2) == (2, None)
-    assert pipeline.choose_workers(100, 9)[0] == 8
+    monkeypatch.setattr(pool, "busy_cores", lambda: 0.2)
+    monkeypatch.setattr(pool, "available_cores", lambda: 2)
+    workers, note = pool.choose_workers(9000, None)
+    assert workers == 1 and note is not None and note.kind == "workers.auto"
+    assert note.figure == 1 and "2 cores" in note.text
+    monkeypatch.setattr(pool, "available_cores", lambda: 4)
+    assert pool.choose_workers(9000, None)[0] == 2  # 3.8 idle cores
+    assert pool.choose_workers(2000, None)[0] == 1  # 2,000 frames: one worker's worth
+    monkeypatch.setattr(pool, "available_cores", lambda: 8)
+    assert pool.choose_workers(9000, None)[0] == 5  # 7.8 idle cores
+    assert pool.choose_workers(4500, None)[0] == 3  # 1,500 frames each
+    monkeypatch.setattr(pool, "busy_cores", lambda: 6.2)
+    workers, note = pool.choose_workers(9000, None)
+    assert workers == 1 and note is not None and note.kind == "workers.auto"
+    assert note.figure == 1 and "1.8 of 8 cores idle, 6.2 busy" in note.text
+    monkeypatch.setattr(pool, "busy_cores", lambda: None)
+    monkeypatch.setattr(pool.os, "getloadavg", lambda: (3.5, 3.5, 3.5))
+    workers, note = pool.choose_workers(9000, None)
+    assert workers == 3 and note is not None and note.kind == "workers.auto"
+    assert note.figure == 3 and "load average 3.5" in note.text
+    assert pool.choose_workers(100, 2) == (2, None)
+    assert pool.choose_workers(100, 9)[0] == 8
 
 
 def test_core_ticks_read_proc_stat() -> None:
     """Each core's idle ticks are idle plus iowait, its total the first eight fields (user to
     steal: guest is inside user); the all-cores line and other lines are passed over."""
-    from markergraph.frontend.pipeline import core_ticks
+    from markergraph.common.pool import core_ticks
 
     text = (
         "cpu  100 2 30 400 5 6 7 8 9 10\n"
@@ -910,7 +916,7 @@ def test_core_ticks_read_proc_stat() -> None:
 
 def test_busy_cores_sees_a_process_spinning_on_our_cores() -> None:
     """A process spinning beside us shows as about one more busy core than before it ran."""
-    from markergraph.frontend.pipeline import available_cores, busy_cores
+    from markergraph.common.pool import available_cores, busy_cores
 
     quiet = busy_cores(0.3)
     if quiet is None:

@@ -95,6 +95,8 @@ def test_each_markers_drops_are_counted_and_said_as_they_are() -> None:
     assert counts[wall].rewound == counts[floor].rewound == 0
     assert sum(len(f.observations) for f in frames) == 3
     wall_note, floor_note = drop_notes(counts)
-    assert wall_note.startswith(f"1 of 4 detections of marker {wall} dropped")
-    assert "60 deg from horizontal" in wall_note and "left out" not in wall_note
-    assert floor_note.startswith(f"marker {floor} left out of the 2-D map: every one of its 3")
+    assert wall_note.kind == "detections.dropped" and wall_note.figure == 1
+    assert wall_note.text.startswith(f"1 of 4 detections of marker {wall} dropped")
+    assert "60 deg from horizontal" in wall_note.text and "left out" not in wall_note.text
+    assert floor_note.kind == "detections.marker_left_out" and floor_note.figure == 3
+    assert floor_note.text.startswith(f"marker {floor} left out of the 2-D map: every one of its 3")

@@ -207,11 +207,21 @@ def test_outdoor_recording_and_tagslams_odometry_convention(bags: Path) -> None:
     assert set(reference) == {2, 3}
     assert errors(run, reference)["slam"] < TWO_TAGS_RMSE_22_M
     assert run.odometry_source == "t265"
-    assert any(getattr(note, "kind", None) == "camera.delay_unresolved" for note in run.notes)
+    assert any(note.kind == "camera.delay_unresolved" for note in run.notes)
     slam = map_error(run.results[0].estimate, reference, align=True)
     assert slam.rmse_yaw_rad < TWO_TAGS_YAW_22_RAD
     for label, yaw_rad in yaw_errors(run, reference).items():  # 0.3-0.8 deg measured
         assert yaw_rad < TWO_TAGS_YAW_22_RAD, label
+
+
+def transform(parent: str, child: str, pose: Any, t_ns: int) -> dict[str, Any]:
+    """A tf2 transform message from ``parent`` to ``child`` (a gtsam Pose3), as a dict."""
+    return {
+        "header": {"stamp": {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9}, "frame_id": parent},
+        "child_frame_id": child,
+        "transform": {"translation": dict(zip("xyz", map(float, pose.t), strict=True)),
+                      "rotation": quaternion_from_matrix(pose.R)},
+    }  # fmt: skip
 
 
 def ros2_mcap_of_test_21(bag: Path, target: Path, clockwise: bool = False) -> None:

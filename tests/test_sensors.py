@@ -22,14 +22,14 @@ from markergraph.datasets.render import Renderer
 from markergraph.datasets.sensors import D435_DISTORTION, D435I_ON_DIFF_DRIVE, SensorEffects
 from markergraph.estimator import Trajectory
 from markergraph.frontend import FrontendConfig, extract
+from markergraph.frontend.depth_scale import DEPTH_SCALE_RESOLUTION
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import (
     Flags,
     ObservationModel,
-    _marker_depth,
+    marker_depth,
     observe_detections,
 )
-from markergraph.frontend.pipeline import DEPTH_SCALE_RESOLUTION
 
 RATE = 1.0  # turn rate in the capture tests [rad/s]
 
@@ -196,7 +196,7 @@ def test_depth_at_an_oblique_marker_with_black_cells_is_its_centres(wall_marker)
                                  mount=renderer.mount)  # fmt: skip
     assert Flags.NO_DEPTH not in seen.flags
     u, v = np.rint(detection.corners.mean(axis=0)).astype(int)
-    z = _marker_depth(frame.depth_mm, detection.corners, model.depth_model)
+    z = marker_depth(frame.depth_mm, detection.corners, model.depth_model)
     assert z == pytest.approx(true_z, abs=0.005)  # the white cells' median: 24 mm off
     assert np.count_nonzero(frame.depth_mm[v - 20 : v + 20, u - 20 : u + 20] == 0) > 100
     wrong = np.full_like(frame.depth_mm, round(700 * true_z))  # 30 % short
@@ -210,7 +210,7 @@ def test_depth_scale_is_the_steady_markers_robust_mean_ratio() -> None:
     off (depth from the wall behind), are read back as k within 0.05 %; pairs taken while the
     robot turned at 1 rad/s, 5 % off, are left out."""
     from markergraph.estimator import Trajectory
-    from markergraph.frontend.pipeline import depth_scale_from_markers
+    from markergraph.frontend.depth_scale import depth_scale_from_markers
 
     rng = np.random.default_rng(5)
     k = 1.012

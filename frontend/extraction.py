@@ -1,0 +1,212 @@
+"""What a log gave the front end (:class:`Extraction`), and one stretch's share of it before the
+stretches are joined (:class:`Part`).
+
+Each field says, where it is declared, how stretches join it (:class:`Join`) and whether
+report.json's ``inputs`` shows it: a new field is added in one place.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from enum import Enum
+from typing import Any
+
+import gtsam
+
+from markergraph.common.notes import Note
+from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.types import Observation, OdometrySample
+from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.odometry_kind import OdometryEvidence
+from markergraph.frontend.posed import LevelledFrame, MarkerDetections
+from markergraph.frontend.topics import TopicChoice
+
+__all__ = ["Extraction", "Join", "Part", "merge_parts"]
+
+
+class Join(Enum):
+    """How the stretches' values of a field make the whole log's."""
+
+    FIRST = "first"
+    """The first stretch's (set alike by every stretch)."""
+    FIRST_SET = "first_set"
+    """The first stretch's that is not None."""
+    SUM = "sum"
+    """Added up (counts, and counters by key)."""
+    CONCAT = "concat"
+    """Lists end to end, in log order."""
+    UNIQUE = "unique"
+    """Lists end to end, each item once (each stretch says the same notes)."""
+    NONE = "none"
+    """Left at its default: set once the stretches are joined."""
+
+
+# Each field's metadata: how the stretches join it (merge_parts), and whether report.json's
+# ``inputs`` shows it (evidence is set once the stretches are joined).
+_FIRST = {"join": Join.FIRST}
+_FIRST_SET = {"join": Join.FIRST_SET}
+_SUM = {"join": Join.SUM}
+_CONCAT = {"join": Join.CONCAT}
+_UNIQUE = {"join": Join.UNIQUE}
+_LATER = {"join": Join.NONE}
+_EVIDENCE = {"join": Join.NONE, "evidence": True}
+
+
+@dataclass
+class Extraction:
+    """What a log gave. Mutable: the stages of :func:`~markergraph.frontend.extract` fill it."""
+
+    observations: list[Observation] = field(metadata=_CONCAT)
+    """Every marker observation, in time order."""
+    odometry: Trajectory = field(metadata=_FIRST)
+    """``T_odom_base``, its bad samples dropped (see ``notes``)."""
+    camera: Camera | None = field(metadata=_FIRST_SET)
+    """The intrinsics used."""
+    mount: CameraMount = field(metadata=_FIRST)
+    """The camera's mount used."""
+    topics: TopicChoice = field(metadata=_FIRST)
+    """The topics read."""
+    frames: int = field(metadata=_SUM, default=0)
+    """Colour frames read."""
+    frames_with_depth: int = field(metadata=_SUM, default=0)
+    """Of them, those paired with depth."""
+    skipped: Counter[str] = field(metadata=_SUM, default_factory=Counter)
+    """Reason -> frames skipped for it."""
+    notes: list[Note] = field(metadata=_UNIQUE, default_factory=list)
+    """What was assumed or dropped."""
+    warnings: list[str] = field(metadata=_CONCAT, default_factory=list)
+    """Damaged stretches skipped (unreadable messages, per file and topic)."""
+    true_markers: dict[int, gtsam.Pose2] = field(metadata=_FIRST, default_factory=dict)
+    """Ground truth ``T_map_marker`` when the log carries it (simulated logs)."""
+    true_path: Trajectory = field(
+        metadata=_LATER, default_factory=lambda: Trajectory.from_samples([], "map")
+    )
+    """The true base pose in ``map``, when the log carries it."""
+    undecodable_frames: int = field(metadata=_SUM, default=0)
+    """Colour frames skipped because their image does not decode."""
+    unusable_depth: int = field(metadata=_SUM, default=0)
+    """Depth images skipped (undecodable, empty, or not the colour's size)."""
+    ids_left_out: Counter[int] = field(metadata=_SUM, default_factory=Counter)
+    """Detections dropped by the allowed ids, by marker id."""
+    depth_misses: int = field(metadata=_SUM, default=0)
+    """Observations in frames with depth whose marker held no valid depth pixel (0, NaN,
+    negative or beyond the depth model's range), of ``depth_tries``."""
+    depth_tries: int = field(metadata=_SUM, default=0)
+    """Observations in frames with depth."""
+    levelled_frames: int = field(metadata=_SUM, default=0)
+    """Frames observed through the odometry's attitude (a tilted base or a rolled camera)
+    rather than as level."""
+    levelled: list[LevelledFrame] = field(metadata=_CONCAT, default_factory=list, repr=False)
+    """Those frames' detections, kept and dropped, until they are tallied."""
+    marker_detections: dict[int, MarkerDetections] = field(metadata=_LATER, default_factory=dict)
+    """Per marker observed from its full pose, its detections and how many were dropped (off a
+    wall, no pose) or read with their corners reversed."""
+    depth_ratios: list[tuple[int, float, float]] = field(metadata=_CONCAT, default_factory=list)
+    """Each well-placed marker's stamp, depth and PnP distance."""
+    size_ratios: list[tuple[int, float]] = field(metadata=_CONCAT, default_factory=list)
+    """Each well-placed marker's id and depth over PnP distance, also where they disagree by
+    more than observe's gate (a wrong marker size)."""
+    depth_scale: float = field(metadata=_LATER, default=1.0)
+    """What depth was taken to read per true metre, as set or measured; the ranges from depth
+    are divided by it."""
+    measured_depth_scale: float | None = field(metadata=_LATER, default=None)
+    """What the markers' known size measured it to be, if enough markers were seen with
+    depth."""
+    dropped_odometry_samples: int = field(metadata=_EVIDENCE, default=0)
+    """Odometry samples dropped as corrupt or with stamps their neighbours contradict (see
+    ``notes``)."""
+    worst_odometry_stamp_offset_s: float = field(metadata=_EVIDENCE, default=0.0)
+    """The largest distance between a dropped odometry stamp and where the other stamps put it
+    [s]; 0 when none was dropped for its stamp."""
+    frames_dropped_by_stamp: int = field(metadata=_EVIDENCE, default=0)
+    """Colour frames whose stamp their neighbours contradict; their observations are
+    dropped."""
+    camera_infos_judged: int = field(metadata=_EVIDENCE, default=0)
+    """camera_info messages judged."""
+    camera_infos_set_aside: int = field(metadata=_EVIDENCE, default=0)
+    """Of them, those not believed (see ``camera_info_reasons``)."""
+    camera_info_reasons: dict[str, int] = field(metadata=_EVIDENCE, default_factory=dict)
+    """Why they were set aside -> how many."""
+    marker_size_m_used: float = field(metadata=_EVIDENCE, default=0.0)
+    """The markers' size the observations were made with [m]."""
+    marker_sizes_m_used: dict[int, float] = field(metadata=_EVIDENCE, default_factory=dict)
+    """Markers of their own size, by id [m]."""
+    marker_size_m_by_depth: float | None = field(metadata=_EVIDENCE, default=None)
+    """The markers' size depth measures (the given size times ``marker_size_ratio_by_depth``
+    where that clearly disagrees; see :mod:`~markergraph.frontend.marker_size`), None without
+    enough depth [m]."""
+    marker_size_ratio_by_depth: float | None = field(metadata=_EVIDENCE, default=None)
+    """Depth over PnP's range with the given size, None without enough depth."""
+    marker_sizes_m_by_depth: dict[int, float] = field(metadata=_EVIDENCE, default_factory=dict)
+    """Markers apart from the rest, by id [m]."""
+    odometry_evidence: OdometryEvidence | None = field(metadata=_EVIDENCE, default=None)
+    """What the odometry's first messages show of its kind (3-D motion, rate, covariance);
+    None for odometry from /tf."""
+
+    def input_evidence(self) -> dict[str, Any]:
+        """What the front end judged of its inputs, JSON-ready (report.json's ``inputs``): what
+        it set aside and what it measured, for a verdict to weigh."""
+        return {
+            f.name: _json_ready(getattr(self, f.name))
+            for f in fields(self)
+            if f.metadata.get("evidence")
+        }
+
+
+def _json_ready(value: Any) -> Any:
+    """A value as JSON holds it: mappings keyed by text, records as mappings."""
+    if isinstance(value, dict):
+        return {str(k): v for k, v in value.items()}
+    if is_dataclass(value) and not isinstance(value, type):
+        return asdict(value)
+    return value
+
+
+@dataclass
+class Part:
+    """One stretch's result before the stretches are joined: odometry and truth as read, in
+    log order (bad samples are dropped only once all are joined)."""
+
+    extraction: Extraction
+    """The stretch's observations and counts."""
+    odometry: list[OdometrySample] = field(default_factory=list)
+    """Odometry samples, in log order."""
+    odometry_log_ns: list[int] = field(default_factory=list)
+    """Each odometry sample's log time [ns]."""
+    true_poses: list[OdometrySample] = field(default_factory=list)
+    """Ground-truth base poses, in log order."""
+    true_pose_log_ns: list[int] = field(default_factory=list)
+    """Each true pose's log time [ns]."""
+    frame_stamps: list[tuple[int, int]] = field(default_factory=list)
+    """Each colour frame's (stamp, log time) [ns]."""
+    observation_frames: list[tuple[int, int]] = field(default_factory=list)
+    """Each observation's frame, as in ``frame_stamps``."""
+
+
+def merge_parts(parts: list[Part]) -> Part:
+    """Stretches' results joined in log order, each field as it says (:class:`Join`)."""
+    joined: dict[str, Any] = {}
+    for f in fields(Extraction):
+        how = f.metadata["join"]
+        values = [getattr(p.extraction, f.name) for p in parts]
+        if how is Join.FIRST:
+            joined[f.name] = values[0]
+        elif how is Join.FIRST_SET:
+            joined[f.name] = next((v for v in values if v is not None), None)
+        elif how is Join.SUM and isinstance(values[0], Counter):
+            joined[f.name] = Counter()
+            for value in values:
+                joined[f.name].update(value)
+        elif how is Join.SUM:
+            joined[f.name] = sum(values)
+        elif how is Join.CONCAT:
+            joined[f.name] = [item for value in values for item in value]
+        elif how is Join.UNIQUE:
+            joined[f.name] = []
+            for value in values:  # what every stretch says is said once
+                joined[f.name] += [item for item in value if item not in joined[f.name]]
+    merged = Part(Extraction(**joined))
+    for name in (f.name for f in fields(Part) if f.name != "extraction"):
+        setattr(merged, name, [item for p in parts for item in getattr(p, name)])
+    return merged

@@ -1,0 +1,382 @@
+"""Reading one stretch of a log: colour frames paired with the depth image nearest in time,
+the odometry's attitude to level them with, and each frame to observations.
+
+Streams: only a few frames are held while colour waits for its depth, however long the log.
+Nothing is dropped silently: every skipped frame is counted with its reason, and one bad message
+costs its frame, not the run.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.common.notes import Note
+from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.types import OdometrySample
+from markergraph.frontend.config import FrontendConfig
+from markergraph.frontend.decode import (
+    decode_depth,
+    decode_image,
+    frame_id,
+    odometry_sample,
+    stamp_ns,
+)
+from markergraph.frontend.detect import Detector, DetectorMode
+from markergraph.frontend.extraction import Extraction, Part
+from markergraph.frontend.observe import Flags, observe_detections
+from markergraph.frontend.posed import (
+    MAX_ATTITUDE_GAP_NS,
+    LevelledCamera,
+    levelled_view,
+    observe_levelled_frame,
+)
+from markergraph.frontend.ros2 import yaw_from_quaternion
+from markergraph.frontend.sources import (
+    DecodeFailures,
+    LogError,
+    Message,
+    messages,
+    read_ahead,
+)
+from markergraph.frontend.tf import (
+    mount_from_transforms,
+    odometry_from_tf,
+    rotation_of,
+    transforms_of,
+)
+from markergraph.frontend.topics import TRUE_MARKERS, TRUE_POSE, TopicChoice
+
+__all__ = [
+    "ColourFrame",
+    "Pairing",
+    "Span",
+    "SpanReader",
+    "detector_for",
+    "one_opencv_thread",
+    "read_span",
+]
+
+MAX_ATTITUDES = 64  # the latest odometry attitudes kept to level frames with
+
+
+@dataclass(frozen=True, slots=True)
+class ColourFrame:
+    """A colour message with its grey image, or why the image does not decode."""
+
+    message: Message
+    """The colour message as read."""
+    image: NDArray[np.uint8] | LogError
+    """Its grey image, or why it does not decode."""
+
+
+_Job = tuple[int, ColourFrame, "NDArray | None"]  # (stamp, colour frame, paired depth)
+
+
+class Pairing:
+    """Colour frames wait here for the depth image with the nearest stamp."""
+
+    def __init__(self, tolerance_ns: int) -> None:
+        self.tolerance = tolerance_ns
+        self.colour: deque[tuple[int, ColourFrame]] = deque()
+        self.depth: deque[tuple[int, NDArray]] = deque(maxlen=16)
+
+    def matched_depth(self, t_ns: int) -> NDArray | None:
+        """The waiting depth image nearest ``t_ns``, if within the tolerance."""
+        best = min(self.depth, key=lambda d: abs(d[0] - t_ns), default=None)
+        return best[1] if best is not None and abs(best[0] - t_ns) <= self.tolerance else None
+
+    def ready(self, latest_ns: int, flush: bool = False) -> list[_Job]:
+        """Colour frames that have their depth, or can no longer get it. Each frame is judged
+        on its own, so one with a wrong stamp (far in the future) waits alone instead of
+        holding up the frames behind it."""
+        out, waiting = [], deque[tuple[int, ColourFrame]]()
+        for t_ns, frame in self.colour:
+            depth = self.matched_depth(t_ns)
+            if depth is None and not flush and latest_ns - t_ns <= 3 * self.tolerance:
+                waiting.append((t_ns, frame))
+            else:
+                out.append((t_ns, frame, depth))
+        self.colour = waiting
+        return out
+
+
+_DETECTORS: dict[tuple[str, tuple[int, ...] | None, DetectorMode], Detector] = {}
+
+
+def detector_for(config: FrontendConfig) -> Detector:
+    """One detector per process and configuration (building one costs more than a frame)."""
+    key = (config.dictionary, config.allowed_ids, config.detector_mode)
+    if key not in _DETECTORS:
+        _DETECTORS[key] = Detector(
+            config.dictionary, mode=config.detector_mode, allowed_ids=config.allowed_ids
+        )
+    return _DETECTORS[key]
+
+
+@dataclass(frozen=True, slots=True)
+class Span:
+    """A stretch of a log: the colour frames, odometry and ground truth whose log times fall in
+    [start_ns, end_ns); None for an open end."""
+
+    start_ns: int | None = None
+    """The first log time in it [ns]; None: from the log's start."""
+    end_ns: int | None = None
+    """The first log time after it [ns]; None: to the log's end."""
+
+    def holds(self, t_ns: int) -> bool:
+        """Whether log time ``t_ns`` falls inside."""
+        return (self.start_ns is None or t_ns >= self.start_ns) and (
+            self.end_ns is None or t_ns < self.end_ns
+        )
+
+
+def _with_images(
+    stream: Iterator[Message], color: str | None, span: Span
+) -> Iterator[Message | ColourFrame]:
+    """The stream, its colour messages inside ``span`` as frames with their images decoded.
+    Run in the reading thread (:func:`read_ahead`), so decoding JPEG (0.6 ms a 640x480 frame,
+    which releases the GIL) overlaps detection in the main thread: on bench_frontend's log the
+    reading thread then spends 1.3-1.6 ms of CPU a frame and the main thread 1.8-2.0 ms.
+    Closing it closes ``stream`` (and the log's file) in the thread that closes it."""
+    try:
+        for message in stream:
+            if message.topic == color and span.holds(message.log_time_ns):
+                try:
+                    yield ColourFrame(message, decode_image(message))
+                except LogError as error:
+                    yield ColourFrame(message, error)
+            else:
+                yield message
+    finally:
+        close = getattr(stream, "close", None)
+        if close is not None:
+            close()
+
+
+class SpanReader:
+    """One process's work: observations, odometry and ground truth of one stretch of the log."""
+
+    def __init__(
+        self, path: Path, config: FrontendConfig, choice: TopicChoice, counts: dict[str, int]
+    ) -> None:
+        self.path, self.config, self.choice, self.counts = path, config, choice, counts
+        mount = config.mount or config.default_mount
+        self.part = Part(Extraction([], Trajectory.from_samples([]), config.camera, mount, choice))
+        # Two books, one per thread: the reading thread's (messages) and this one's (_take).
+        self.failures, self.read_failures = DecodeFailures(), DecodeFailures()
+        self.static: list[Any] = []
+        self.image_frame: str | None = None
+        self.odometry_frame: str | None = None
+        self.mount_known = config.mount is not None
+        self.pairing = Pairing(config.pair_tolerance_ns)
+        self.detector = detector_for(config)
+        self.model = config.observation_model
+        self.attitudes: deque[tuple[int, NDArray[np.float64]]] = deque(maxlen=MAX_ATTITUDES)
+
+    def read(self, span: Span, progress: Callable[[int, int], None] | None) -> Part:
+        """The stretch's observations, odometry and truth; ``progress`` called with (colour
+        frames read, frames in all)."""
+        left_out_before = Counter(self.detector.left_out)
+        self._read_once_topics()
+        streamed = [
+            t
+            for t in (self.choice.color, self.choice.depth, self.choice.odom, TRUE_POSE)
+            if t and t in self.counts
+        ]
+        # Progress counts colour frames: what a person knows the log by.
+        total, done, color = self.counts.get(self.choice.color or "", 0), 0, self.choice.color
+        # Read a margin either side so frames at the span's edges still find their depth.
+        margin = 3 * self.config.pair_tolerance_ns
+        start = None if span.start_ns is None else span.start_ns - margin
+        end = None if span.end_ns is None else span.end_ns + margin
+        stream = messages(self.path, streamed, self.read_failures, start, end)
+        for item in read_ahead(_with_images(stream, color, span)):
+            if isinstance(item, ColourFrame):
+                done += 1
+                if progress is not None and done % 10 == 0:
+                    progress(done, total)
+                self._take_frame(item)
+            else:
+                self._take(item, span.holds(item.log_time_ns))
+        self._drain(0, flush=True)
+        if progress is not None:
+            progress(total, total)
+        result = self.part.extraction
+        result.warnings = self.read_failures.warnings() + self.failures.warnings()
+        result.ids_left_out = self.detector.left_out - left_out_before
+        return self.part
+
+    def _read_once_topics(self) -> None:
+        """Topics published once at the start: static transforms and true marker poses."""
+        once = [t for t in (self.choice.tf_static, TRUE_MARKERS) if t and t in self.counts]
+        for message in messages(self.path, once, self.failures):
+            if message.topic == self.choice.tf_static:
+                self.static += transforms_of(message.decoded)
+                continue
+            for transform in message.decoded.transforms:
+                if transform.child_frame_id.startswith("aruco_"):
+                    q, t = transform.transform.rotation, transform.transform.translation
+                    pose = (t.x, t.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+                    if not all(math.isfinite(v) for v in pose):
+                        self.part.extraction.notes.append(
+                            Note(
+                                "truth.marker_not_finite",
+                                f"ignored the non-finite true pose of {transform.child_frame_id}"
+                                f" on {TRUE_MARKERS}",
+                                TRUE_MARKERS,
+                            )
+                        )
+                        continue
+                    marker_id = int(transform.child_frame_id[6:])
+                    self.part.extraction.true_markers[marker_id] = gtsam.Pose2(*pose)
+
+    def _take_frame(self, frame: ColourFrame) -> None:
+        """A colour frame inside the span."""
+        decoded, t_ns = frame.message.decoded, stamp_ns(frame.message.decoded)
+        self.part.extraction.frames += 1
+        self.part.frame_stamps.append((t_ns, frame.message.log_time_ns))
+        self.image_frame = self.image_frame or frame_id(decoded)
+        self.pairing.colour.append((t_ns, frame))
+        self._drain(t_ns)
+
+    def _take(self, message: Message, inside: bool) -> None:
+        """One streamed message, by its role."""
+        choice, result, decoded = self.choice, self.part.extraction, message.decoded
+        topic = message.topic
+        if topic == choice.depth:
+            try:
+                self.pairing.depth.append((stamp_ns(decoded), decode_depth(message)))
+            except LogError as error:  # the frame waiting for it goes on without depth
+                result.unusable_depth += 1
+                self.failures.add(self.path, topic, str(error))
+            self._drain(stamp_ns(decoded))
+        elif topic == choice.odom:
+            if message.schema.endswith("TFMessage"):
+                if inside:
+                    samples = odometry_from_tf(decoded, self.config.base_frame)
+                    self.part.odometry += samples
+                    self.part.odometry_log_ns += [message.log_time_ns] * len(samples)
+                return
+            if inside:
+                self.part.odometry.append(odometry_sample(message))
+                self.part.odometry_log_ns.append(message.log_time_ns)
+            self.odometry_frame = self.odometry_frame or getattr(decoded, "child_frame_id", None)
+            pose = decoded.pose.pose if hasattr(decoded.pose, "pose") else decoded.pose
+            R = rotation_of(pose.orientation)
+            if R is not None:  # its attitude levels the frames about it
+                self.attitudes.append((stamp_ns(decoded), R))
+        elif topic == TRUE_POSE and inside:
+            q, p = decoded.pose.orientation, decoded.pose.position
+            self.part.true_poses.append(
+                OdometrySample(stamp_ns(decoded), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+            )
+            self.part.true_pose_log_ns.append(message.log_time_ns)
+
+    def _drain(self, latest_ns: int, flush: bool = False) -> None:
+        """The colour frames paired (or past waiting for depth) observed."""
+        ready = self.pairing.ready(latest_ns, flush)
+        if ready:
+            self._settle_mount()
+        for job in ready:
+            self._observe(*job)
+
+    def _settle_mount(self) -> None:
+        """The camera's mount from /tf_static, once, else the configured one (with a note)."""
+        if self.mount_known:
+            return
+        self.mount_known = True
+        result = self.part.extraction
+        if self.static and self.image_frame:
+            # The odometry's own body first (base_footprint on most diff-drive bases), so the
+            # camera's height is above the floor the odometry moves on.
+            bases = (self.odometry_frame, self.config.base_frame)
+            try:
+                result.mount = mount_from_transforms(self.static, bases, self.image_frame)
+            except LogError as error:
+                text = f"{error}; assuming the configured camera mount"
+                result.notes.append(Note("mount.not_in_tf", text, self.choice.tf_static))
+        else:
+            result.notes.append(
+                Note(
+                    "mount.no_tf_static",
+                    "no /tf_static: assuming the configured camera mount "
+                    f"({result.mount.describe()})",
+                )
+            )
+
+    def _levelled_view(self, t_ns: int) -> LevelledCamera | None:
+        """The camera levelled with the odometry's attitude nearest ``t_ns``; None when level."""
+        result = self.part.extraction
+        assert result.camera is not None
+        nearest = min(self.attitudes, key=lambda a: abs(a[0] - t_ns), default=None)
+        if nearest is None or abs(nearest[0] - t_ns) > MAX_ATTITUDE_GAP_NS:
+            nearest = (t_ns, np.eye(3))  # no attitude: a level base
+        return levelled_view(result.camera, result.mount, nearest[1])
+
+    def _observe(self, t_ns: int, frame: ColourFrame, depth: NDArray | None) -> None:
+        """One colour frame with its depth (if any) to observations; a bad frame costs itself."""
+        result, choice, image = self.part.extraction, self.choice, frame.image
+        assert result.camera is not None  # extract judged it before reading
+        key = (t_ns, frame.message.log_time_ns)
+        if isinstance(image, LogError):
+            result.undecodable_frames += 1
+            result.skipped[f"colour image does not decode ({image})"] += 1
+            return
+        if depth is not None and depth.shape[:2] != image.shape[:2]:
+            result.unusable_depth += 1
+            result.skipped[
+                f"depth on {choice.depth} is {depth.shape[1]}x{depth.shape[0]}, colour "
+                f"{image.shape[1]}x{image.shape[0]}: not aligned (used without depth)"
+            ] += 1
+            depth = None
+        elif depth is not None:
+            result.frames_with_depth += 1
+        elif choice.depth:
+            result.skipped["no depth within the pairing tolerance (used without)"] += 1
+        detections = self.detector.detect(image)
+        view = self._levelled_view(t_ns)
+        if view is not None:
+            # A tilted base (a ramp, a hand-held rig) or a rolled camera: each marker's full
+            # pose from its corners, turned into the level frame.
+            levelled = observe_levelled_frame(detections, view, self.model, t_ns)
+            observations = levelled.observations
+            result.levelled_frames += 1
+            result.levelled.append(levelled)  # tallied once the log is read: drop_notes
+            result.observations += observations
+            self.part.observation_frames += [key] * len(observations)
+            return
+        observations = observe_detections(
+            detections, result.camera, self.model, depth=depth, mount=result.mount, t_ns=t_ns,
+            depth_ratios=result.depth_ratios, size_ratios=result.size_ratios,
+        )  # fmt: skip
+        if depth is not None:
+            result.depth_tries += len(observations)
+            result.depth_misses += sum(Flags.NO_DEPTH in o.flags for o in observations)
+        result.observations += observations
+        self.part.observation_frames += [key] * len(observations)
+
+
+def read_span(
+    arguments: tuple[Path, FrontendConfig, TopicChoice, dict[str, int], Span],
+) -> Part:
+    """One worker's stretch (:class:`SpanReader`), its arguments in one tuple for
+    ``pool.map``."""
+    path, config, choice, counts, span = arguments
+    return SpanReader(path, config, choice, counts).read(span, None)
+
+
+def one_opencv_thread() -> None:
+    """A worker's set-up (:func:`~markergraph.common.pool.process_pool`): one OpenCV thread. A
+    worker's reading and main threads already keep about one and a half cores busy; more would
+    only contend."""
+    cv2.setNumThreads(1)
