@@ -40,6 +40,7 @@ from markergraph.frontend.decode import (
 )
 from markergraph.frontend.detect import Detector, DetectorMode
 from markergraph.frontend.inputs import CameraJudgement, judge_camera_info, odd_stamps
+from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message, open_log, read_ahead
 from markergraph.frontend.marker_size import SIZE_NOT_DEPTH, SizeByDepth, marker_sizes_by_depth
 from markergraph.frontend.observe import Flags, observe_detections, robust_least_squares
 from markergraph.frontend.odometry_kind import OdometryEvidence, odometry_evidence
@@ -55,15 +56,6 @@ from markergraph.frontend.posed import (
     tally_detections,
 )
 from markergraph.frontend.ros2 import yaw_from_quaternion
-from markergraph.frontend.sources import (
-    DecodeFailures,
-    LogError,
-    Message,
-    log_time_range,
-    log_topics,
-    messages,
-    read_ahead,
-)
 from markergraph.frontend.tagged import DetectionLog, read_detection_log
 from markergraph.frontend.tf import (
     mount_from_transforms,
@@ -304,9 +296,10 @@ class _SpanReader:
     """One process's work: observations, odometry and ground truth of one stretch of the log."""
 
     def __init__(
-        self, path: Path, config: FrontendConfig, choice: TopicChoice, counts: dict[str, int]
+        self, log: Log, config: FrontendConfig, choice: TopicChoice, counts: dict[str, int]
     ) -> None:
-        self.path, self.config, self.choice, self.counts = path, config, choice, counts
+        self.log, self.path = log, log.path
+        self.config, self.choice, self.counts = config, choice, counts
         mount = config.mount or config.default_mount
         self.part = _Part(Extraction([], Trajectory.from_samples([]), config.camera, mount, choice))
         # Two books, one per thread: the reading thread's (messages) and this one's (_take).
@@ -334,7 +327,7 @@ class _SpanReader:
         margin = 3 * self.config.pair_tolerance_ns
         start = None if span.start_ns is None else span.start_ns - margin
         end = None if span.end_ns is None else span.end_ns + margin
-        stream = messages(self.path, streamed, self.read_failures, start, end)
+        stream = self.log.messages(streamed, self.read_failures, start, end)
         for item in read_ahead(_with_images(stream, color, span)):
             if isinstance(item, _Frame):
                 done += 1
@@ -354,7 +347,7 @@ class _SpanReader:
     def _read_once_topics(self) -> None:
         """Topics published once at the start: static transforms and true marker poses."""
         once = [t for t in (self.choice.tf_static, TRUE_MARKERS) if t and t in self.counts]
-        for message in messages(self.path, once, self.failures):
+        for message in self.log.messages(once, self.failures):
             if message.topic == self.choice.tf_static:
                 self.static += transforms_of(message.decoded)
                 continue
@@ -503,7 +496,7 @@ def _from_detections(log: DetectionLog, choice: TopicChoice) -> _Part:
         choice,
         frames=log.frames,
         skipped=log.skipped,
-        notes=log.notes,
+        notes=[note.text for note in log.notes],  # Note records, once Extraction takes them
         warnings=log.warnings,
         ids_left_out=log.ids_left_out,
         marker_detections=log.marker_detections,
@@ -513,10 +506,10 @@ def _from_detections(log: DetectionLog, choice: TopicChoice) -> _Part:
 
 
 def _read_span(
-    arguments: tuple[Path, FrontendConfig, TopicChoice, dict[str, int], _Span],
+    arguments: tuple[Log, FrontendConfig, TopicChoice, dict[str, int], _Span],
 ) -> _Part:
-    path, config, choice, counts, span = arguments
-    return _SpanReader(path, config, choice, counts).read(span, None)
+    log, config, choice, counts, span = arguments
+    return _SpanReader(log, config, choice, counts).read(span, None)
 
 
 def _start_worker(parent_pid: int) -> None:
@@ -743,12 +736,13 @@ def _correct_depth_scale(result: Extraction, configured: float | None, topic: st
     ]  # fmt: skip
 
 
-def _judged_camera(path: Path, choice: TopicChoice, counts: dict[str, int]) -> CameraJudgement:
+def _judged_camera(log: Log, choice: TopicChoice, counts: dict[str, int]) -> CameraJudgement:
     """The camera model the log's camera_info messages agree on (:func:`judge_camera_info`).
 
     Raises:
         LogError: no camera info topic, or none of its messages gives a believable model.
     """
+    path = log.path
     topic = choice.camera_info
     if topic is None:
         raise LogError(
@@ -757,7 +751,7 @@ def _judged_camera(path: Path, choice: TopicChoice, counts: dict[str, int]) -> C
     if not counts.get(topic):
         raise LogError(f"{path}: no camera intrinsics: no messages on {topic}")
     failures = DecodeFailures()
-    judgement = judge_camera_info(path, topic, failures)
+    judgement = judge_camera_info(log, topic, failures)
     if judgement.camera is None:
         reasons = list(judgement.set_aside) + [w.partition(": ")[2] for w in failures.warnings()]
         raise LogError(
@@ -1003,7 +997,8 @@ def _extract_once(
         SettingsError: a bad dictionary, or allowed ids outside it.
     """
     path = Path(path)
-    topics = log_topics(path)
+    log = open_log(path)
+    topics = log.topics
     choice = choose_topics(path, topics, config)
     if choice.color is None and not choice.detections:
         raise LogError(
@@ -1018,14 +1013,14 @@ def _extract_once(
         notes.append(why)
     judgement = None
     if not choice.detections and config.camera is None:
-        judgement = _judged_camera(path, choice, counts)
+        judgement = _judged_camera(log, choice, counts)
         config = replace(config, camera=judgement.camera)
     if choice.detections:
-        part = _from_detections(read_detection_log(path, config, choice, topics), choice)
+        part = _from_detections(read_detection_log(log, config, choice), choice)
     elif workers <= 1:
-        part = _SpanReader(path, config, choice, counts).read(_Span(), progress)
+        part = _SpanReader(log, config, choice, counts).read(_Span(), progress)
     else:
-        first, last = log_time_range(path)
+        first, last = log.time_range
         edges = np.linspace(first, last + 1, SPANS_PER_WORKER * workers + 1).astype(np.int64)
         spans = [_Span(int(a), int(b)) for a, b in itertools.pairwise(edges)]
         parts = []
@@ -1035,7 +1030,7 @@ def _extract_once(
             initializer=_start_worker,
             initargs=(os.getpid(),),
         ) as pool:
-            jobs = [(path, config, choice, counts, span) for span in spans]
+            jobs = [(log, config, choice, counts, span) for span in spans]
             for done, piece in enumerate(pool.map(_read_span, jobs), start=1):
                 parts.append(piece)
                 if progress is not None:  # in frames, as one process counts them
@@ -1044,7 +1039,7 @@ def _extract_once(
         part = _merge(parts)
     result = part.extraction
     if choice.odom and counts.get(choice.odom):
-        result.odometry_evidence = odometry_evidence(path, choice.odom)
+        result.odometry_evidence = odometry_evidence(log, choice.odom)
     if judgement is not None:
         result.camera_infos_judged = judgement.read
         result.camera_infos_set_aside = sum(judgement.set_aside.values())
