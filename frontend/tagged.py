@@ -196,18 +196,26 @@ def no_mount_text(topic: str, frame: str) -> str:
 
 @dataclass
 class DetectionLog:
-    """What a detection log gave, before it becomes an ``Extraction``."""
+    """What a detection log gave, before it becomes an ``Extraction`` (filled as it is read)."""
 
     observations: list[Observation] = field(default_factory=list)
+    """Observations from the markers' full poses, in the level frame."""
     odometry: list[OdometrySample] = field(default_factory=list)
+    """2-D odometry, heading along the first camera's optical axis on the floor."""
     camera: Camera | None = None
+    """The first detection topic's camera that has a mount."""
     frames: int = 0
+    """Detection messages read."""
     skipped: Counter[str] = field(default_factory=Counter)
+    """Reason -> detection messages not observed for it."""
     notes: list[Note] = field(default_factory=list)
+    """What the reading noticed and did about it."""
     warnings: list[str] = field(default_factory=list)
+    """Messages skipped as unreadable, one line per file and topic."""
     ids_left_out: Counter[int] = field(default_factory=Counter)
-    # marker id -> how its detections fared (a verdict's evidence; Extraction lacks the field)
+    """Marker id -> detections left out (not among the allowed ids)."""
     marker_detections: dict[int, MarkerDetections] = field(default_factory=dict)
+    """Marker id -> how its detections fared (a verdict's evidence; Extraction lacks it)."""
 
 
 @dataclass

@@ -9,7 +9,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-from markergraph.frontend.logs.bags import bag_messages, bag_summary, bag_topic_spans
+from markergraph.frontend.logs.bags import BagSummary, bag_messages, bag_summary, bag_topic_spans
 from markergraph.frontend.logs.files import LogKind, log_kind, mcap_files
 from markergraph.frontend.logs.mcap import (
     McapFile,
@@ -126,8 +126,8 @@ class Log:
         return bag_messages(self.path, topics, failures, start_ns, end_ns)
 
     @cached_property
-    def _bag(self) -> Any:
-        """A ROS 1 or SQLite bag's summary (:class:`~.bags.BagSummary`), read once."""
+    def _bag(self) -> BagSummary:
+        """A ROS 1 or SQLite bag's topics, message count and time range, read once."""
         return bag_summary(self.path)
 
 
