@@ -17,7 +17,8 @@ from markergraph.common.files import check_output_file
 from markergraph.common.progress import ProgressBar
 from markergraph.formats import write_observations
 from markergraph.frontend import extract
-from markergraph.frontend.preflight import ImageStats, Intrinsics, Mount, Preflight, preflight
+from markergraph.frontend.preflight import preflight
+from markergraph.frontend.preflight_report import ImageStats, Intrinsics, Mount, Preflight
 from markergraph.settings import map_config
 
 DETECT = "detect markers in an MCAP log and write observations as JSON lines"

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from markergraph.estimator import MapError, Observation, OdometrySample, Trajectory
 from markergraph.estimator.angles import angle_diff
 from markergraph.estimator.metrics import align_rigid_2d
-from markergraph.frontend import messages
+from markergraph.frontend import open_log
 from markergraph.frontend.decode import stamp_ns
 from markergraph.frontend.posed import WALL_TILT_RAD
 from markergraph.frontend.rig import Pose3, read_camera_poses, read_tagslam
@@ -67,7 +67,7 @@ def reference_wall_tags(bag: Path) -> dict[int, gtsam.Pose2]:
     on the floor, is our x.
     """
     last = {}
-    for message in messages(bag, ["/tf"]):
+    for message in open_log(bag).messages(["/tf"]):
         for transform in message.decoded.transforms:
             last[transform.child_frame_id] = transform.transform
     tags = {}
@@ -123,7 +123,7 @@ def odometry_and_reference(folder: Path, into: Path) -> tuple[Trajectory, Trajec
 
     def path(bag: Path, topic: str, T_pose_body: Pose3, frame: str) -> Trajectory:
         samples = []
-        for message in messages(bag, [topic]):
+        for message in open_log(bag).messages([topic]):
             pose = message.decoded.pose.pose
             R = rotation_of(pose.orientation)
             if R is None:

@@ -1,11 +1,11 @@
 """markergraph.frontend: camera frames and logs to marker observations (OpenCV, mcap).
 
-Modules: ``sources`` (log files, topics, messages), ``decode`` (images, depth, odometry),
-``tf`` (camera mount, odometry from /tf), ``topics`` (which topic plays which role),
+Modules: ``logs`` (a log opened once: its files, topics, messages), ``decode`` (images, depth,
+odometry), ``tf`` (camera mount, odometry from /tf), ``topics`` (which topic plays which role),
 ``camera``, ``detect``, ``yaw``, ``observe`` (one frame to observations), ``pipeline`` (a log to
 observations: ``extract``), ``spans`` (reading a stretch of a log), ``extraction`` (what a log
 gave), ``cleaning`` (bad samples and stamps dropped), ``depth_scale`` (depth's scale against the
-markers' size), ``config`` (how to read a log).
+markers' size), ``config`` (how to read a log), ``preflight`` (can a log be mapped).
 """
 
 from markergraph.frontend.camera import Camera, CameraMount
@@ -13,9 +13,9 @@ from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_depth, decode_image, odometry_sample, stamp_ns
 from markergraph.frontend.detect import Detection, Detector, load_dictionary
 from markergraph.frontend.extraction import Extraction
+from markergraph.frontend.logs import Log, LogError, LogTopic, Message, open_log
 from markergraph.frontend.observe import DepthModel, ObservationModel, observe, observe_detections
 from markergraph.frontend.pipeline import extract
-from markergraph.frontend.sources import LogError, LogTopic, Message, log_topics, messages
 from markergraph.frontend.tf import mount_from_transforms, odometry_from_tf, transforms_of
 from markergraph.frontend.topics import TopicChoice, choose_topics
 from markergraph.frontend.yaw import YawMethod
@@ -28,6 +28,7 @@ __all__ = [
     "Detector",
     "Extraction",
     "FrontendConfig",
+    "Log",
     "LogError",
     "LogTopic",
     "Message",
@@ -39,13 +40,12 @@ __all__ = [
     "decode_image",
     "extract",
     "load_dictionary",
-    "log_topics",
-    "messages",
     "mount_from_transforms",
     "observe",
     "observe_detections",
     "odometry_from_tf",
     "odometry_sample",
+    "open_log",
     "stamp_ns",
     "transforms_of",
 ]

@@ -9,8 +9,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.estimator.types import OdometrySample
+from markergraph.frontend.logs.records import LogError, Message
 from markergraph.frontend.ros2 import yaw_from_quaternion
-from markergraph.frontend.sources import LogError, Message
 
 __all__ = ["decode_depth", "decode_image", "frame_id", "odometry_sample", "stamp_ns"]
 

@@ -6,15 +6,14 @@ from __future__ import annotations
 
 import bisect
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common.notes import Note
 from markergraph.frontend.camera import Camera, majority_camera
+from markergraph.frontend.logs import DecodeFailures, Log
 from markergraph.frontend.observe import robust_least_squares
-from markergraph.frontend.sources import DecodeFailures, messages
 
 __all__ = ["CameraJudgement", "OddStamps", "judge_camera_info", "odd_stamps"]
 
@@ -53,12 +52,12 @@ class CameraJudgement:
         return Note("camera_info.set_aside", text, topic, set_aside)
 
 
-def judge_camera_info(path: Path, topic: str, failures: DecodeFailures) -> CameraJudgement:
+def judge_camera_info(log: Log, topic: str, failures: DecodeFailures) -> CameraJudgement:
     """The model most of the first :data:`CAMERA_INFOS_JUDGED` messages on ``topic`` give,
     among those that can be a camera (:meth:`Camera.implausible`); messages that do not
     decode are counted in ``failures``."""
     models: list[Camera | str] = []
-    stream = messages(path, [topic], failures)
+    stream = log.messages([topic], failures)
     try:
         for message in stream:
             try:

@@ -7,11 +7,10 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from markergraph.frontend.sources import DecodeFailures, LogError, messages
+from markergraph.frontend.logs import DecodeFailures, Log, LogError
 from markergraph.frontend.tf import rotation_of
 
 __all__ = ["OdometryEvidence", "choose_odometry_source", "odometry_evidence"]
@@ -57,11 +56,11 @@ class OdometryEvidence:
         return self.max_tilt_rad <= PLANAR_TILT_RAD and self.z_span_m <= PLANAR_Z_M
 
 
-def odometry_evidence(path: Path, topic: str) -> OdometryEvidence | None:
+def odometry_evidence(log: Log, topic: str) -> OdometryEvidence | None:
     """The evidence of a topic's first :data:`SAMPLES_JUDGED` messages; None where they are not
     nav_msgs/Odometry (odometry from /tf) or fewer than two decode."""
     stamps, z, tilt, position, variance = [], [], [], [], []
-    stream = messages(path, [topic], DecodeFailures())
+    stream = log.messages([topic], DecodeFailures())
     try:
         for message in stream:
             pose_with_covariance = getattr(message.decoded, "pose", None)

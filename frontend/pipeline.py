@@ -24,10 +24,10 @@ from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.depth_scale import correct_depth_scale
 from markergraph.frontend.extraction import Extraction, Part, merge_parts
 from markergraph.frontend.inputs import CameraJudgement, judge_camera_info
+from markergraph.frontend.logs import DecodeFailures, Log, LogError, open_log
 from markergraph.frontend.marker_size import SizeByDepth, marker_sizes_by_depth
 from markergraph.frontend.odometry_kind import odometry_evidence
 from markergraph.frontend.posed import LEVEL_TOLERANCE_RAD, drop_notes, tally_detections
-from markergraph.frontend.sources import DecodeFailures, LogError, log_time_range, log_topics
 from markergraph.frontend.spans import (
     Span,
     SpanReader,
@@ -149,7 +149,8 @@ def _extract_once(
         SettingsError: a bad dictionary, or allowed ids outside it.
     """
     path = Path(path)
-    topics = log_topics(path)
+    log = open_log(path)
+    topics = log.topics
     choice = choose_topics(path, topics, config)
     if choice.color is None and not choice.detections:
         raise LogError(
@@ -164,17 +165,17 @@ def _extract_once(
         notes.append(why)
     judgement = None
     if not choice.detections and config.camera is None:
-        judgement = _judged_camera(path, choice, counts)
+        judgement = _judged_camera(log, choice, counts)
         config = replace(config, camera=judgement.camera)
     if choice.detections:
-        part = _from_detections(read_detection_log(path, config, choice, topics), choice)
+        part = _from_detections(read_detection_log(log, config, choice), choice)
     elif workers <= 1:
-        part = SpanReader(path, config, choice, counts).read(Span(), progress)
+        part = SpanReader(log, config, choice, counts).read(Span(), progress)
     else:
-        part = _read_in_workers(path, config, choice, counts, workers, progress)
+        part = _read_in_workers(log, config, choice, counts, workers, progress)
     result = part.extraction
     if choice.odom and counts.get(choice.odom):
-        result.odometry_evidence = odometry_evidence(path, choice.odom)
+        result.odometry_evidence = odometry_evidence(log, choice.odom)
     if judgement is not None:
         notes += _camera_judged(result, judgement, choice)
     result.notes = notes + result.notes
@@ -186,7 +187,7 @@ def _extract_once(
 
 
 def _read_in_workers(
-    path: Path,
+    log: Log,
     config: FrontendConfig,
     choice: TopicChoice,
     counts: dict[str, int],
@@ -195,12 +196,12 @@ def _read_in_workers(
 ) -> Part:
     """The log cut into :data:`SPANS_PER_WORKER` stretches of time a worker, each read whole
     by a worker (:func:`read_span`), joined in log order."""
-    first, last = log_time_range(path)
+    first, last = log.time_range
     edges = np.linspace(first, last + 1, SPANS_PER_WORKER * workers + 1).astype(np.int64)
     spans = [Span(int(a), int(b)) for a, b in itertools.pairwise(edges)]
     parts = []
     with process_pool(workers, one_opencv_thread) as pool:
-        jobs = [(path, config, choice, counts, span) for span in spans]
+        jobs = [(log, config, choice, counts, span) for span in spans]
         for done, piece in enumerate(pool.map(read_span, jobs), start=1):
             parts.append(piece)
             if progress is not None:  # in frames, as one process counts them
@@ -280,9 +281,7 @@ def _from_detections(log: DetectionLog, choice: TopicChoice) -> Part:
         choice,
         frames=log.frames,
         skipped=log.skipped,
-        # Until the detection log's notes are records too (frontend/tagged.py): its text ones
-        # as records of their own kind.
-        notes=[n if isinstance(n, Note) else Note("detections.log", n) for n in log.notes],
+        notes=list(log.notes),
         warnings=log.warnings,
         ids_left_out=log.ids_left_out,
         marker_detections=log.marker_detections,
@@ -291,12 +290,13 @@ def _from_detections(log: DetectionLog, choice: TopicChoice) -> Part:
     return Part(extraction, log.odometry, [0] * len(log.odometry))
 
 
-def _judged_camera(path: Path, choice: TopicChoice, counts: dict[str, int]) -> CameraJudgement:
+def _judged_camera(log: Log, choice: TopicChoice, counts: dict[str, int]) -> CameraJudgement:
     """The camera model the log's camera_info messages agree on (:func:`judge_camera_info`).
 
     Raises:
         LogError: no camera info topic, or none of its messages gives a believable model.
     """
+    path = log.path
     topic = choice.camera_info
     if topic is None:
         raise LogError(
@@ -305,7 +305,7 @@ def _judged_camera(path: Path, choice: TopicChoice, counts: dict[str, int]) -> C
     if not counts.get(topic):
         raise LogError(f"{path}: no camera intrinsics: no messages on {topic}")
     failures = DecodeFailures()
-    judgement = judge_camera_info(path, topic, failures)
+    judgement = judge_camera_info(log, topic, failures)
     if judgement.camera is None:
         reasons = list(judgement.set_aside) + [w.partition(": ")[2] for w in failures.warnings()]
         raise LogError(

@@ -12,7 +12,6 @@ import math
 from collections import Counter, deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import cv2
@@ -33,6 +32,7 @@ from markergraph.frontend.decode import (
 )
 from markergraph.frontend.detect import Detector, DetectorMode
 from markergraph.frontend.extraction import Extraction, Part
+from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message, read_ahead
 from markergraph.frontend.observe import Flags, observe_detections
 from markergraph.frontend.posed import (
     MAX_ATTITUDE_GAP_NS,
@@ -41,13 +41,6 @@ from markergraph.frontend.posed import (
     observe_levelled_frame,
 )
 from markergraph.frontend.ros2 import yaw_from_quaternion
-from markergraph.frontend.sources import (
-    DecodeFailures,
-    LogError,
-    Message,
-    messages,
-    read_ahead,
-)
 from markergraph.frontend.tf import (
     mount_from_transforms,
     odometry_from_tf,
@@ -167,9 +160,10 @@ class SpanReader:
     """One process's work: observations, odometry and ground truth of one stretch of the log."""
 
     def __init__(
-        self, path: Path, config: FrontendConfig, choice: TopicChoice, counts: dict[str, int]
+        self, log: Log, config: FrontendConfig, choice: TopicChoice, counts: dict[str, int]
     ) -> None:
-        self.path, self.config, self.choice, self.counts = path, config, choice, counts
+        self.log, self.path = log, log.path
+        self.config, self.choice, self.counts = config, choice, counts
         mount = config.mount or config.default_mount
         self.part = Part(Extraction([], Trajectory.from_samples([]), config.camera, mount, choice))
         # Two books, one per thread: the reading thread's (messages) and this one's (_take).
@@ -199,7 +193,7 @@ class SpanReader:
         margin = 3 * self.config.pair_tolerance_ns
         start = None if span.start_ns is None else span.start_ns - margin
         end = None if span.end_ns is None else span.end_ns + margin
-        stream = messages(self.path, streamed, self.read_failures, start, end)
+        stream = self.log.messages(streamed, self.read_failures, start, end)
         for item in read_ahead(_with_images(stream, color, span)):
             if isinstance(item, ColourFrame):
                 done += 1
@@ -219,7 +213,7 @@ class SpanReader:
     def _read_once_topics(self) -> None:
         """Topics published once at the start: static transforms and true marker poses."""
         once = [t for t in (self.choice.tf_static, TRUE_MARKERS) if t and t in self.counts]
-        for message in messages(self.path, once, self.failures):
+        for message in self.log.messages(once, self.failures):
             if message.topic == self.choice.tf_static:
                 self.static += transforms_of(message.decoded)
                 continue
@@ -367,12 +361,12 @@ class SpanReader:
 
 
 def read_span(
-    arguments: tuple[Path, FrontendConfig, TopicChoice, dict[str, int], Span],
+    arguments: tuple[Log, FrontendConfig, TopicChoice, dict[str, int], Span],
 ) -> Part:
     """One worker's stretch (:class:`SpanReader`), its arguments in one tuple for
     ``pool.map``."""
-    path, config, choice, counts, span = arguments
-    return SpanReader(path, config, choice, counts).read(span, None)
+    log, config, choice, counts, span = arguments
+    return SpanReader(log, config, choice, counts).read(span, None)
 
 
 def one_opencv_thread() -> None:

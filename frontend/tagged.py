@@ -15,18 +15,20 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.notes import Note
 from markergraph.estimator.types import Observation, OdometrySample
 from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import frame_id, stamp_ns
 from markergraph.frontend.detections import detections_of
+from markergraph.frontend.logs import DecodeFailures, Log, LogError
 from markergraph.frontend.posed import (
     MAX_ATTITUDE_GAP_NS,
     LevelledCamera,
@@ -36,8 +38,14 @@ from markergraph.frontend.posed import (
     observe_levelled_frame,
     tally_detections,
 )
-from markergraph.frontend.rig import Pose3, read_camera_poses, read_kalibr_cameras, read_tagslam
-from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, messages
+from markergraph.frontend.rig import (
+    Pose3,
+    RigCamera,
+    TagslamConfig,
+    read_camera_poses,
+    read_kalibr_cameras,
+    read_tagslam,
+)
 from markergraph.frontend.tf import (
     planar_pose,
     rot_z,
@@ -47,23 +55,167 @@ from markergraph.frontend.tf import (
 )
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
 
-__all__ = ["DetectionLog", "read_detection_log"]
+__all__ = [
+    "DetectionLog",
+    "FoundCamera",
+    "FoundMount",
+    "Rig",
+    "find_camera",
+    "find_mount",
+    "no_camera_text",
+    "no_mount_text",
+    "read_detection_log",
+]
+
+
+@dataclass(frozen=True)
+class Rig:
+    """The rig files a detection log's cameras are found in, each read once."""
+
+    config: FrontendConfig
+    """The settings that name the files."""
+    kalibr: list[RigCamera]
+    """The Kalibr ``cameras.yaml``'s cameras (empty without one)."""
+    camera_poses: dict[str, Pose3]
+    """TagSLAM's ``camera_poses.yaml``: camera name -> its pose on the rig (empty without one)."""
+    tagslam: TagslamConfig | None
+    """What ``tagslam.yaml`` gives, if read."""
+
+    @classmethod
+    def read(cls, config: FrontendConfig, tagslam: bool = True) -> Rig:
+        """The files ``config`` names (errors name the file before the log is read).
+
+        Args:
+            tagslam: read ``tagslam.yaml`` too (the mount's pose needs it, its chain not).
+
+        Raises:
+            SettingsError: a file that cannot be read.
+        """
+        return cls(
+            config,
+            read_kalibr_cameras(config.kalibr_cameras) if config.kalibr_cameras else [],
+            read_camera_poses(config.camera_poses) if config.camera_poses else {},
+            read_tagslam(config.tagslam) if tagslam and config.tagslam else None,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class FoundCamera:
+    """A detection topic's intrinsics and where they come from."""
+
+    camera: Camera
+    """The intrinsics."""
+    source: str
+    """The camera_info topic, or ``<cameras.yaml>: <camera name>``."""
+    model_name: str
+    """The name the front end reads the model by (the message's distortion model)."""
+    kalibr_name: str | None = None
+    """The Kalibr camera's name, when from a ``cameras.yaml``."""
+
+
+@dataclass(frozen=True, slots=True)
+class FoundMount:
+    """A detection camera's mount on the odometry's body and where it comes from."""
+
+    T_body_optical: Pose3
+    """The optical frame (x right, y down, z forward) in the body's."""
+    from_static: bool
+    """From the static transforms (else from TagSLAM's camera poses)."""
+
+
+def find_camera(
+    topic: str, frame: str, rig: Rig, infos: dict[str, Any],
+    rejected: Callable[[str, str], None] | None = None,
+) -> FoundCamera | None:  # fmt: skip
+    """A detection topic's intrinsics: from the Kalibr file (by ``tagtopic``), else the first
+    camera_info message that gives a camera, by namespace, then by frame id.
+
+    Args:
+        infos: camera_info topic -> its first message.
+        rejected: called with (camera_info topic, why) for each message that gives no camera.
+    """
+    for entry in rig.kalibr:
+        if entry.tag_topic == topic:
+            source = f"{rig.config.kalibr_cameras}: {entry.name}"
+            return FoundCamera(entry.camera, source, entry.camera.model, entry.name)
+    namespace = topic.rsplit("/", 1)[0]
+    by_namespace = [t for t in infos if t.rsplit("/", 1)[0] == namespace]
+    by_frame = [t for t, info in infos.items() if frame_id(info) == frame]
+    for candidate in (*by_namespace, *by_frame):
+        try:
+            camera = Camera.from_camera_info(infos[candidate])
+        except ValueError as error:
+            if rejected is not None:
+                rejected(candidate, str(error))
+            continue
+        name = str(getattr(infos[candidate], "distortion_model", "") or "none")
+        return FoundCamera(camera, candidate, name)
+    return None
+
+
+def find_mount(
+    static: list[Any], bases: tuple[str | None, ...], frame: str, camera: FoundCamera | None,
+    rig: Rig,
+) -> tuple[FoundMount | None, str]:  # fmt: skip
+    """``T_body_optical`` of a camera: the static transforms' chain from the first of ``bases``
+    they reach, else TagSLAM's camera poses (by the Kalibr camera's name).
+
+    Returns:
+        The mount (None: neither gives it), and why the static transforms did not ("" if they
+        did or there are none).
+    """
+    why = ""
+    if static:
+        try:
+            R, t = transform_between(static, bases, frame)
+            return FoundMount(Pose3(R, t), from_static=True), ""
+        except LogError as error:
+            why = str(error)
+    name = camera.kalibr_name if camera is not None else None
+    if name is not None and name in rig.camera_poses:
+        T_rig_odom = (rig.tagslam and rig.tagslam.T_rig_odom) or Pose3.identity()
+        return FoundMount(T_rig_odom.inverse().compose(rig.camera_poses[name]), False), why
+    return None, why
+
+
+def no_camera_text(topic: str) -> str:
+    """Why a detection topic is left out: no intrinsics."""
+    return (
+        f"detections on {topic} left out: no camera intrinsics (no camera_info by "
+        "namespace or frame id, and no --cameras file naming it as tagtopic)"
+    )
+
+
+def no_mount_text(topic: str, frame: str) -> str:
+    """Why a detection topic is left out: no mount."""
+    return (
+        f"detections on {topic} left out: no mount for frame {frame!r} (not in "
+        "/tf_static, and no --camera-poses file naming the camera)"
+    )
 
 
 @dataclass
 class DetectionLog:
-    """What a detection log gave, before it becomes an ``Extraction``."""
+    """What a detection log gave, before it becomes an ``Extraction`` (filled as it is read)."""
 
     observations: list[Observation] = field(default_factory=list)
+    """Observations from the markers' full poses, in the level frame."""
     odometry: list[OdometrySample] = field(default_factory=list)
+    """2-D odometry, heading along the first camera's optical axis on the floor."""
     camera: Camera | None = None
+    """The first detection topic's camera that has a mount."""
     frames: int = 0
+    """Detection messages read."""
     skipped: Counter[str] = field(default_factory=Counter)
-    notes: list[str] = field(default_factory=list)
+    """Reason -> detection messages not observed for it."""
+    notes: list[Note] = field(default_factory=list)
+    """What the reading noticed and did about it."""
     warnings: list[str] = field(default_factory=list)
+    """Messages skipped as unreadable, one line per file and topic."""
     ids_left_out: Counter[int] = field(default_factory=Counter)
-    # marker id -> how its detections fared (a verdict's evidence; Extraction lacks the field)
+    """Marker id -> detections left out (not among the allowed ids)."""
     marker_detections: dict[int, MarkerDetections] = field(default_factory=dict)
+    """Marker id -> how its detections fared (a verdict's evidence; Extraction lacks it)."""
 
 
 @dataclass
@@ -75,11 +227,9 @@ class _Frame:
 
 
 class _Reader:
-    def __init__(
-        self, path: Path, config: FrontendConfig, choice: TopicChoice, topics: list[LogTopic]
-    ) -> None:
-        self.path, self.config, self.choice = path, config, choice
-        self.schemas = {t.topic: t.schema for t in topics}
+    def __init__(self, log: Log, config: FrontendConfig, choice: TopicChoice) -> None:
+        self.source, self.path, self.config, self.choice = log, log.path, config, choice
+        self.schemas = {t.topic: t.schema for t in log.topics}
         self.log = DetectionLog()
         self.failures = DecodeFailures()
         self.frames: list[_Frame] = []
@@ -87,16 +237,14 @@ class _Reader:
         self.poses: list[tuple[int, NDArray[np.float64], NDArray[np.float64]]] = []
         self.body_frame: str | None = None
         self.static: list[Any] = []
-        # The rig files, read once (errors name the file before the log is read).
-        self.kalibr = read_kalibr_cameras(config.kalibr_cameras) if config.kalibr_cameras else []
-        self.camera_poses = read_camera_poses(config.camera_poses) if config.camera_poses else {}
-        self.tagslam = read_tagslam(config.tagslam) if config.tagslam else None
+        self.rig = Rig.read(config)  # before the log is read: errors name the file
+        self.tagslam = self.rig.tagslam
 
     def read(self) -> DetectionLog:
         infos = [t for t, schema in self.schemas.items() if schema in CALIBRATION_SCHEMAS]
         wanted = [*self.choice.detections, *infos]
         wanted += [t for t in (self.choice.odom, self.choice.tf_static) if t]
-        for message in messages(self.path, wanted, self.failures):
+        for message in self.source.messages(wanted, self.failures):
             self._take(message)
         self.log.warnings = self.failures.warnings()
         views = self._views()
@@ -130,63 +278,41 @@ class _Reader:
 
     # --- cameras and mounts -------------------------------------------------------------------
 
-    def _camera_for(self, topic: str, frame: str) -> tuple[str | None, Camera | None]:
-        """(Kalibr camera name, intrinsics) of a detection topic."""
-        for entry in self.kalibr:
-            if entry.tag_topic == topic:
-                return entry.name, entry.camera
-        namespace = topic.rsplit("/", 1)[0]
-        by_namespace = [t for t in self.infos if t.rsplit("/", 1)[0] == namespace]
-        by_frame = [t for t, info in self.infos.items() if frame_id(info) == frame]
-        for candidate in (*by_namespace, *by_frame):
-            try:
-                return None, Camera.from_camera_info(self.infos[candidate])
-            except ValueError as error:
-                self.failures.add(self.path, candidate, str(error))
-        return None, None
-
-    def _mount_for(self, name: str | None, frame: str) -> Pose3 | None:
-        """``T_body_optical`` of a camera: /tf_static, else TagSLAM's camera poses."""
-        if self.static:
-            try:
-                R, t = transform_between(
-                    self.static, (self.body_frame, self.config.base_frame), frame
-                )
-                return Pose3(R, t)
-            except LogError as error:
-                self.log.notes.append(f"{error}; looking for the camera's pose in the settings")
-        if name is not None and name in self.camera_poses:
-            T_rig_odom = (self.tagslam and self.tagslam.T_rig_odom) or Pose3.identity()
-            return T_rig_odom.inverse().compose(self.camera_poses[name])
-        return None
-
     def _views(self) -> dict[str, tuple[Camera, Pose3]]:
         """Each detection topic's camera and mount; topics without either are left out."""
         views = {}
+        bases = (self.body_frame, self.config.base_frame)
         for topic in self.choice.detections:
             frame = next((f.frame_id for f in self.frames if f.topic == topic), "")
-            name, camera = self._camera_for(topic, frame)
+            camera = find_camera(topic, frame, self.rig, self.infos, self._rejected)
+            mount, why = None, ""
+            if camera is not None:
+                mount, why = find_mount(self.static, bases, frame, camera, self.rig)
+            if why:
+                self.log.notes.append(
+                    Note(
+                        "camera.mount_from_settings",
+                        f"{why}; looking for the camera's pose in the settings",
+                        topic,
+                    )
+                )
             if camera is None:
-                self.log.notes.append(
-                    f"detections on {topic} left out: no camera intrinsics (no camera_info by "
-                    "namespace or frame id, and no --cameras file naming it as tagtopic)"
-                )
-                continue
-            mount = self._mount_for(name, frame)
-            if mount is None:
-                self.log.notes.append(
-                    f"detections on {topic} left out: no mount for frame {frame!r} (not in "
-                    "/tf_static, and no --camera-poses file naming the camera)"
-                )
-                continue
-            views[topic] = (camera, mount)
+                self.log.notes.append(Note("detections.no_camera", no_camera_text(topic), topic))
+            elif mount is None:
+                text = no_mount_text(topic, frame)
+                self.log.notes.append(Note("detections.no_mount", text, topic))
+            else:
+                views[topic] = (camera.camera, mount.T_body_optical)
         if not views:
             raise LogError(
                 f"{self.path}: no detection topic has both its camera and its mount "
-                f"({'; '.join(self.log.notes[-len(self.choice.detections) :])})"
+                f"({'; '.join(n.text for n in self.log.notes[-len(self.choice.detections) :])})"
             )
         self.log.camera = next(iter(views.values()))[0]
         return views
+
+    def _rejected(self, topic: str, why: str) -> None:
+        self.failures.add(self.path, topic, why)
 
     # --- observations -------------------------------------------------------------------------
 
@@ -232,23 +358,25 @@ class _Reader:
             detections_by_topic[frame.topic] += len(detections)
             rewound_by_topic[frame.topic] += len(levelled.rewound)
         self.log.marker_detections = tally_detections(frames)
-        self.log.notes += drop_notes(self.log.marker_detections)
+        self.log.notes += [
+            Note("markers.detections_dropped", text)
+            for text in drop_notes(self.log.marker_detections)
+        ]
         for topic, rewound in rewound_by_topic.items():
             if rewound:
-                self.log.notes.append(
+                text = (
                     f"{rewound:,} of {detections_by_topic[topic]:,} detections on {topic} had "
                     "their corners wound the other way round (the tag would face away from the "
                     "camera, its yaw 180 deg off): read in reverse"
                 )
+                self.log.notes.append(Note("detections.rewound", text, topic, rewound))
 
 
-def read_detection_log(
-    path: Path, config: FrontendConfig, choice: TopicChoice, topics: list[LogTopic]
-) -> DetectionLog:
+def read_detection_log(log: Log, config: FrontendConfig, choice: TopicChoice) -> DetectionLog:
     """Observations and 2-D odometry from a log of marker detections.
 
     Raises:
         LogError: no detection topic has both a camera and a mount.
         SettingsError: a Kalibr, TagSLAM camera-poses or tagslam file that cannot be read.
     """
-    return _Reader(Path(path), config, choice, topics).read()
+    return _Reader(log, config, choice).read()

@@ -13,12 +13,14 @@ from numpy.typing import NDArray
 from markergraph.estimator.types import OdometrySample
 from markergraph.frontend.camera import CameraMount
 from markergraph.frontend.decode import stamp_ns
+from markergraph.frontend.logs.records import LogError
 from markergraph.frontend.ros2 import yaw_from_quaternion
-from markergraph.frontend.sources import LogError
 
 __all__ = [
+    "chain_between",
     "mount_from_transforms",
     "odometry_from_tf",
+    "parent_frame",
     "planar_pose",
     "rot_z",
     "rotation_of",
@@ -140,6 +142,38 @@ def transform_between(
             return tree.chain(candidate, frame)
         except LogError as error:
             errors.append(str(error))
+    raise LogError("; ".join(errors) or f"no base frame to join {frame} to")
+
+
+def parent_frame(transform: Any) -> str:
+    """A ROS ``TransformStamped``'s or a Foxglove ``FrameTransform``'s parent frame."""
+    if hasattr(transform, "transform"):
+        return str(transform.header.frame_id)
+    return str(transform.parent_frame_id)
+
+
+def chain_between(
+    transforms: list[Any], bases: Sequence[str | None], frame: str
+) -> tuple[str, ...]:
+    """The frames from the first of ``bases`` the static transforms join to ``frame``, base
+    first: the chain :func:`transform_between` composes.
+
+    Raises:
+        LogError: as :func:`transform_between`: not joined, a loop, or a value that is not a
+            transform.
+    """
+    errors = []
+    for base in dict.fromkeys(b for b in bases if b):
+        try:
+            transform_between(transforms, base, frame)
+        except LogError as error:
+            errors.append(str(error))
+            continue
+        parents = {str(t.child_frame_id): parent_frame(t) for t in transforms}  # the last wins
+        frames = [frame]
+        while frames[-1] != base:
+            frames.append(parents[frames[-1]])
+        return tuple(reversed(frames))
     raise LogError("; ".join(errors) or f"no base frame to join {frame} to")
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.detections import DETECTION_SCHEMAS
-from markergraph.frontend.sources import LogError, LogTopic
+from markergraph.frontend.logs.records import LogError, LogTopic
 
 __all__ = [
     "COLOR_TOPICS",
@@ -73,33 +73,14 @@ def choose_topics(path: Path, topics: list[LogTopic], config: FrontendConfig) ->
     """The colour, depth, camera info, odometry and tf_static topics to use.
 
     Raises:
-        LogError: a configured topic is not in the log.
+        LogError: a configured topic is not in the log or of the wrong type, or the depth
+            topic is the colour topic.
     """
     by_name = {t.topic: t for t in topics}
-    for role, name, schemas in (
-        ("--color-topic", config.color_topic, IMAGE_SCHEMAS),
-        ("--depth-topic", config.depth_topic, IMAGE_SCHEMAS),
-        ("--camera-info-topic", config.camera_info_topic, CALIBRATION_SCHEMAS),
-        ("--odom-topic", config.odom_topic, (*ODOMETRY_SCHEMAS, *TF_SCHEMAS)),
-    ):
-        if name is None:
-            continue
-        if name not in by_name:
-            raise LogError(f"{path}: no topic {name}; it has {', '.join(sorted(by_name))}")
-        if not by_name[name].schema.endswith(schemas):
-            raise LogError(
-                f"{path}: {role} {name} carries {by_name[name].schema or 'untyped messages'}, "
-                f"not {' or '.join(schemas)}"
-            )
+    _check_configured(path, by_name, config)
     images = [t.topic for t in topics if t.schema.endswith(IMAGE_SCHEMAS)]
-    color = config.color_topic or next((t for t in COLOR_TOPICS if t in by_name), None)
-    if color is None:
-        plain = [t for t in images if "depth" not in t.lower()]
-        color = plain[0] if plain else None
-    depth = config.depth_topic or next((t for t in DEPTH_TOPICS if t in by_name), None)
-    if depth is None:
-        depths = [t for t in images if "depth" in t.lower()]
-        depth = depths[0] if len(depths) == 1 else None
+    color = config.color_topic or _color_topic(by_name, images)
+    depth = config.depth_topic or _depth_topic(by_name, images)
     info = config.camera_info_topic or (_camera_info_for(color) if color else None)
     if info not in by_name:  # not beside the image: the colour camera's, else the only one
         infos = [
@@ -124,3 +105,44 @@ def choose_topics(path: Path, topics: list[LogTopic], config: FrontendConfig) ->
     if depth is not None and depth == color:
         raise LogError(f"{path}: the depth topic {depth} is the colour topic; pass --depth-topic")
     return TopicChoice(color, depth, info, odom, static, detections)
+
+
+def _check_configured(path: Path, by_name: dict[str, LogTopic], config: FrontendConfig) -> None:
+    """Each topic the settings name is in the log and carries a type its role reads.
+
+    Raises:
+        LogError: one is not, naming it.
+    """
+    for role, name, schemas in (
+        ("--color-topic", config.color_topic, IMAGE_SCHEMAS),
+        ("--depth-topic", config.depth_topic, IMAGE_SCHEMAS),
+        ("--camera-info-topic", config.camera_info_topic, CALIBRATION_SCHEMAS),
+        ("--odom-topic", config.odom_topic, (*ODOMETRY_SCHEMAS, *TF_SCHEMAS)),
+    ):
+        if name is None:
+            continue
+        if name not in by_name:
+            raise LogError(f"{path}: no topic {name}; it has {', '.join(sorted(by_name))}")
+        if not by_name[name].schema.endswith(schemas):
+            raise LogError(
+                f"{path}: {role} {name} carries {by_name[name].schema or 'untyped messages'}, "
+                f"not {' or '.join(schemas)}"
+            )
+
+
+def _color_topic(by_name: dict[str, LogTopic], images: list[str]) -> str | None:
+    """realsense-ros's colour topic, else the first image topic not named depth."""
+    color = next((t for t in COLOR_TOPICS if t in by_name), None)
+    if color is None:
+        plain = [t for t in images if "depth" not in t.lower()]
+        color = plain[0] if plain else None
+    return color
+
+
+def _depth_topic(by_name: dict[str, LogTopic], images: list[str]) -> str | None:
+    """realsense-ros's aligned depth topic, else the only image topic named depth."""
+    depth = next((t for t in DEPTH_TOPICS if t in by_name), None)
+    if depth is None:
+        depths = [t for t in images if "depth" in t.lower()]
+        depth = depths[0] if len(depths) == 1 else None
+    return depth

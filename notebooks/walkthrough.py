@@ -80,8 +80,8 @@ sh("markergraph info robot.mcap")
 from markergraph.frontend import (
     decode_depth,
     decode_image,
-    messages,
     mount_from_transforms,
+    open_log,
     transforms_of,
 )
 from markergraph.frontend.camera import Camera
@@ -91,15 +91,15 @@ from markergraph.frontend.observe import ObservationModel, observe_detections
 COLOR = "/camera/camera/color/image_raw/compressed"
 DEPTH = "/camera/camera/aligned_depth_to_color/image_raw"
 INFO = "/camera/camera/color/camera_info"
-log = Path("robot.mcap")
-camera = Camera.from_camera_info(next(iter(messages(log, [INFO]))).decoded)
-static = [t for m in messages(log, ["/tf_static"]) for t in transforms_of(m.decoded)]
+log = open_log(Path("robot.mcap"))
+camera = Camera.from_camera_info(next(iter(log.messages([INFO]))).decoded)
+static = [t for m in log.messages(["/tf_static"]) for t in transforms_of(m.decoded)]
 mount = mount_from_transforms(static, "base_link", "camera_color_optical_frame")
 print(camera)
 print(mount)
 
 colour, depth = {}, {}
-for message in messages(log, [COLOR, DEPTH]):
+for message in log.messages([COLOR, DEPTH]):
     stamp = message.decoded.header.stamp.sec * 10**9 + message.decoded.header.stamp.nanosec
     if message.topic == COLOR:
         colour[stamp] = message

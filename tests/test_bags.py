@@ -10,7 +10,7 @@ import pytest
 from mcap.reader import make_reader
 
 from markergraph.datasets import scenario, write_log
-from markergraph.frontend import FrontendConfig, extract, log_topics
+from markergraph.frontend import FrontendConfig, extract, open_log
 
 
 def as_sqlite_bag(mcap: Path, folder: Path) -> None:
@@ -43,7 +43,7 @@ def test_sqlite_bag_reads_like_its_mcap_twin(twins: tuple[Path, Path]) -> None:
     """Same topics with the same counts; the same observations and odometry, to the bit."""
     mcap, bag = twins
     assert (bag / "metadata.yaml").is_file() and any(bag.glob("*.db3"))
-    assert log_topics(bag) == log_topics(mcap)
+    assert open_log(bag).topics == open_log(mcap).topics
     config = FrontendConfig(allowed_ids=tuple(range(30)))
     from_bag, from_mcap = extract(bag, config), extract(mcap, config)
     assert from_bag.observations == from_mcap.observations and from_mcap.observations
@@ -60,7 +60,6 @@ def test_humble_bag_without_definitions_reads_the_detection_types(tmp_path: Path
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from markergraph.frontend import messages
     from markergraph.frontend.detections import DETECTION_DEFINITIONS, detections_of
 
     store = get_typestore(Stores.ROS2_HUMBLE)
@@ -99,7 +98,7 @@ def test_humble_bag_without_definitions_reads_the_detection_types(tmp_path: Path
 
     read = {
         m.topic: detections_of(m.decoded)
-        for m in messages(folder, ["/apriltag/detections", "/isaac/detections"])
+        for m in open_log(folder).messages(["/apriltag/detections", "/isaac/detections"])
     }
     assert [d.marker_id for d in read["/apriltag/detections"]] == [7]
     assert [d.marker_id for d in read["/isaac/detections"]] == [9]

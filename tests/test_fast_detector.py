@@ -14,7 +14,7 @@ import pytest
 from markergraph.datasets import scenario
 from markergraph.datasets.sensors import SensorEffects
 from markergraph.datasets.write import write_log
-from markergraph.frontend import FrontendConfig, decode_image, extract, messages
+from markergraph.frontend import FrontendConfig, decode_image, extract, open_log
 from markergraph.frontend.detect import Detection, Detector, DetectorMode, detection_agreement
 from markergraph.frontend.observe import SMALL_EDGE_PX
 
@@ -76,7 +76,7 @@ def rendered(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 def test_fast_keeps_full_detections_on_rendered_logs(rendered: dict[str, Path], name: str) -> None:
     """On rendered logs with small, grazing and smeared markers, the fast detector finds at
     least 99 % of what FULL finds, at a median corner distance under 0.05 px."""
-    frames = [decode_image(m) for m in messages(rendered[name], [COLOUR])]
+    frames = [decode_image(m) for m in open_log(rendered[name]).messages([COLOUR])]
     full, fast = Detector(mode=DetectorMode.FULL), Detector(mode=DetectorMode.FAST)
     reference = [full.detect(frame) for frame in frames]
     total, recall, median_px = agreement(reference, [fast.detect(frame) for frame in frames])

@@ -27,8 +27,7 @@ from markergraph.frontend import (
     LogError,
     decode_image,
     extract,
-    log_topics,
-    messages,
+    open_log,
 )
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import Detector
@@ -296,7 +295,7 @@ def test_tilted_base_is_levelled_with_the_odometrys_attitude(simulated, tmp_path
 def test_log_frames_are_all_accounted_for(simulated) -> None:
     """Every colour frame is read and paired with its depth; the mount comes from /tf_static."""
     for path, result in simulated:
-        counts = {t.topic: t.count for t in log_topics(path)}
+        counts = {t.topic: t.count for t in open_log(path).topics}
         assert result.frames == counts["/camera/camera/color/image_raw/compressed"]
         assert result.frames_with_depth == result.frames and not result.skipped
         assert result.mount.height_m == pytest.approx(0.6)
@@ -342,10 +341,10 @@ def test_shared_rosbag2_bags_read_with_their_counts_or_fail_clearly(folder: Path
             t["topic_metadata"]["name"]: t["message_count"]
             for t in info["topics_with_message_count"]
         }
-    names = [t.topic for t in log_topics(folder)]
+    names = [t.topic for t in open_log(folder).topics]
     try:
         decoded: dict[str, int] = {}
-        for message in messages(folder, names):
+        for message in open_log(folder).messages(names):
             decoded[message.topic] = decoded.get(message.topic, 0) + 1
     except LogError as error:
         assert "\n" not in str(error) and ".mcap" in str(error)
@@ -358,7 +357,8 @@ def test_shared_rosbag2_bags_read_with_their_counts_or_fail_clearly(folder: Path
 def test_real_ros2_images_decode() -> None:
     """A real rosbag2 recording's rgb8 Image and JPEG CompressedImage decode to 640x480 grey."""
     path = DATA / "mcap-rerun-fixtures" / "rosbag2_2025_09_10-13_03_56_0.mcap"
-    shapes = [decode_image(m).shape for m in messages(path, ["/image", "/compressed_image"])]
+    log = open_log(path)
+    shapes = [decode_image(m).shape for m in log.messages(["/image", "/compressed_image"])]
     assert shapes == [(480, 640), (480, 640)]
 
 
@@ -479,7 +479,7 @@ def to_foxglove(source: Path, target: Path) -> None:
     ]
     with open(target, "wb") as stream:
         writer = ProtobufWriter(stream)
-        for message in messages(source, topics):
+        for message in open_log(source).messages(topics):
             m = message.decoded
             if message.topic.endswith("compressed"):
                 out = CompressedImage(
@@ -570,7 +570,7 @@ def test_foxglove_pose_decodes_as_odometry() -> None:
     from markergraph.frontend import odometry_sample
 
     path = DATA / "mcap-rerun-fixtures" / "simple-protobuf.mcap"
-    (pose,) = [odometry_sample(m) for m in messages(path, ["pose"])]
+    (pose,) = [odometry_sample(m) for m in open_log(path).messages(["pose"])]
     assert math.isfinite(pose.x) and math.isfinite(pose.yaw)
 
 
@@ -613,7 +613,7 @@ def test_chunks_read_as_mcaps_own_reader_reads_them(
     the same topics, log times and bytes, in log-time order."""
     from mcap.reader import make_reader
 
-    from markergraph.frontend import sources
+    from markergraph.frontend.logs import chunks
 
     path = tmp_path / f"{compression}.mcap"
     copy_without(simulated[0][0], path, None, compression)
@@ -626,7 +626,7 @@ def test_chunks_read_as_mcaps_own_reader_reads_them(
         stream.seek(0)
         ours = [
             (c.topic, m.log_time, m.data)
-            for _, c, m in sources._raw_messages(path, stream, topics, None, None, None)
+            for _, c, m in chunks.raw_messages(path, stream, topics, None, None, None)
         ]
     assert len(ours) == len(theirs) > 1000
     assert sorted(ours) == sorted(theirs)
@@ -640,7 +640,7 @@ def test_shared_real_mcap_files_read_as_mcaps_own_reader_reads_them() -> None:
     mcap's own reader gives: the same topics, log times and bytes."""
     from mcap.reader import make_reader
 
-    from markergraph.frontend import sources
+    from markergraph.frontend.logs import chunks
 
     files = sorted(DATA.rglob("*.mcap"))
     assert len(files) >= 20
@@ -653,7 +653,7 @@ def test_shared_real_mcap_files_read_as_mcaps_own_reader_reads_them() -> None:
             stream.seek(0)
             ours = sorted(
                 (c.topic, m.log_time, m.data)
-                for _, c, m in sources._raw_messages(path, stream, topics, None, None, None)
+                for _, c, m in chunks.raw_messages(path, stream, topics, None, None, None)
             )
         assert ours == theirs, path
 
@@ -666,19 +666,19 @@ def test_a_record_past_its_chunk_is_damage() -> None:
     from mcap.exceptions import McapError
     from mcap.records import Chunk
 
-    from markergraph.frontend import sources
+    from markergraph.frontend.logs import chunks
 
     whole = struct.pack("<BQHIQQ", 0x05, 22 + 3, 1, 0, 5, 5) + b"abc"
     chunk = Chunk(
         compression="", data=whole, message_end_time=5, message_start_time=5,
         uncompressed_crc=0, uncompressed_size=len(whole),
     )  # fmt: skip
-    [message] = sources._chunk_messages(chunk, {1})
+    [message] = chunks.chunk_messages(chunk, {1})
     assert (message.channel_id, message.log_time, message.data) == (1, 5, b"abc")
-    assert sources._chunk_messages(chunk, {2}) == []
+    assert chunks.chunk_messages(chunk, {2}) == []
     cut = Chunk(**{**chunk.__dict__, "data": whole[:-1]})
     with pytest.raises(McapError, match="runs past its chunk"):
-        sources._chunk_messages(cut, {1})
+        chunks.chunk_messages(cut, {1})
 
 
 def test_tf_stands_in_for_missing_odometry(simulated, tmp_path: Path) -> None:
@@ -941,7 +941,7 @@ def test_read_ahead_yields_everything_raises_in_place_and_stops_early() -> None:
     thread ends."""
     import threading
 
-    from markergraph.frontend.sources import read_ahead
+    from markergraph.frontend.logs import read_ahead
 
     for n, size in ((1000, 8), (1001, 8), (3, 32), (0, 32), (77, 1)):  # whole and part batches
         assert list(read_ahead(iter(range(n)), size=size)) == list(range(n))

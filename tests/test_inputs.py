@@ -372,10 +372,11 @@ def test_tagslam_vio_republished_under_odom_is_visual_inertial(tmp_path: Path) -
     98 deg, height over 0.44 m in its first 600 samples at 25 Hz, a constant placeholder
     covariance), so the VIO model, whatever the name."""
     from markergraph.datasets.tagslam import unpacked
+    from markergraph.frontend import open_log
     from markergraph.frontend.odometry_kind import choose_odometry_source, odometry_evidence
 
     bag = unpacked(TAGSLAM / "test_21", "tag_detections", tmp_path)
-    evidence = odometry_evidence(bag, "/vio_node/odom")
+    evidence = odometry_evidence(open_log(bag), "/vio_node/odom")
     assert evidence is not None and evidence.samples == 600
     assert evidence.rate_hz == pytest.approx(24.8, abs=0.1)
     assert evidence.covariance == "constant"

@@ -29,12 +29,11 @@ from markergraph.estimator import (
     odometry_stretches,
 )
 from markergraph.estimator.closed_form import solve_closed_form
-from markergraph.frontend import messages
+from markergraph.frontend import open_log
 from markergraph.frontend.camera import Camera
 from markergraph.frontend.detections import DETECTION_DEFINITIONS
 from markergraph.frontend.rig import read_camera_poses, read_kalibr_cameras, read_tagslam
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, quaternion_from_matrix
-from markergraph.frontend.sources import log_topics
 from markergraph.frontend.tagged import DetectionLog, read_detection_log
 from markergraph.frontend.topics import choose_topics
 
@@ -94,8 +93,8 @@ def detection_log(test: str, bags: Path, **extra: Any) -> DetectionLog:
     """A recording's detections as the front end reads them, with each marker's counts."""
     log = unpacked(test, "tag_detections", bags)
     config = settings(test, **extra).frontend
-    topics = log_topics(log)
-    return read_detection_log(log, config, choose_topics(log, topics, config), topics)
+    opened = open_log(log)
+    return read_detection_log(opened, config, choose_topics(log, opened.topics, config))
 
 
 def test_stairs_recording_maps_to_tagslams_map(bags: Path) -> None:
@@ -239,7 +238,7 @@ def ros2_mcap_of_test_21(bag: Path, target: Path, clockwise: bool = False) -> No
         writer = Writer(stream)
         schemas = _test_21_schemas(writer)
         started = False
-        for message in messages(bag, ["/t265/fisheye1/tags", "/vio_node/odom"]):
+        for message in open_log(bag).messages(["/t265/fisheye1/tags", "/vio_node/odom"]):
             m, t_ns = message.decoded, message.log_time_ns
             stamp = {"sec": m.header.stamp.sec, "nanosec": m.header.stamp.nanosec}
             if not started:

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 
 from markergraph.datasets import scenario
 from markergraph.datasets.write import write_log
-from markergraph.frontend import FrontendConfig, extract, messages
+from markergraph.frontend import FrontendConfig, extract, open_log
 from markergraph.frontend.detect import Detection, Detector, DetectorMode, detection_agreement
 
 TOPIC = "/camera/camera/color/image_raw/compressed"
@@ -106,7 +106,7 @@ def main() -> None:
         path = Path(folder) / "office.mcap"
         world, route = scenario("office")
         write_log(world, route, path, seed=3, duration_s=180.0, compressed=True)
-        jpegs = [bytes(m.decoded.data) for m in messages(path, [TOPIC])]
+        jpegs = [bytes(m.decoded.data) for m in open_log(path).messages([TOPIC])]
         print_agreement(jpegs)
         rows = measure_rounds(path, jpegs, arguments.rounds)
         print_medians(rows)

@@ -12,37 +12,14 @@ then registered from :data:`~markergraph.frontend.detections.DETECTION_DEFINITIO
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from markergraph.frontend.detections import DETECTION_DEFINITIONS
-from markergraph.frontend.sources import DecodeFailures, LogError, LogTopic, Message
+from markergraph.frontend.logs.records import DecodeFailures, LogError, LogTopic, Message
 
-__all__ = ["ROS1_MAGIC", "is_bag", "log_time_range", "log_topics", "messages"]
-
-ROS1_MAGIC = b"#ROSBAG V2.0\n"
-
-
-def is_bag(path: Path) -> bool:
-    """A ROS 1 bag file, or a rosbag2 folder stored in SQLite."""
-    path = Path(path)
-    if path.is_file():
-        try:
-            with open(path, "rb") as stream:
-                return stream.read(len(ROS1_MAGIC)) == ROS1_MAGIC
-        except OSError:
-            return False
-    metadata = path / "metadata.yaml"
-    if path.is_dir() and metadata.is_file():
-        try:
-            document = yaml.safe_load(metadata.read_text(encoding="utf-8"))
-            storage = document["rosbag2_bagfile_information"]["storage_identifier"]
-        except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError):
-            return False  # the MCAP reader names what is wrong with it
-        return bool(storage == "sqlite3")
-    return False
+__all__ = ["BagSummary", "bag_messages", "bag_summary", "bag_topic_spans"]
 
 
 class _Bag:
@@ -97,8 +74,26 @@ class _Bag:
         return self.types.deserialize_cdr(raw, connection.msgtype)
 
 
-def log_topics(path: Path) -> list[LogTopic]:
-    """Every topic with its type and message count."""
+@dataclass(frozen=True)
+class BagSummary:
+    """What a bag's index says, read in one opening of it."""
+
+    topics: list[LogTopic]
+    """Every topic with its type and message count, by name."""
+    message_count: int
+    """Messages in all."""
+    start_ns: int
+    """The first message's time [ns]."""
+    end_ns: int
+    """The last message's time [ns]."""
+
+
+def bag_summary(path: Path) -> BagSummary:
+    """The topics, message count and time range of a bag.
+
+    Raises:
+        LogError: not a readable bag, or a type definition that cannot be parsed.
+    """
     bag = _Bag(path)
     try:
         counts: dict[str, LogTopic] = {}
@@ -109,23 +104,16 @@ def log_topics(path: Path) -> list[LogTopic]:
                 connection.msgtype,
                 connection.msgcount + (previous.count if previous else 0),
             )
-        return sorted(counts.values(), key=lambda t: t.topic)
+        topics = sorted(counts.values(), key=lambda t: t.topic)
+        count = int(bag.reader.message_count or 0)
+        if not count:
+            return BagSummary(topics, 0, 0, 0)
+        return BagSummary(topics, count, int(bag.reader.start_time), int(bag.reader.end_time) - 1)
     finally:
         bag.close()
 
 
-def log_time_range(path: Path) -> tuple[int, int]:
-    """The first and last message times [ns]."""
-    bag = _Bag(path)
-    try:
-        if not bag.reader.message_count:
-            raise LogError(f"{path}: no messages")
-        return int(bag.reader.start_time), int(bag.reader.end_time) - 1
-    finally:
-        bag.close()
-
-
-def messages(
+def bag_messages(
     path: Path,
     topics: list[str],
     failures: DecodeFailures | None,
@@ -133,7 +121,7 @@ def messages(
     end_ns: int | None,
 ) -> Iterator[Message]:
     """Decoded messages of the given topics in time order; see
-    :func:`markergraph.frontend.sources.messages`."""
+    :meth:`markergraph.frontend.logs.Log.messages`."""
     bag = _Bag(path)
     try:
         connections = [c for c in bag.reader.connections if c.topic in topics]
@@ -162,3 +150,35 @@ def messages(
             raise LogError(f"{path}: damaged ({type(error).__name__}: {error})") from error
     finally:
         bag.close()
+
+
+def bag_topic_spans(path: Path) -> list[tuple[str, int, int]]:
+    """Through ``rosbags``: a ROS 1 bag's index records, a SQLite bag's message stamps."""
+    try:
+        if path.is_file():
+            from rosbags.rosbag1 import Reader as Ros1Reader
+
+            reader: Any = Ros1Reader(path)
+        else:
+            from rosbags.rosbag2 import Reader as Ros2Reader
+
+            reader = Ros2Reader(path)
+        reader.open()
+    except Exception as error:  # rosbags raises ReaderError and friends
+        raise LogError(f"{path}: not a readable bag ({type(error).__name__}: {error})") from error
+    spans: dict[str, list[int]] = {}
+    try:
+        indexes = getattr(reader, "indexes", None)  # ROS 1: connection id -> index records
+        if isinstance(indexes, dict):
+            for connection in reader.connections:
+                times = [int(entry.time) for entry in indexes.get(connection.id, ())]
+                if times:
+                    spans.setdefault(connection.topic, []).extend((min(times), max(times)))
+        else:
+            for connection, t_ns, _ in reader.messages():
+                spans.setdefault(connection.topic, []).append(int(t_ns))
+    except Exception as error:  # a damaged bag: rosbags cannot go on past it
+        raise LogError(f"{path}: damaged ({type(error).__name__}: {error})") from error
+    finally:
+        reader.close()
+    return [(topic, min(times), max(times)) for topic, times in spans.items()]

@@ -1,0 +1,25 @@
+"""markergraph.frontend.logs: reading logs without ROS, through one handle per log.
+
+:func:`open_log` decides once what a path is (an ``.mcap`` file, a rosbag2 folder of MCAP or
+SQLite files, a ROS 1 ``.bag``), finds its files and reads each MCAP file's summary; the
+:class:`Log` it returns gives the topics, the time range, each topic's times and the decoded
+messages. Modules: ``files`` (the kind and the files), ``mcap`` and ``chunks`` (MCAP, chunk by
+chunk), ``times`` (topic times from MCAP indexes), ``bags`` (ROS 1 and SQLite through
+``rosbags``), ``cdr`` (fast readers of a few ROS 2 types), ``ahead`` (reading in a thread).
+"""
+
+from markergraph.frontend.logs.ahead import read_ahead
+from markergraph.frontend.logs.files import LogKind
+from markergraph.frontend.logs.log import Log, open_log
+from markergraph.frontend.logs.records import DecodeFailures, LogError, LogTopic, Message
+
+__all__ = [
+    "DecodeFailures",
+    "Log",
+    "LogError",
+    "LogKind",
+    "LogTopic",
+    "Message",
+    "open_log",
+    "read_ahead",
+]

@@ -1,0 +1,168 @@
+"""An MCAP file's messages read chunk by chunk through its summary's chunk index, so that a chunk
+that does not decompress or parse costs only its own messages, not the rest of the file."""
+
+from __future__ import annotations
+
+import heapq
+import struct
+from collections import Counter
+from collections.abc import Collection, Iterator
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import lz4.frame
+import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Chunk, MessageIndex
+from mcap.records import Message as McapMessage
+
+from markergraph.frontend.logs.records import DecodeFailures, LogError, why
+
+__all__ = ["DAMAGE", "chunk_messages", "indexed_counts", "raw_messages", "summary_records"]
+
+# What a damaged chunk raises: the record parser's errors, and the decompressors' own types.
+DAMAGE = (McapError, EOFError, struct.error, ValueError, zstandard.ZstdError, RuntimeError)
+
+
+def raw_messages(
+    file: Path,
+    stream: BinaryIO,
+    topics: list[str],
+    start_ns: int | None,
+    end_ns: int | None,
+    failures: DecodeFailures | None,
+) -> Iterator[tuple[Any, Any, Any]]:
+    """(schema, channel, message) records of an open MCAP file in log-time order, its summary
+    read here (:func:`summary_records` takes one read before)."""
+    try:
+        summary = make_reader(stream).get_summary()
+    except (*DAMAGE, OSError) as error:
+        raise LogError(f"{file}: not a complete MCAP file ({why(error)})") from error
+    yield from summary_records(file, stream, summary, topics, start_ns, end_ns, failures)
+
+
+def summary_records(
+    file: Path,
+    stream: BinaryIO,
+    summary: Any,
+    topics: list[str],
+    start_ns: int | None,
+    end_ns: int | None,
+    failures: DecodeFailures | None,
+) -> Iterator[tuple[Any, Any, Any]]:
+    """(schema, channel, message) records in log-time order, read chunk by chunk through the
+    summary's chunk index, so that a chunk that does not decompress or parse costs only its own
+    messages. The chunks are merged as mcap's own reader merges them (by log time).
+
+    Args:
+        summary: the file's summary (None: it has none, and is read linearly by mcap).
+    """
+    if summary is None or not summary.chunk_indexes:  # unindexed: mcap reads it linearly
+        try:
+            yield from make_reader(stream).iter_messages(
+                topics=topics, start_time=start_ns, end_time=end_ns, log_time_order=True
+            )
+        except DAMAGE as error:
+            raise LogError(f"{file}: damaged ({why(error)})") from error
+        return
+    wanted = {cid for cid, channel in summary.channels.items() if channel.topic in topics}
+    chunks = sorted(
+        (
+            c
+            for c in summary.chunk_indexes
+            if (start_ns is None or c.message_end_time >= start_ns)
+            and (end_ns is None or c.message_start_time < end_ns)
+            and (not c.message_index_offsets or wanted & set(c.message_index_offsets))
+        ),
+        key=lambda c: (c.message_start_time, c.chunk_start_offset),
+    )
+    pending: list[tuple[int, int, int, Any]] = []  # (log time, chunk, index, message)
+    next_chunk = 0
+    while next_chunk < len(chunks) or pending:
+        # A chunk is opened once no pending message can come after its first one.
+        while next_chunk < len(chunks) and (
+            not pending or chunks[next_chunk].message_start_time <= pending[0][0]
+        ):
+            index = chunks[next_chunk]
+            try:
+                stream.seek(index.chunk_start_offset + 1 + 8)
+                records = chunk_messages(Chunk.read(ReadDataStream(stream)), wanted)
+            except DAMAGE as error:
+                if failures is None:
+                    raise LogError(f"{file}: damaged chunk ({why(error)})") from error
+                for topic, n in indexed_counts(stream, summary, index, wanted).items():
+                    failures.add(file, topic, f"a damaged chunk: {why(error)}", n)
+                records = []
+            for position, record in enumerate(records):
+                if (start_ns is None or record.log_time >= start_ns) and (
+                    end_ns is None or record.log_time < end_ns
+                ):
+                    heapq.heappush(pending, (record.log_time, next_chunk, position, record))
+            next_chunk += 1
+        if pending:
+            record = heapq.heappop(pending)[3]
+            channel = summary.channels[record.channel_id]
+            yield summary.schemas.get(channel.schema_id), channel, record
+
+
+_RECORD = struct.Struct("<BQ")  # opcode, content length
+_MESSAGE = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
+_MESSAGE_OPCODE = 0x05
+
+
+def chunk_messages(chunk: Chunk, wanted: Collection[int]) -> list[McapMessage]:
+    """The messages of the wanted channels in a chunk, in the chunk's order.
+
+    mcap's ``breakup_chunk`` parses every record through a stream object: on a robot's log
+    (ten messages a frame, raw depth) that cost 0.6 ms a frame of Python holding the GIL,
+    more than zstd's decompression (which releases it); this reads the records in place, about
+    18x cheaper (0.09 s against 1.6 s over bench_frontend's 1,351 chunks). Other records
+    (schemas and channels repeated in chunks) are passed over: the summary's are used.
+
+    Raises:
+        McapError: a compression this reader lacks, or a record running past the chunk.
+        zstandard.ZstdError, RuntimeError (lz4), struct.error: damaged data.
+    """
+    if chunk.compression == "zstd":
+        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+    elif chunk.compression == "lz4":
+        data = lz4.frame.decompress(chunk.data)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        raise McapError(f"unsupported chunk compression {chunk.compression!r}")
+    found, position, size = [], 0, len(data)
+    while position < size:
+        opcode, length = _RECORD.unpack_from(data, position)
+        start, position = position + _RECORD.size, position + _RECORD.size + length
+        if position > size:
+            raise McapError(f"a record of {length} bytes runs past its chunk")
+        if opcode != _MESSAGE_OPCODE:
+            continue
+        if length < _MESSAGE.size:
+            raise McapError(f"a message record of {length} bytes")
+        channel, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, start)
+        if channel in wanted:
+            found.append(
+                McapMessage(channel, log_time, data[start + _MESSAGE.size : position],
+                            publish_time, sequence)
+            )  # fmt: skip
+    return found
+
+
+def indexed_counts(stream: BinaryIO, summary: Any, index: Any, wanted: set[int]) -> Counter[str]:
+    """How many messages of each wanted topic a chunk held, from its message indexes (which
+    lie outside the chunk's compressed data); empty where they cannot be read."""
+    counts: Counter[str] = Counter()
+    for channel_id, offset in index.message_index_offsets.items():
+        if channel_id not in wanted:
+            continue
+        try:
+            stream.seek(offset + 1 + 8)
+            entries = MessageIndex.read(ReadDataStream(stream)).records
+        except DAMAGE:
+            continue
+        counts[summary.channels[channel_id].topic] += len(entries)
+    return counts

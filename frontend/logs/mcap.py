@@ -1,0 +1,179 @@
+"""MCAP logs (one ``.mcap`` file or a rosbag2 folder of them): each file's summary read once,
+and from it the topics, the time range and the decoded messages."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.summary import Summary
+from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
+from mcap_ros2.decoder import DecoderFactory
+
+from markergraph.frontend.logs.cdr import FAST_DECODERS
+from markergraph.frontend.logs.chunks import DAMAGE, summary_records
+from markergraph.frontend.logs.files import MCAP_MAGIC
+from markergraph.frontend.logs.records import DecodeFailures, LogError, LogTopic, Message, why
+
+__all__ = ["McapFile", "mcap_messages", "mcap_time_range", "mcap_topics", "open_mcap_file"]
+
+# What reading a summary raises that says the file is incomplete (truncated, being written).
+_INCOMPLETE = (McapError, ValueError, EOFError, OSError)
+
+
+@dataclass(frozen=True, eq=False)
+class McapFile:
+    """One MCAP file of a log and its summary, read once when the log is opened."""
+
+    path: Path
+    """The file."""
+    summary: Summary | None
+    """Its summary section; None when it has none or it could not be read."""
+    error: BaseException | None = None
+    """Why the summary could not be read (raised, as a :class:`LogError`, where it is needed)."""
+
+    def complete_summary(self) -> Summary:
+        """The summary, with its statistics.
+
+        Raises:
+            LogError: an incomplete file, or one without a summary or statistics.
+        """
+        if isinstance(self.error, _INCOMPLETE):
+            raise LogError(
+                f"{self.path}: not a complete MCAP file (truncated, or still being written): "
+                f"{self.error}"
+            ) from self.error
+        if self.error is not None:
+            raise self.error
+        if self.summary is None or self.summary.statistics is None:
+            raise LogError(f"{self.path}: no summary section (a truncated or unfinished recording)")
+        return self.summary
+
+
+def open_mcap_file(file: Path) -> McapFile:
+    """A file's magic checked and its summary read, in one opening of it.
+
+    Raises:
+        LogError: it cannot be read, or it is not an MCAP file.
+    """
+    try:
+        with open(file, "rb") as stream:
+            if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                raise LogError(f"{file}: not an MCAP file")
+            stream.seek(0)
+            try:
+                return McapFile(file, make_reader(stream).get_summary())
+            except (*DAMAGE, OSError) as error:  # raised where the summary is needed
+                return McapFile(file, None, error)
+    except OSError as error:
+        raise LogError(f"{file}: cannot read it ({error.strerror})") from None
+
+
+def mcap_topics(files: tuple[McapFile, ...]) -> list[LogTopic]:
+    """Every topic with its type and message count, over all the files.
+
+    Raises:
+        LogError: a file without a complete summary.
+    """
+    counts: dict[str, LogTopic] = {}
+    for file in files:
+        summary = file.complete_summary()
+        assert summary.statistics is not None  # for the type checker: complete_summary says so
+        for channel in summary.channels.values():
+            schema = summary.schemas.get(channel.schema_id)
+            n = summary.statistics.channel_message_counts.get(channel.id, 0)
+            previous = counts.get(channel.topic)
+            counts[channel.topic] = LogTopic(
+                channel.topic,
+                schema.name if schema else "",
+                n + (previous.count if previous else 0),
+            )
+    return sorted(counts.values(), key=lambda t: t.topic)
+
+
+def mcap_time_range(path: Path, files: tuple[McapFile, ...]) -> tuple[int, int]:
+    """The first and last message log times over all the files [ns].
+
+    Raises:
+        LogError: a file without a complete summary, or no messages in any.
+    """
+    first, last = None, None
+    for file in files:
+        statistics = file.complete_summary().statistics
+        if statistics is not None and statistics.message_count:
+            start, end = statistics.message_start_time, statistics.message_end_time
+            first = start if first is None else min(first, start)
+            last = end if last is None else max(last, end)
+    if first is None or last is None:
+        raise LogError(f"{path}: no messages")
+    return int(first), int(last)
+
+
+def mcap_messages(
+    files: tuple[McapFile, ...],
+    topics: list[str],
+    failures: DecodeFailures | None = None,
+    start_ns: int | None = None,
+    end_ns: int | None = None,
+) -> Iterator[Message]:
+    """Decoded messages of the given topics, file after file, in log-time order within each;
+    see :meth:`markergraph.frontend.logs.Log.messages`."""
+    factory = DecoderFactory()
+    for file in files:
+        if file.error is not None:
+            raise LogError(
+                f"{file.path}: not a complete MCAP file ({why(file.error)})"
+            ) from file.error
+        with open(file.path, "rb") as stream:
+            decoders: dict[int, Callable[[bytes], Any]] = {}
+            for schema, channel, message in summary_records(
+                file.path, stream, file.summary, topics, start_ns, end_ns, failures
+            ):
+                decode = decoders.get(channel.id)
+                if decode is None:
+                    decode = _decoder_for(file.path, channel, schema, factory)
+                    decoders[channel.id] = decode
+                try:
+                    decoded = decode(message.data)
+                except Exception as error:  # decoders raise types of their own
+                    if failures is None:
+                        raise LogError(
+                            f"{file.path}: cannot decode a message on {channel.topic} "
+                            f"({why(error)})"
+                        ) from error
+                    failures.add(file.path, channel.topic, why(error))
+                    continue
+                yield Message(
+                    channel.topic, schema.name if schema else "", message.log_time, decoded
+                )
+
+
+def _decoder_for(
+    file: Path, channel: Any, schema: Any, factory: DecoderFactory
+) -> Callable[[bytes], Any]:
+    """The fast reader for the channel's type if there is one, else mcap-ros2-support's."""
+    if channel.message_encoding not in ("cdr", "protobuf"):
+        raise LogError(
+            f"{file}: topic {channel.topic} has message encoding "
+            f"{channel.message_encoding!r}; ROS 2 CDR and protobuf are read"
+        )
+    if channel.message_encoding == "cdr" and schema is not None and schema.name in FAST_DECODERS:
+        return FAST_DECODERS[schema.name]
+    chosen = factory if channel.message_encoding == "cdr" else ProtobufDecoderFactory()
+    try:
+        decoder = chosen.decoder_for(channel.message_encoding, schema)
+    except Exception as error:  # the vendored rosidl parser raises its own types
+        raise LogError(
+            f"{file}: topic {channel.topic} has a schema that cannot be parsed "
+            f"({type(error).__name__}: {error})"
+        ) from error
+    if decoder is None:
+        raise LogError(
+            f"{file}: no decoder for topic {channel.topic} "
+            f"(schema {schema.name if schema else None!r})"
+        )
+    return decoder

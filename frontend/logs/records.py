@@ -1,0 +1,73 @@
+"""What reading a log gives and raises: its topics, its decoded messages, the messages skipped,
+and the error that names what cannot be read."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from markergraph.common.errors import MarkerGraphError
+
+__all__ = ["DecodeFailures", "LogError", "LogTopic", "Message", "why"]
+
+
+class LogError(MarkerGraphError):
+    """A log that cannot be read, or a message that cannot be decoded; the message names it."""
+
+
+@dataclass(frozen=True)
+class LogTopic:
+    """One topic of a log: its name, message type and number of messages."""
+
+    topic: str
+    """The topic's name."""
+    schema: str
+    """Its message type (``sensor_msgs/msg/Image``); "" where the log gives none."""
+    count: int
+    """Its number of messages, over all the log's files."""
+
+
+@dataclass(frozen=True)
+class Message:
+    """A decoded message with where it came from."""
+
+    topic: str
+    """The topic it was logged on."""
+    schema: str
+    """Its message type."""
+    log_time_ns: int
+    """When it was logged [ns]."""
+    decoded: Any
+    """The message itself (attribute access by its ROS or protobuf field names)."""
+
+
+@dataclass
+class DecodeFailures:
+    """Messages that could not be read and were skipped: (file, topic) -> count, and the first
+    reason of each, for one warning line apiece."""
+
+    counts: Counter[tuple[str, str]] = field(default_factory=Counter)
+    """(file, topic) -> messages skipped."""
+    first_error: dict[tuple[str, str], str] = field(default_factory=dict)
+    """(file, topic) -> why the first of them was."""
+
+    def add(self, file: Path, topic: str, reason: str, n: int = 1) -> None:
+        """Count ``n`` skipped messages of ``topic`` in ``file``, for ``reason``."""
+        key = (str(file), topic)
+        self.counts[key] += n
+        self.first_error.setdefault(key, reason)
+
+    def warnings(self) -> list[str]:
+        """One line per (file, topic): how many were skipped, and the first reason."""
+        return [
+            f"{file}: skipped {n} unreadable message(s) on {topic} "
+            f"({self.first_error[(file, topic)]})"
+            for (file, topic), n in sorted(self.counts.items())
+        ]
+
+
+def why(error: BaseException) -> str:
+    """An error as a reason in a message: its type and its text."""
+    return f"{type(error).__name__}: {error}"
