@@ -37,8 +37,9 @@ from markergraph.estimator import (
     trajectory_error,
     widened_for_motion,
 )
-from markergraph.frontend import Extraction, extract
+from markergraph.frontend import Extraction, MarkerSizes, extract
 from markergraph.markermap import MarkerMap
+from markergraph.sections import Shutter
 from markergraph.settings import MapConfig
 from markergraph.verdicts import Judgement, Verdict, judge_run
 
@@ -168,14 +169,12 @@ def marker_map_of(
 ) -> MarkerMap:
     """An estimate's marker map with the settings' dictionary and the marker sides used: the
     extraction's where given (depth may have measured them), else the settings'."""
-    frontend = config.frontend
-    size_m, sizes_m = frontend.marker_length_m, frontend.marker_lengths_m
+    sizes = config.marker_sizes
     if extraction is not None and extraction.marker_size_m_used:
-        size_m, sizes_m = extraction.marker_size_m_used, extraction.marker_sizes_m_used
+        sizes = MarkerSizes(extraction.marker_size_m_used, extraction.marker_sizes_m_used)
     return MarkerMap.from_estimate(
-        estimate, log=log, dictionary=frontend.dictionary, marker_size_m=size_m,
-        marker_sizes_m=sizes_m, heights=heights,
-    )  # fmt: skip
+        estimate, log=log, dictionary=config.dictionary, marker_sizes=sizes, heights=heights
+    )
 
 
 def _score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory | None) -> None:
@@ -215,20 +214,20 @@ def _timed(
     """The observations at their capture times (the camera's delay, chosen by the residuals
     unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked,
     for the shutter instead; and the camera's delay used [ns]."""
-    v = config.values
+    camera = config.camera
     observations = extraction.observations
-    readout_ns = round(v["camera.readout_ms"] * 1e6)
+    readout_ns = camera.readout_ns
     height = extraction.camera.height if extraction.camera is not None else 0
-    window_s = v["camera.exposure_ms"] * 1e-3
-    if v["camera.shutter"] == "widen":
+    window_s = camera.exposure_s
+    if camera.shutter is Shutter.WIDEN:
         window_s += readout_ns * 1e-9
         readout_ns = 0
     if window_s > 0:
         observations = widened_for_motion(observations, extraction.odometry, window_s)
-    if v["camera.delay_ms"] is None:
+    if camera.delay_ns is None:
         mount = extraction.mount.T_base_camera
         inputs = SlamInputs(
-            observations, extraction.odometry, home_id, mount, noise, breaks, config.robust
+            observations, extraction.odometry, home_id, mount, noise, breaks, config.noise.robust
         )
         chosen = camera_delay_by_residuals(inputs, readout_ns=readout_ns, image_height=height)
         if chosen.delay_ns is None:
@@ -244,7 +243,7 @@ def _timed(
                 "(chosen by SLAM's residuals over -50..+100 ms; --camera-delay sets it)"
             )
     else:
-        delay_ns = round(v["camera.delay_ms"] * 1e6)
+        delay_ns = camera.delay_ns
     return retimed(observations, delay_ns, readout_ns, height), delay_ns
 
 
@@ -265,7 +264,7 @@ def prepare(
     if not extraction.observations:
         left_out = sorted(extraction.ids_left_out)
         raise MarkerGraphError(
-            f"{log}: no markers of {config.frontend.dictionary} were found in "
+            f"{log}: no markers of {config.dictionary} were found in "
             f"{extraction.frames} frames"
             + (
                 f" (markers {', '.join(map(str, left_out))} were seen but are not in --ids)"
@@ -306,7 +305,7 @@ def prepare(
         f"{math.degrees(odometry_noise.yaw_per_rad):.2f} deg per sqrt(rad) turned): {why}"
     )
     breaks = [t for t, _ in jumps]
-    if config.values["camera.delay_ms"] is None:
+    if config.camera.delay_ns is None:
         stage("choosing the camera's delay by SLAM's residuals")
     observations, delay_ns = _timed(extraction, config, odometry_noise, breaks, home_id)
     scale = _odometry_scale(
@@ -333,13 +332,13 @@ def _odometry_scale(
 ) -> float:
     """The factor the odometry's distances are multiplied by: as set, or chosen by SLAM's
     residuals (1 where they have no minimum), and said in the notes."""
-    configured = config.values["odometry.scale"]
+    configured = config.odometry.scale
     if configured is not None:
         return float(configured)
     stage("choosing the odometry's scale by SLAM's residuals")
     found = odometry_scale_by_residuals(
         SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
-                   noise, breaks, config.robust)
+                   noise, breaks, config.noise.robust)
     )  # fmt: skip
     topic = extraction.topics.odom
     if found.chosen is None:
@@ -394,7 +393,7 @@ def map_log(
         try:
             estimate = estimate_frames(
                 frames, method, extraction.mount.T_base_camera, form=Form.SIGNED,
-                robust=config.robust,
+                robust=config.noise.robust,
             )  # fmt: skip
         except EstimationError as error:
             raise EstimationError(f"{log}: {method.value}: {error}") from None

@@ -143,7 +143,7 @@ def map_logs(
     for method in methods:
         stage(f"estimating: {method.value} over every log")
         start = time.perf_counter()
-        solved = solve_sessions(frames, mounts, robust=config.robust, priors=priors,
+        solved = solve_sessions(frames, mounts, robust=config.noise.robust, priors=priors,
                                 home_id=config.home_id, method=method)  # fmt: skip
         seconds[method.value] = time.perf_counter() - start
         first_solved = first_solved or solved
@@ -181,7 +181,7 @@ def _separate(
     maps = []
     while apart:
         solved = solve_sessions([frames[i] for i in apart], [mounts[i] for i in apart],
-                                robust=config.robust)  # fmt: skip
+                                robust=config.noise.robust)  # fmt: skip
         placed = [apart[j] for j, t in enumerate(solved.trajectories) if t is not None]
         estimate = _as_estimate(solved, Method.SLAM, frames[placed[0]].home_id)
         group = [Path(logs[i]) for i in placed]
@@ -281,7 +281,9 @@ def localize_log(
     notes = list(extraction.notes)
     priors = priors_of(saved, notes)
     stage("localising against the saved map")
-    localization = localize(frames, extraction.mount.T_base_camera, priors, robust=config.robust)
+    localization = localize(
+        frames, extraction.mount.T_base_camera, priors, robust=config.noise.robust
+    )
     for m in localization.moved:
         notes.append(
             f"marker {m.marker_id} moved {100 * m.displacement_m:.1f} cm since the map was made "

@@ -12,6 +12,7 @@ from markergraph.frontend.decode import decode_depth, decode_image, odometry_sam
 from markergraph.frontend.detect import Detection, Detector, load_dictionary
 from markergraph.frontend.observe import DepthModel, ObservationModel, observe, observe_detections
 from markergraph.frontend.pipeline import Extraction, extract
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.sources import LogError, LogTopic, Message, log_topics, messages
 from markergraph.frontend.tf import mount_from_transforms, odometry_from_tf, transforms_of
 from markergraph.frontend.topics import TopicChoice, choose_topics
@@ -27,6 +28,7 @@ __all__ = [
     "FrontendConfig",
     "LogError",
     "LogTopic",
+    "MarkerSizes",
     "Message",
     "ObservationModel",
     "TopicChoice",
