@@ -15,7 +15,7 @@ __all__ = [
     "count",
     "count_or_auto",
     "frame_name",
-    "marker_id",
+    "marker_id_of",
     "marker_ids",
     "nonempty",
     "optional",
@@ -58,12 +58,14 @@ SIDE_M = bounded(0.001, 10.0)  # a marker's side [m]
 
 
 def count(value: Any) -> int:
+    """A whole number of at least 1."""
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise SettingsError(f"must be a whole number of at least 1, got {value!r}")
     return value
 
 
 def count_or_auto(value: Any) -> int | None:
+    """A count, or None for ``auto``."""
     if value is None or value == "auto":
         return None
     if isinstance(value, str) and value.isdigit():
@@ -71,7 +73,8 @@ def count_or_auto(value: Any) -> int | None:
     return count(value)
 
 
-def marker_id(value: Any) -> int:
+def marker_id_of(value: Any) -> int:
+    """A marker id: a whole number >= 0 (from a file's table key, text too)."""
     if isinstance(value, str) and value.strip().isdigit():
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
@@ -80,25 +83,29 @@ def marker_id(value: Any) -> int:
 
 
 def optional_id(value: Any) -> int | None:
-    return None if value is None else marker_id(value)
+    """A marker id, or None."""
+    return None if value is None else marker_id_of(value)
 
 
 def nonempty(value: Any) -> str:
+    """A non-empty string."""
     if not isinstance(value, str) or not value:
         raise SettingsError(f"must be a non-empty string, got {value!r}")
     return value
 
 
 def optional_text(value: Any) -> str | None:
+    """A non-empty string, or None."""
     return None if value is None else nonempty(value)
 
 
 def marker_ids(value: Any) -> tuple[int, ...] | None:
+    """A non-empty list of marker ids, sorted without repeats; or None."""
     if value is None:
         return None
     if not isinstance(value, (list, tuple)) or not value:
         raise SettingsError(f"must be a list of marker ids, got {value!r}")
-    return tuple(sorted({marker_id(v) for v in value}))
+    return tuple(sorted({marker_id_of(v) for v in value}))
 
 
 def sizes_by_id(value: Any) -> dict[int, float]:
@@ -114,10 +121,12 @@ def sizes_by_id(value: Any) -> dict[int, float]:
         value = pairs
     if not isinstance(value, Mapping):
         raise SettingsError(f"must be a table of marker id = side in metres, got {value!r}")
-    return {marker_id(k): SIDE_M(v) for k, v in value.items()}
+    return {marker_id_of(k): SIDE_M(v) for k, v in value.items()}
 
 
 def optional(parse: Callable[[Any], float]) -> Callable[[Any], float | None]:
+    """``parse``, letting None through."""
+
     def parse_optional(value: Any) -> float | None:
         return None if value is None else parse(value)
 
@@ -125,6 +134,7 @@ def optional(parse: Callable[[Any], float]) -> Callable[[Any], float | None]:
 
 
 def scale_or_auto(value: Any) -> float | None:
+    """A scale in [0.5, 2], or None for ``auto``."""
     # None is "auto" parsed: parsing a parsed value gives it back. A flag's number is text.
     if value is None or value == "auto":
         return None
@@ -137,6 +147,7 @@ def scale_or_auto(value: Any) -> float | None:
 
 
 def frame_name(value: Any) -> str:
+    """A TF frame name: no leading ``/``, no spaces."""
     name = nonempty(value)
     if not name or name.startswith("/") or any(c.isspace() for c in name):
         raise SettingsError(f"must be a TF frame name (no leading '/', no spaces), got {name!r}")
