@@ -37,7 +37,7 @@ from markergraph.estimator import (
     trajectory_error,
     widened_for_motion,
 )
-from markergraph.frontend import Extraction, MarkerSizes, extract
+from markergraph.frontend import Extraction, extract
 from markergraph.markermap import MarkerMap
 from markergraph.sections import Shutter
 from markergraph.settings import MapConfig
@@ -170,8 +170,8 @@ def marker_map_of(
     """An estimate's marker map with the settings' dictionary and the marker sides used: the
     extraction's where given (depth may have measured them), else the settings'."""
     sizes = config.marker_sizes
-    if extraction is not None and extraction.marker_size_m_used:
-        sizes = MarkerSizes(extraction.marker_size_m_used, extraction.marker_sizes_m_used)
+    if extraction is not None and extraction.marker_sizes_used is not None:
+        sizes = extraction.marker_sizes_used
     return MarkerMap.from_estimate(
         estimate, log=log, dictionary=config.dictionary, marker_sizes=sizes, heights=heights
     )

@@ -118,8 +118,8 @@ class Extraction:
             ranges from depth are divided by it.
         measured_depth_scale: what the markers' known size measured it to be, if enough
             markers were seen with depth.
-        marker_size_m_used: the markers' size the observations were made with [m];
-            marker_sizes_m_used: markers of their own size, by id [m].
+        marker_sizes_used: the markers' sizes the observations were made with, None until
+            :func:`extract` sets them [m].
         marker_size_m_by_depth: the markers' size depth measures (the given size times
             ``marker_size_ratio_by_depth`` where that clearly disagrees; see
             :mod:`~markergraph.frontend.marker_size`), None without enough depth [m];
@@ -170,8 +170,7 @@ class Extraction:
     camera_infos_judged: int = 0
     camera_infos_set_aside: int = 0
     camera_info_reasons: dict[str, int] = field(default_factory=dict)
-    marker_size_m_used: float = 0.0
-    marker_sizes_m_used: dict[int, float] = field(default_factory=dict)
+    marker_sizes_used: MarkerSizes | None = None
     marker_size_m_by_depth: float | None = None
     marker_sizes_m_by_depth: dict[int, float] = field(default_factory=dict)
     marker_size_ratio_by_depth: float | None = None
@@ -182,6 +181,8 @@ class Extraction:
         """What the front end judged of its inputs, JSON-ready (report.json's ``inputs``): what
         it set aside and what it measured, for a verdict to weigh."""
         evidence = self.odometry_evidence
+        used = self.marker_sizes_used
+        used_by_id = used.by_id if used is not None else {}
         return {
             "dropped_odometry_samples": self.dropped_odometry_samples,
             "worst_odometry_stamp_offset_s": self.worst_odometry_stamp_offset_s,
@@ -189,8 +190,8 @@ class Extraction:
             "camera_infos_judged": self.camera_infos_judged,
             "camera_infos_set_aside": self.camera_infos_set_aside,
             "camera_info_reasons": dict(self.camera_info_reasons),
-            "marker_size_m_used": self.marker_size_m_used,
-            "marker_sizes_m_used": {str(k): v for k, v in self.marker_sizes_m_used.items()},
+            "marker_size_m_used": used.default_m if used is not None else 0.0,
+            "marker_sizes_m_used": {str(k): v for k, v in used_by_id.items()},
             "marker_size_m_by_depth": self.marker_size_m_by_depth,
             "marker_size_ratio_by_depth": self.marker_size_ratio_by_depth,
             "marker_sizes_m_by_depth": {str(k): v for k, v in self.marker_sizes_m_by_depth.items()},
@@ -953,8 +954,7 @@ def extract(
             )
         )
     result.notes += notes
-    result.marker_size_m_used = config.marker_sizes.default_m
-    result.marker_sizes_m_used = dict(config.marker_sizes.by_id)
+    result.marker_sizes_used = config.marker_sizes
     if size is not None:
         result.marker_size_m_by_depth = given_m * size.ratio
         result.marker_size_ratio_by_depth = size.ratio
