@@ -140,7 +140,8 @@ def judge(run: MapRun) -> MapRun:
     run.judgement, per_method = judge_run(
         [result.estimate for result in run.results], run.extraction,
         camera_delay_ns=run.camera_delay_ns, odometry_scale=run.odometry_scale,
-        settings=dict(run.config.values),
+        delay_searched=run.config.camera.delay_ns is None,
+        scale_searched=run.config.odometry.scale is None,
     )  # fmt: skip
     for result in run.results:
         result.judgement = per_method[result.method]
