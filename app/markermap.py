@@ -24,6 +24,7 @@ from markergraph.common.files import written_whole
 from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.heights import MarkerHeight
 from markergraph.estimator.paper import Edge, Form, edge_from_pose2, heading
+from markergraph.frontend.sizes import MarkerSizes
 
 __all__ = ["MAP_SCHEMA", "MapLink", "MapMarker", "MarkerMap", "MarkerMapError"]
 
@@ -130,13 +131,12 @@ class MarkerMap:
         *,
         log: str,
         dictionary: str,
-        marker_size_m: float,
-        marker_sizes_m: Mapping[int, float] | None = None,
+        marker_sizes: MarkerSizes,
         heights: Mapping[int, MarkerHeight] | None = None,
     ) -> MarkerMap:
-        """An estimate's map; sides from ``marker_sizes_m`` where given, else ``marker_size_m``;
-        heights (:func:`~markergraph.estimator.marker_heights`) where given."""
-        sides, heights = marker_sizes_m or {}, heights or {}
+        """An estimate's map; each marker's side from ``marker_sizes``; heights
+        (:func:`~markergraph.estimator.marker_heights`) where given."""
+        heights = heights or {}
         markers = {}
         for i, m in sorted(estimate.markers.items()):
             height = heights.get(i)
@@ -145,7 +145,7 @@ class MarkerMap:
                 m.T_map_marker,
                 m.covariance,
                 m.n_observations,
-                sides.get(i, marker_size_m),
+                marker_sizes.of(i),
                 None if height is None else height.z_m,
                 None if height is None else height.sigma_m,
                 m.relative_covariance,
@@ -174,7 +174,7 @@ class MarkerMap:
             tuple(links),
             estimate.home_id,
             dictionary,
-            marker_size_m,
+            marker_sizes.default_m,
             estimate.method.value,
             log,
             estimate.converged,

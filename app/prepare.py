@@ -22,6 +22,7 @@ from markergraph.estimator import (
     widened_for_motion,
 )
 from markergraph.frontend import Extraction
+from markergraph.sections import Shutter
 from markergraph.settings import MapConfig
 
 __all__ = ["Prepared", "prepare"]
@@ -72,7 +73,7 @@ def prepare(
     source, why = config.odometry_source(extraction.topics.odom, evidence)
     _, noise = config.odometry_noise(extraction.topics.odom, evidence)
     notes.append(_noise_note(source, noise, why))
-    if config.values["camera.delay_ms"] is None:
+    if config.camera.delay_ns is None:
         stage("choosing the camera's delay by SLAM's residuals")
     observations, delay_ns = _timed(extraction, config, noise, breaks, home_id, notes)
     scale = _odometry_scale(extraction, config, observations, noise, breaks, home_id, stage, notes)
@@ -91,7 +92,7 @@ def _check_usable(log: Path, extraction: Extraction, config: MapConfig) -> None:
     if not extraction.observations:
         left_out = sorted(extraction.ids_left_out)
         raise MarkerGraphError(
-            f"{log}: no markers of {config.frontend.dictionary} were found in "
+            f"{log}: no markers of {config.dictionary} were found in "
             f"{extraction.frames} frames"
             + (
                 f" (markers {', '.join(map(str, left_out))} were seen but are not in --ids)"
@@ -161,22 +162,22 @@ def _timed(
     """The observations at their capture times (the camera's delay, chosen by the residuals
     unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked,
     for the shutter instead; and the camera's delay used [ns]."""
-    v = config.values
+    camera = config.camera
     observations = extraction.observations
-    readout_ns = round(v["camera.readout_ms"] * 1e6)
+    readout_ns = camera.readout_ns
     height = extraction.camera.height if extraction.camera is not None else 0
-    window_s = v["camera.exposure_ms"] * 1e-3
-    if v["camera.shutter"] == "widen":
+    window_s = camera.exposure_s
+    if camera.shutter is Shutter.WIDEN:
         window_s += readout_ns * 1e-9
         readout_ns = 0
     if window_s > 0:
         observations = widened_for_motion(observations, extraction.odometry, window_s)
-    if v["camera.delay_ms"] is not None:
-        delay_ns = round(v["camera.delay_ms"] * 1e6)
+    if camera.delay_ns is not None:
+        delay_ns = camera.delay_ns
         return retimed(observations, delay_ns, readout_ns, height), delay_ns
     mount = extraction.mount.T_base_camera
     inputs = SlamInputs(
-        observations, extraction.odometry, home_id, mount, noise, breaks, config.robust
+        observations, extraction.odometry, home_id, mount, noise, breaks, config.noise.robust
     )
     chosen = camera_delay_by_residuals(inputs, readout_ns=readout_ns, image_height=height)
     topic = extraction.topics.odom
@@ -210,13 +211,13 @@ def _odometry_scale(
 ) -> float:
     """The factor the odometry's distances are multiplied by: as set, or chosen by SLAM's
     residuals (1 where they have no minimum), and said in the notes."""
-    configured = config.values["odometry.scale"]
+    configured = config.odometry.scale
     if configured is not None:
         return float(configured)
     stage("choosing the odometry's scale by SLAM's residuals")
     found = odometry_scale_by_residuals(
         SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
-                   noise, breaks, config.robust)
+                   noise, breaks, config.noise.robust)
     )  # fmt: skip
     topic = extraction.topics.odom
     if found.chosen is None:

@@ -38,14 +38,12 @@ def marker_map_of(
 ) -> MarkerMap:
     """An estimate's marker map with the settings' dictionary and the marker sides used: the
     extraction's where given (depth may have measured them), else the settings'."""
-    frontend = config.frontend
-    size_m, sizes_m = frontend.marker_length_m, frontend.marker_lengths_m
-    if extraction is not None and extraction.marker_size_m_used:
-        size_m, sizes_m = extraction.marker_size_m_used, extraction.marker_sizes_m_used
+    sizes = config.marker_sizes
+    if extraction is not None and extraction.marker_sizes_used is not None:
+        sizes = extraction.marker_sizes_used
     return MarkerMap.from_estimate(
-        estimate, log=log, dictionary=frontend.dictionary, marker_size_m=size_m,
-        marker_sizes_m=sizes_m, heights=heights,
-    )  # fmt: skip
+        estimate, log=log, dictionary=config.dictionary, marker_sizes=sizes, heights=heights
+    )
 
 
 @dataclass

@@ -177,8 +177,8 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
     odometry = run.extraction.odometry
     write_overlay(
         folder / "overlay.mcap", first.marker_map, first.estimate.trajectory, odometry,
-        map_frame=run.config.values["overlay.map_frame"],
-        odom_frame=run.config.values["overlay.odom_frame"],
+        map_frame=run.config.overlay.map_frame,
+        odom_frame=run.config.overlay.odom_frame,
     )  # fmt: skip
     write_tum(folder / "odometry.tum", odometry)
     for n, session in enumerate(run.sessions, start=1):
@@ -220,17 +220,18 @@ def write_localization(run: LocalizationRun, out: Path, *, force: bool = False) 
         if run.true_path is not None:
             write_tum(folder / "ground_truth.tum", run.true_path)
         write_json(folder / "localization.json", run.document())
-        values = run.config.values
+        overlay = run.config.overlay
         write_overlay(
             folder / "overlay.mcap", run.saved, loc.trajectory, run.extraction.odometry,
-            map_frame=values["overlay.map_frame"], odom_frame=values["overlay.odom_frame"],
+            map_frame=overlay.map_frame, odom_frame=overlay.odom_frame,
         )  # fmt: skip
         files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
         write_json(folder / "report.json", {
             "schema": REPORT_SCHEMA, MANIFEST_KEY: sorted([*files, "report.json"]),
             "log": str(run.log), "map": str(run.map_path), "poses": len(loc.trajectory),
             "moved": [m.marker_id for m in loc.moved], "new": sorted(loc.new),
-            "ate_m": run.ate_m, "notes": [str(n) for n in run.notes], "settings": dict(values),
+            "ate_m": run.ate_m, "notes": [str(n) for n in run.notes],
+            "settings": dict(run.config.values),
         })  # fmt: skip
         written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
     return written

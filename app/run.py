@@ -176,7 +176,7 @@ def _solve_one(read: _Read, config: MapConfig, stage: Stage, seconds: dict[str, 
         try:
             estimate = estimate_frames(
                 frames, method, extraction.mount.T_base_camera, form=Form.SIGNED,
-                robust=config.robust,
+                robust=config.noise.robust,
             )  # fmt: skip
         except EstimationError as error:
             raise EstimationError(f"{read.log}: {method.value}: {error}") from None
@@ -229,7 +229,7 @@ def _solve_several(
     for method in methods:
         stage(f"estimating: {method.value} over every log")
         start = time.perf_counter()
-        solved = solve_sessions(frames, mounts, robust=config.robust, priors=priors,
+        solved = solve_sessions(frames, mounts, robust=config.noise.robust, priors=priors,
                                 home_id=config.home_id, method=method)  # fmt: skip
         seconds[method.value] = time.perf_counter() - start
         first_solved = first_solved or solved
@@ -253,7 +253,8 @@ def judge(run: MapRun) -> MapRun:
     run.judgement, per_method = judge_run(
         [result.estimate for result in run.results], run.extraction,
         camera_delay_ns=run.camera_delay_ns, odometry_scale=run.odometry_scale,
-        settings=dict(run.config.values),
+        delay_searched=run.config.camera.delay_ns is None,
+        scale_searched=run.config.odometry.scale is None,
     )  # fmt: skip
     for result in run.results:
         result.judgement = per_method[result.method]
@@ -283,7 +284,7 @@ def localize_log(
     stage("localising against the saved map")
     extraction = read.extraction
     localization = localize(
-        read.prepared.frames, extraction.mount.T_base_camera, priors, robust=config.robust
+        read.prepared.frames, extraction.mount.T_base_camera, priors, robust=config.noise.robust
     )
     for m in localization.moved:
         notes.append(Note(

@@ -69,7 +69,7 @@ def separate_maps(
     maps = []
     while apart:
         solved = solve_sessions([frames[i] for i in apart], [mounts[i] for i in apart],
-                                robust=config.robust)  # fmt: skip
+                                robust=config.noise.robust)  # fmt: skip
         placed = [apart[j] for j, t in enumerate(solved.trajectories) if t is not None]
         estimate = as_estimate(solved, Method.SLAM, frames[placed[0]].home_id)
         group = [Path(logs[i]) for i in placed]

@@ -1,10 +1,10 @@
 """Settings of the main job: one table, read from a TOML or YAML file, flags or keywords.
 
-Which command takes which setting, and each one's flag, is the command line's business
-(:mod:`markergraph.cli._settings`).
-
-Every setting has a key (dotted for a section: ``camera.height`` is ``height`` under
-``[camera]``), a default and a line of help; the command line makes a flag of each. Angles are
+Every setting is declared once, in :data:`SETTINGS`: its key (dotted for a section:
+``camera.height`` is ``height`` under ``[camera]``), default, check (type and bounds, from
+:mod:`markergraph.setting_values`), line of help, and flag with the commands that take it (the
+command line, :mod:`markergraph.cli._settings`, builds its flags from this alone). Outside this
+module the settings are read by attribute (:class:`MapConfig`), never by key. Angles are
 written in degrees in the file and on the command line (``*_deg`` keys) and are radians inside.
 Later sources win: defaults, then the file, then flags.
 """
@@ -26,13 +26,44 @@ from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.observe import DepthModel
 from markergraph.frontend.odometry_kind import OdometryEvidence, choose_odometry_source
 from markergraph.frontend.rig import read_tagslam
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.yaw import YawMethod
+from markergraph.sections import (
+    CameraSettings,
+    NoiseSettings,
+    OdometrySettings,
+    OverlaySettings,
+    RigSettings,
+    Shutter,
+    TopicSettings,
+)
+from markergraph.setting_values import (
+    SIDE_M,
+    bounded,
+    count_or_auto,
+    frame_name,
+    marker_ids,
+    nonempty,
+    optional,
+    optional_id,
+    optional_text,
+    scale_or_auto,
+    sizes_by_id,
+)
 
 __all__ = [
     "ALL_METHODS",
     "SETTINGS",
+    "CameraSettings",
+    "Flag",
     "MapConfig",
+    "NoiseSettings",
+    "OdometrySettings",
+    "OverlaySettings",
+    "RigSettings",
     "Setting",
+    "Shutter",
+    "TopicSettings",
     "config_toml",
     "map_config",
     "read_config_file",
@@ -42,106 +73,42 @@ __all__ = [
 ALL_METHODS = (Method.SLAM, Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.ISAM2, Method.EKF)
 
 
-def _shown(value: Any) -> str:
-    """A value for an error message, cut short if it is a huge number."""
-    text = repr(value)
-    return text if len(text) <= 24 else f"{text[:12]}... ({len(text)} characters)"
+# Which commands take a setting: all four, those that read observations, those that map.
+_ALL = ("map", "localize", "detect", "info")
+_READ = ("map", "localize", "detect")  # what changes the observations, not what info checks
+_MAP = ("map", "localize")
 
 
-def _number(minimum: float = -math.inf, maximum: float = math.inf) -> Callable[[Any], float]:
-    """A parser of finite numbers in [minimum, maximum]. Every number setting is bounded: a
-    value far outside what a robot has would only overflow, or make GTSAM's system singular,
-    after all the work."""
+@dataclass(frozen=True, slots=True)
+class Flag:
+    """A setting's command-line flag: how argparse reads it, and which commands take it.
 
-    def parse(value: Any) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise SettingsError(f"must be a number, got {_shown(value)}")
-        try:
-            number = float(value)
-        except OverflowError:  # an integer of hundreds of digits
-            number = math.inf
-        if math.isfinite(number) and minimum <= number <= maximum:
-            return number
-        if minimum > 0 and number <= 0:
-            raise SettingsError(f"must be positive, got {_shown(value)}")
-        raise SettingsError(f"must be between {minimum:g} and {maximum:g}, got {_shown(value)}")
+    Attributes:
+        flag: the option, such as ``--marker-size``.
+        metavar: its value's name in ``--help``, if not argparse's own.
+        nargs: argparse's ``nargs`` for a list (``"+"``), else None.
+        type: converts the flag's text before the setting's own check.
+        commands: the commands that take it.
+    """
 
-    return parse
+    flag: str
+    metavar: str | None = None
+    nargs: str | None = None
+    type: Callable[[str], Any] = str
+    commands: tuple[str, ...] = _ALL
 
 
-_SIDE = _number(0.001, 10.0)  # a marker's side [m]
-
-
-def _count(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise SettingsError(f"must be a whole number of at least 1, got {value!r}")
-    return value
-
-
-def _count_or_auto(value: Any) -> int | None:
-    if value is None or value == "auto":
-        return None
-    if isinstance(value, str) and value.isdigit():
-        value = int(value)
-    return _count(value)
-
-
-def _marker_id(value: Any) -> int:
-    if isinstance(value, str) and value.strip().isdigit():
-        value = int(value)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise SettingsError(f"must be a marker id (a whole number >= 0), got {value!r}")
-    return value
-
-
-def _optional_id(value: Any) -> int | None:
-    return None if value is None else _marker_id(value)
-
-
-def _text(value: Any) -> str:
-    if not isinstance(value, str) or not value:
-        raise SettingsError(f"must be a non-empty string, got {value!r}")
-    return value
-
-
-def _optional_text(value: Any) -> str | None:
-    return None if value is None else _text(value)
-
-
-def _ids(value: Any) -> tuple[int, ...] | None:
-    if value is None:
-        return None
-    if not isinstance(value, (list, tuple)) or not value:
-        raise SettingsError(f"must be a list of marker ids, got {value!r}")
-    return tuple(sorted({_marker_id(v) for v in value}))
-
-
-def _sizes(value: Any) -> dict[int, float]:
-    """``{id: side}`` from a table, or from ``ID=M`` words on the command line."""
-    if isinstance(value, (list, tuple)):
-        pairs = {}
-        for word in value:
-            marker_id, _, side = str(word).partition("=")
-            try:
-                pairs[marker_id] = float(side)
-            except ValueError:
-                raise SettingsError(f"must be ID=M pairs such as 7=0.15, got {word!r}") from None
-        value = pairs
-    if not isinstance(value, Mapping):
-        raise SettingsError(f"must be a table of marker id = side in metres, got {value!r}")
-    return {_marker_id(k): _SIDE(v) for k, v in value.items()}
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Setting:
-    """One setting.
+    """One setting: its one declaration, read by files, keywords and the command line alike.
 
     Attributes:
         key: its name in a configuration file, dotted under a section.
         default: the value when nothing sets it (degrees for ``*_deg`` keys).
-        parse: converts a value from a file, a flag or a keyword, or raises SettingsError;
-            parsing a parsed value gives it back unchanged.
-        help: one line for ``--help``.
+        parse: its type and bounds: converts a value from a file, a flag or a keyword, or
+            raises SettingsError; parsing a parsed value gives it back unchanged.
+        help: one line for ``--help``, ending in the unit in brackets where it has one.
+        flag: its command-line flag.
         choices: the only values allowed, if limited.
     """
 
@@ -149,6 +116,7 @@ class Setting:
     default: Any
     parse: Callable[[Any], Any]
     help: str
+    flag: Flag
     choices: list[str] | None = None
 
     def check(self, value: Any) -> Any:
@@ -159,144 +127,158 @@ class Setting:
         return value
 
 
-def _optional(parse: Callable[[Any], float]) -> Callable[[Any], float | None]:
-    def optional(value: Any) -> float | None:
-        return None if value is None else parse(value)
-
-    return optional
-
-
-def _scale_or_auto(value: Any) -> float | None:
-    # None is "auto" parsed: parsing a parsed value gives it back. A flag's number is text.
-    if value is None or value == "auto":
-        return None
-    if isinstance(value, str):
-        try:
-            value = float(value)
-        except ValueError:
-            raise SettingsError(f"must be a number or auto, got {_shown(value)}") from None
-    return _number(0.5, 2.0)(value)
-
-
-def _frame(value: Any) -> str:
-    name = _text(value)
-    if not name or name.startswith("/") or any(c.isspace() for c in name):
-        raise SettingsError(f"must be a TF frame name (no leading '/', no spaces), got {name!r}")
-    return name
-
-
-_NOISE_M = _number(0.0, 10.0)
-_ODOMETRY_NOISE = _number(1e-6, 10.0)
+_NOISE_M = bounded(0.0, 10.0)
+_ODOMETRY_NOISE = bounded(1e-6, 10.0)
 
 SETTINGS: tuple[Setting, ...] = (
-    Setting("dictionary", "DICT_4X4_50", _text,
-            "OpenCV dictionary name (DICT_*, incl. AprilTag) or a dictionary file"),
-    Setting("marker_size", 0.2, _SIDE, "side of the markers' black square [m]"),
-    Setting("marker_sizes", {}, _sizes, "sides of markers whose size differs, by id [m]"),
-    Setting("yaw_method", YawMethod.PNP.value, _text, "how theta comes from the corners",
-            choices=[m.value for m in YawMethod]),
-    Setting("ids", None, _ids, "only these marker ids (default: all the dictionary's)"),
+    Setting("dictionary", "DICT_4X4_50", nonempty,
+            "OpenCV dictionary name (DICT_*, incl. AprilTag) or a dictionary file",
+            flag=Flag("--dictionary", "NAME")),
+    Setting("marker_size", 0.2, SIDE_M, "side of the markers' black square [m]",
+            flag=Flag("--marker-size", "M", type=float, commands=_READ)),
+    Setting("marker_sizes", {}, sizes_by_id, "sides of markers whose size differs, by id [m]",
+            flag=Flag("--marker-sizes", "ID=M", "+", commands=_READ)),
+    Setting("yaw_method", YawMethod.PNP.value, nonempty, "how theta comes from the corners",
+            choices=[m.value for m in YawMethod],
+            flag=Flag("--yaw-method", commands=_READ)),
+    Setting("ids", None, marker_ids, "only these marker ids (default: all the dictionary's)",
+            flag=Flag("--ids", "ID", "+", int)),
     *(
-        Setting(f"topics.{role}", None, _optional_text,
-                f"{role.replace('_', ' ')} topic (default: chosen from the log)")
+        Setting(f"topics.{role}", None, optional_text,
+                f"{role.replace('_', ' ')} topic (default: chosen from the log)",
+                flag=Flag(f"--{role.replace('_', '-')}-topic", "TOPIC"))
         for role in ("color", "depth", "camera_info", "odom")
     ),
-    Setting("rig.cameras", None, _optional_text,
-            "a Kalibr cameras.yaml: intrinsics of the cameras whose detections the log holds"),
-    Setting("rig.camera_poses", None, _optional_text,
-            "a TagSLAM camera_poses.yaml: each camera's pose on the rig (without /tf_static)"),
-    Setting("rig.tagslam", None, _optional_text,
-            "a TagSLAM tagslam.yaml: tag sizes, and the odometry's body on the rig"),
-    Setting("camera.base_frame", "base_link", _text,
-            "the robot's base frame, to read the camera mount from /tf_static"),
-    Setting("camera.x", 0.1, _number(-100.0, 100.0),
-            "without /tf_static: camera ahead of the base origin [m]"),
-    Setting("camera.y", 0.0, _number(-100.0, 100.0),
-            "without /tf_static: camera left of the base origin [m]"),
-    Setting("camera.height", 0.6, _number(0.0, 100.0),
-            "without /tf_static: optical centre above the floor [m]"),
-    Setting("camera.pitch_deg", 0.0, _number(-90.0, 90.0),
-            "without /tf_static: optical axis tilted up from level [deg]"),
-    Setting("camera.yaw_deg", 0.0, _number(-360.0, 360.0),
-            "without /tf_static: optical axis turned left of the base's x axis [deg]"),
-    Setting("camera.delay_ms", None, _optional(_number(-500.0, 500.0)),
+    Setting("rig.cameras", None, optional_text,
+            "a Kalibr cameras.yaml: intrinsics of the cameras whose detections the log holds",
+            flag=Flag("--cameras", "FILE")),
+    Setting("rig.camera_poses", None, optional_text,
+            "a TagSLAM camera_poses.yaml: each camera's pose on the rig (without /tf_static)",
+            flag=Flag("--camera-poses", "FILE")),
+    Setting("rig.tagslam", None, optional_text,
+            "a TagSLAM tagslam.yaml: tag sizes, and the odometry's body on the rig",
+            flag=Flag("--tagslam", "FILE")),
+    Setting("camera.base_frame", "base_link", nonempty,
+            "the robot's base frame, to read the camera mount from /tf_static",
+            flag=Flag("--base-frame", "FRAME")),
+    Setting("camera.x", 0.1, bounded(-100.0, 100.0),
+            "without /tf_static: camera ahead of the base origin [m]",
+            flag=Flag("--camera-x", "M", type=float, commands=_READ)),
+    Setting("camera.y", 0.0, bounded(-100.0, 100.0),
+            "without /tf_static: camera left of the base origin [m]",
+            flag=Flag("--camera-y", "M", type=float, commands=_READ)),
+    Setting("camera.height", 0.6, bounded(0.0, 100.0),
+            "without /tf_static: optical centre above the floor [m]",
+            flag=Flag("--camera-height", "M", type=float, commands=_READ)),
+    Setting("camera.pitch_deg", 0.0, bounded(-90.0, 90.0),
+            "without /tf_static: optical axis tilted up from level [deg]",
+            flag=Flag("--camera-pitch", "DEG", type=float, commands=_READ)),
+    Setting("camera.yaw_deg", 0.0, bounded(-360.0, 360.0),
+            "without /tf_static: optical axis turned left of the base's x axis [deg]",
+            flag=Flag("--camera-yaw", "DEG", type=float, commands=_READ)),
+    Setting("camera.delay_ms", None, optional(bounded(-500.0, 500.0)),
             "how late the camera's stamps are against odometry [ms] (default: chosen by "
-            "SLAM's residuals over -50..100 ms)"),
-    Setting("camera.readout_ms", 0.0, _number(0.0, 200.0),
-            "rolling shutter: time to read the rows out, top to bottom [ms] (0: global shutter)"),
-    Setting("camera.shutter", "model", _text,
+            "SLAM's residuals over -50..100 ms)",
+            flag=Flag("--camera-delay", "MS", type=float, commands=_MAP)),
+    Setting("camera.readout_ms", 0.0, bounded(0.0, 200.0),
+            "rolling shutter: time to read the rows out, top to bottom [ms] (0: global shutter)",
+            flag=Flag("--readout", "MS", type=float, commands=_MAP)),
+    Setting("camera.shutter", "model", nonempty,
             "a rolling shutter's row delay: model (each marker at its row's time) or widen "
-            "(sigmas grow with the turn rate)", choices=["model", "widen"]),
-    Setting("camera.exposure_ms", 0.0, _number(0.0, 200.0),
-            "exposure time: sigmas grow with what a turn smears during it [ms]"),
-    Setting("noise.depth_scale", None, _scale_or_auto,
+            "(sigmas grow with the turn rate)", choices=["model", "widen"],
+            flag=Flag("--shutter", commands=_MAP)),
+    Setting("camera.exposure_ms", 0.0, bounded(0.0, 200.0),
+            "exposure time: sigmas grow with what a turn smears during it [ms]",
+            flag=Flag("--exposure", "MS", type=float, commands=_MAP)),
+    Setting("noise.depth_scale", None, scale_or_auto,
             "what depth reads per true metre; auto (default): measured against the markers' "
-            "size and applied when more than 1 percent from 1 (the measurement's own error)"),
-    Setting("noise.corner_px", 0.3, _number(0.01, 100.0),
-            "corner noise after sub-pixel refinement, propagated into theta [px]"),
+            "size and applied when more than 1 percent from 1 (the measurement's own error)",
+            flag=Flag("--depth-scale", "K|auto", commands=_READ)),
+    Setting("noise.corner_px", 0.3, bounded(0.01, 100.0),
+            "corner noise after sub-pixel refinement, propagated into theta [px]",
+            flag=Flag("--corner-noise", "PX", type=float, commands=_READ)),
     Setting("noise.depth_base_m", DepthModel().base_m, _NOISE_M,
-            "depth sigma = base + per_m2 * Z^2: its constant term [m]"),
+            "depth sigma = base + per_m2 * Z^2: its constant term [m]",
+            flag=Flag("--depth-noise-base", "M", type=float, commands=_READ)),
     Setting("noise.depth_per_m2", DepthModel().per_m2, _NOISE_M,
-            "depth sigma's quadratic term [1/m]"),
-    Setting("noise.depth_max_m", DepthModel().max_range_m, _number(0.1, 1000.0),
-            "depths beyond this are treated as no return [m]"),
-    Setting("odometry.source", "auto", _text,
+            "depth sigma's quadratic term [1/m]",
+            flag=Flag("--depth-noise-per-m2", "K", type=float, commands=_READ)),
+    Setting("noise.depth_max_m", DepthModel().max_range_m, bounded(0.1, 1000.0),
+            "depths beyond this are treated as no return [m]",
+            flag=Flag("--depth-max", "M", type=float, commands=_READ)),
+    Setting("odometry.source", "auto", nonempty,
             "the odometry's noise preset; auto: by its messages (3-D motion: vio, or t265 by rate "
             "or name; planar: wheel, unless the topic's name says vio or t265)",
-            choices=["auto", *ODOMETRY_NOISE]),
-    Setting("odometry.scale", None, _scale_or_auto,
+            choices=["auto", *ODOMETRY_NOISE],
+            flag=Flag("--odometry-source", commands=_MAP)),
+    Setting("odometry.scale", None, scale_or_auto,
             "what the odometry's distances are multiplied by (the wheels' radius error); auto "
-            "(default): chosen by SLAM's residuals over 0.95..1.05, 1 where they cannot tell"),
-    Setting("noise.odometry_per_m", None, _optional(_ODOMETRY_NOISE),
-            "odometry position sigma after 1 m travelled [m/sqrt(m)] (default: the source's)"),
-    Setting("noise.odometry_yaw_per_m", None, _optional(_ODOMETRY_NOISE),
-            "odometry heading sigma after 1 m travelled [rad/sqrt(m)] (default: the source's)"),
-    Setting("noise.odometry_yaw_per_rad", None, _optional(_ODOMETRY_NOISE),
-            "odometry heading sigma after 1 rad turned [rad/sqrt(rad)] (default: the source's)"),
+            "(default): chosen by SLAM's residuals over 0.95..1.05, 1 where they cannot tell",
+            flag=Flag("--odometry-scale", "K|auto", commands=_MAP)),
+    Setting("noise.odometry_per_m", None, optional(_ODOMETRY_NOISE),
+            "odometry position sigma after 1 m travelled [m/sqrt(m)] (default: the source's)",
+            flag=Flag("--odometry-noise", "M", type=float, commands=_MAP)),
+    Setting("noise.odometry_yaw_per_m", None, optional(_ODOMETRY_NOISE),
+            "odometry heading sigma after 1 m travelled [rad/sqrt(m)] (default: the source's)",
+            flag=Flag("--odometry-yaw-noise", "RAD", type=float, commands=_MAP)),
+    Setting("noise.odometry_yaw_per_rad", None, optional(_ODOMETRY_NOISE),
+            "odometry heading sigma after 1 rad turned [rad/sqrt(rad)] (default: the source's)",
+            flag=Flag("--odometry-turn-noise", "RAD", type=float, commands=_MAP)),
     # Huber by default: real detections have outliers (near-frontal pose flips); on the
     # rendered paper-room log it cut SLAM's marker error 4x, and cost nothing elsewhere.
-    Setting("noise.robust", Robust.HUBER.value, _text,
+    Setting("noise.robust", Robust.HUBER.value, nonempty,
             "robust kernel on observation factors (SLAM, iSAM2, marker graph)",
-            choices=[r.value for r in Robust]),
-    Setting("method", Method.SLAM.value, _text,
+            choices=[r.value for r in Robust],
+            flag=Flag("--robust", commands=_MAP)),
+    Setting("method", Method.SLAM.value, nonempty,
             "which estimator; all runs every one side by side",
-            choices=[m.value for m in Method] + ["all"]),
-    Setting("home", None, _optional_id,
-            "the marker whose frame is the map (default: the first seen)"),
-    Setting("workers", None, _count_or_auto,
+            choices=[m.value for m in Method] + ["all"],
+            flag=Flag("--method", commands=("map",))),
+    Setting("home", None, optional_id,
+            "the marker whose frame is the map (default: the first seen)",
+            flag=Flag("--home", "ID", type=int, commands=("map",))),
+    Setting("workers", None, count_or_auto,
             "processes that decode and detect; auto (default): as many as help, one per 1,500 "
-            "frames and idle core"),
-    Setting("overlay.map_frame", "map", _frame,
-            "overlay.mcap's map frame (rename it where nav2 already publishes map -> odom)"),
-    Setting("overlay.odom_frame", "odom", _frame, "overlay.mcap's odometry frame"),
+            "frames and idle core",
+            flag=Flag("--workers", "N|auto", commands=("map", "localize", "detect"))),
+    Setting("overlay.map_frame", "map", frame_name,
+            "overlay.mcap's map frame (rename it where nav2 already publishes map -> odom)",
+            flag=Flag("--map-frame", "FRAME", commands=_MAP)),
+    Setting("overlay.odom_frame", "odom", frame_name, "overlay.mcap's odometry frame",
+            flag=Flag("--odom-frame", "FRAME", commands=_MAP)),
 )  # fmt: skip
 _BY_KEY = {s.key: s for s in SETTINGS}
 
 
 def _with_rig_defaults(values: Mapping[str, Any]) -> dict[str, Any]:
-    """The settings a rig file gives where the user gave none: a TagSLAM ``tagslam.yaml``'s
-    ``default_tag_size`` is the marker size (the tags it sizes one by one keep theirs)."""
+    """Every setting (:func:`_complete`), with what a rig file gives where the user gave none:
+    a TagSLAM ``tagslam.yaml``'s ``default_tag_size`` is the marker size, and the tags it sizes
+    one by one keep theirs (under ``marker_sizes``, which wins where it sizes them too)."""
     given = dict(values)
-    if given.get("rig.tagslam") and "marker_size" not in given:
-        default = read_tagslam(Path(given["rig.tagslam"])).default_tag_size_m
-        if default is not None:
-            given["marker_size"] = default
-    return given
+    if not given.get("rig.tagslam"):
+        return _complete(given)
+    rig = read_tagslam(Path(given["rig.tagslam"]))
+    if "marker_size" not in given and rig.default_tag_size_m is not None:
+        given["marker_size"] = rig.default_tag_size_m
+    complete = _complete(given)
+    complete["marker_sizes"] = {**rig.tag_sizes_m, **complete["marker_sizes"]}
+    return complete
 
 
 @dataclass(frozen=True)
 class MapConfig:
     """Everything the main job needs besides the log and the output folder: every setting,
-    checked once when the object is made, and the typed objects they make.
+    checked once when the object is made, and read by attribute in typed sections
+    (``config.camera.delay_ns``, ``config.noise.robust``, ``config.overlay.map_frame``).
 
     Build one with :meth:`from_values` (any subset of the settings by key; the rest take their
-    defaults); ``values`` then holds every key.
+    defaults); ``values`` then holds every key, as a settings file writes it.
     """
 
     values: Mapping[str, Any]
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "values", _complete(_with_rig_defaults(self.values)))
+        object.__setattr__(self, "values", _with_rig_defaults(self.values))
         if self.values["overlay.map_frame"] == self.values["overlay.odom_frame"]:
             raise SettingsError(
                 f"overlay.map_frame and overlay.odom_frame are both "
@@ -313,9 +295,45 @@ class MapConfig:
         """
         return cls(dict(values or {}))
 
+    @property
+    def dictionary(self) -> str:
+        """The markers' dictionary: an OpenCV name (``DICT_*``) or a dictionary file."""
+        return cast(str, self.values["dictionary"])
+
     @cached_property
-    def frontend(self) -> FrontendConfig:
-        """How the log is read."""
+    def marker_sizes(self) -> MarkerSizes:
+        """The side of each marker's black square, a rig file's among them [m]."""
+        return MarkerSizes(self.values["marker_size"], dict(self.values["marker_sizes"]))
+
+    @property
+    def yaw_method(self) -> YawMethod:
+        """How theta comes from the corners."""
+        return YawMethod(self.values["yaw_method"])
+
+    @property
+    def ids(self) -> tuple[int, ...] | None:
+        """The only marker ids kept (None: all the dictionary's)."""
+        return cast("tuple[int, ...] | None", self.values["ids"])
+
+    @cached_property
+    def topics(self) -> TopicSettings:
+        """The log's topics (None: chosen from the log)."""
+        v = self.values
+        return TopicSettings(
+            v["topics.color"], v["topics.depth"], v["topics.camera_info"], v["topics.odom"]
+        )
+
+    @cached_property
+    def rig(self) -> RigSettings:
+        """A rig's files."""
+        v = self.values
+        return RigSettings(
+            _path(v["rig.cameras"]), _path(v["rig.camera_poses"]), _path(v["rig.tagslam"])
+        )
+
+    @cached_property
+    def camera(self) -> CameraSettings:
+        """The camera's mount without /tf_static, and its timing."""
         v = self.values
         mount = CameraMount(
             v["camera.x"],
@@ -324,26 +342,64 @@ class MapConfig:
             math.radians(v["camera.yaw_deg"]),
             math.radians(v["camera.pitch_deg"]),
         )
-        return FrontendConfig(
-            dictionary=v["dictionary"],
-            marker_length_m=v["marker_size"],
-            marker_lengths_m=dict(v["marker_sizes"]),
-            method=YawMethod(v["yaw_method"]),
-            allowed_ids=v["ids"],
-            color_topic=v["topics.color"],
-            depth_topic=v["topics.depth"],
-            camera_info_topic=v["topics.camera_info"],
-            odom_topic=v["topics.odom"],
+        delay_ms = v["camera.delay_ms"]
+        return CameraSettings(
             base_frame=v["camera.base_frame"],
             default_mount=mount,
+            delay_ns=None if delay_ms is None else round(delay_ms * 1e6),
+            readout_ns=round(v["camera.readout_ms"] * 1e6),
+            shutter=Shutter(v["camera.shutter"]),
+            exposure_s=v["camera.exposure_ms"] * 1e-3,
+        )
+
+    @cached_property
+    def noise(self) -> NoiseSettings:
+        """The noise model."""
+        v = self.values
+        return NoiseSettings(
             depth_scale=v["noise.depth_scale"],
-            depth_model=DepthModel(
+            corner_px=v["noise.corner_px"],
+            depth=DepthModel(
                 v["noise.depth_base_m"], v["noise.depth_per_m2"], v["noise.depth_max_m"]
             ),
-            corner_sigma_px=v["noise.corner_px"],
-            kalibr_cameras=_path(v["rig.cameras"]),
-            camera_poses=_path(v["rig.camera_poses"]),
-            tagslam=_path(v["rig.tagslam"]),
+            odometry_per_m=v["noise.odometry_per_m"],
+            odometry_yaw_per_m=v["noise.odometry_yaw_per_m"],
+            odometry_yaw_per_rad=v["noise.odometry_yaw_per_rad"],
+            robust=Robust(v["noise.robust"]),
+        )
+
+    @cached_property
+    def odometry(self) -> OdometrySettings:
+        """The odometry's noise preset and scale (None: auto)."""
+        source = self.values["odometry.source"]
+        return OdometrySettings(None if source == "auto" else source, self.values["odometry.scale"])
+
+    @cached_property
+    def overlay(self) -> OverlaySettings:
+        """overlay.mcap's frames."""
+        return OverlaySettings(self.values["overlay.map_frame"], self.values["overlay.odom_frame"])
+
+    @cached_property
+    def frontend(self) -> FrontendConfig:
+        """How the log is read: a view of the settings the front end takes."""
+        topics, rig, noise = self.topics, self.rig, self.noise
+        return FrontendConfig(
+            dictionary=self.dictionary,
+            marker_sizes=self.marker_sizes,
+            method=self.yaw_method,
+            allowed_ids=self.ids,
+            color_topic=topics.color,
+            depth_topic=topics.depth,
+            camera_info_topic=topics.camera_info,
+            odom_topic=topics.odom,
+            base_frame=self.camera.base_frame,
+            default_mount=self.camera.default_mount,
+            depth_scale=noise.depth_scale,
+            depth_model=noise.depth,
+            corner_sigma_px=noise.corner_px,
+            kalibr_cameras=rig.cameras,
+            camera_poses=rig.camera_poses,
+            tagslam=rig.tagslam,
         )
 
     @property
@@ -368,9 +424,8 @@ class MapConfig:
         """The odometry source and what decided it: ``odometry.source`` as set, or (auto) the
         odometry's own messages (:func:`choose_odometry_source`: 3-D motion, rate, covariance;
         the ``topic``'s name only as a tie-breaker or where there is no evidence)."""
-        source = self.values["odometry.source"]
-        if source != "auto":
-            return source, "set by odometry.source"
+        if self.odometry.source is not None:
+            return self.odometry.source, "set by odometry.source"
         return choose_odometry_source(evidence, topic)
 
     def odometry_noise(
@@ -378,24 +433,19 @@ class MapConfig:
     ) -> tuple[str, OdometryNoise]:
         """The odometry source (:meth:`odometry_source`) and the noise model the estimators
         assume: its preset, with any ``noise.odometry_*`` given."""
-        v = self.values
+        noise = self.noise
         source, _ = self.odometry_source(topic, evidence)
         preset = ODOMETRY_NOISE[source]
         return source, OdometryNoise(
             *(
-                preset_value if v[key] is None else v[key]
-                for key, preset_value in (
-                    ("noise.odometry_per_m", preset.per_m),
-                    ("noise.odometry_yaw_per_m", preset.yaw_per_m),
-                    ("noise.odometry_yaw_per_rad", preset.yaw_per_rad),
+                preset_value if value is None else value
+                for value, preset_value in (
+                    (noise.odometry_per_m, preset.per_m),
+                    (noise.odometry_yaw_per_m, preset.yaw_per_m),
+                    (noise.odometry_yaw_per_rad, preset.yaw_per_rad),
                 )
             )
         )
-
-    @property
-    def robust(self) -> Robust:
-        """The kernel on observation factors."""
-        return Robust(self.values["noise.robust"])
 
 
 def _path(value: str | None) -> Path | None:
@@ -510,7 +560,7 @@ def config_toml(values: Mapping[str, Any]) -> str:
         if setting.key == "marker_sizes":
             continue  # a table of its own, last
         value = v[setting.key]
-        if value is None and setting.parse in (_scale_or_auto, _count_or_auto):
+        if value is None and setting.parse in (scale_or_auto, count_or_auto):
             value = "auto"
         lines.append(f"# {setting.help}")
         lines.append(f"# {name} = ..." if value is None else f"{name} = {_toml_value(value)}")

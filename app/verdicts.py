@@ -323,7 +323,11 @@ def _closed_form_reasons(closed: Estimate, reference: Estimate | None) -> list[R
 
 
 def _input_reasons(
-    extraction: Extraction, camera_delay_ns: int, odometry_scale: float, settings: dict[str, Any]
+    extraction: Extraction,
+    camera_delay_ns: int,
+    odometry_scale: float,
+    delay_searched: bool,
+    scale_searched: bool,
 ) -> list[Reason]:
     frames, samples = (
         extraction.frames,
@@ -350,7 +354,7 @@ def _input_reasons(
         for check, part, whole, line, what, consequence in shares
         if whole and part / whole > line
     ]  # fmt: skip
-    if settings.get("camera.delay_ms") is None:
+    if delay_searched:
         delay_s = camera_delay_ns * 1e-9
         if (
             min(DELAYS_S) - 1e-6 < delay_s < min(DELAYS_S) + 1e-6
@@ -361,7 +365,7 @@ def _input_reasons(
                 f"the camera's delay was chosen at the end of its search ({1e3 * delay_s:+.0f} "
                 "ms): the true delay may lie beyond it (--camera-delay sets it)",
             ))  # fmt: skip
-    if settings.get("odometry.scale") is None and odometry_scale in (min(SCALES), max(SCALES)):
+    if scale_searched and odometry_scale in (min(SCALES), max(SCALES)):
         reasons.append(_suspect(
             "odometry", odometry_scale,
             f"the odometry's scale was chosen at the end of its search ({odometry_scale:.2f}): "
@@ -376,16 +380,21 @@ def judge_run(
     *,
     camera_delay_ns: int = 0,
     odometry_scale: float = 1.0,
-    settings: dict[str, Any] | None = None,
+    delay_searched: bool = True,
+    scale_searched: bool = True,
 ) -> tuple[Judgement, dict[Method, Judgement]]:
     """The verdict on each method's estimate and on the run.
 
     Each method's reasons are its own and the run's (bad input harms every method); the run's
-    verdict is the gravest of its methods', with each reason naming its method.
+    verdict is the gravest of its methods', with each reason naming its method. A delay or
+    scale at the end of its search is suspect only where it was searched (``delay_searched``,
+    ``scale_searched``); set by hand, the bound is no evidence.
     """
     seen = {o.marker_id for o in extraction.observations}
     camera_x_m = extraction.mount.T_base_camera.x()
-    inputs = _input_reasons(extraction, camera_delay_ns, odometry_scale, settings or {})
+    inputs = _input_reasons(
+        extraction, camera_delay_ns, odometry_scale, delay_searched, scale_searched
+    )
     disagreements = _disagreements(estimates)
     own: dict[Method, list[Reason]] = {}
     for estimate in estimates:

@@ -16,6 +16,7 @@ from markergraph.frontend.extraction import Extraction
 from markergraph.frontend.logs import Log, LogError, LogTopic, Message, open_log
 from markergraph.frontend.observe import DepthModel, ObservationModel, observe, observe_detections
 from markergraph.frontend.pipeline import extract
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.tf import mount_from_transforms, odometry_from_tf, transforms_of
 from markergraph.frontend.topics import TopicChoice, choose_topics
 from markergraph.frontend.yaw import YawMethod
@@ -31,6 +32,7 @@ __all__ = [
     "Log",
     "LogError",
     "LogTopic",
+    "MarkerSizes",
     "Message",
     "ObservationModel",
     "TopicChoice",

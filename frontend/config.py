@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import DetectorMode
 from markergraph.frontend.observe import DepthModel, ObservationModel
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.yaw import YawMethod
 
 __all__ = ["FrontendConfig"]
@@ -20,8 +20,7 @@ class FrontendConfig:
 
     Attributes:
         dictionary: the markers' dictionary.
-        marker_length_m: side of the markers' black square [m].
-        marker_lengths_m: the sides of markers whose size differs, by id [m].
+        marker_sizes: the side of each marker's black square [m].
         method: how theta is computed.
         allowed_ids: if given, only these marker ids are kept.
         color_topic, depth_topic, camera_info_topic, odom_topic: topics to read.
@@ -45,8 +44,7 @@ class FrontendConfig:
     """
 
     dictionary: str = "DICT_4X4_50"
-    marker_length_m: float = 0.2
-    marker_lengths_m: Mapping[int, float] = field(default_factory=dict)
+    marker_sizes: MarkerSizes = MarkerSizes()
     method: YawMethod = YawMethod.PNP
     allowed_ids: tuple[int, ...] | None = None
     color_topic: str | None = None
@@ -70,8 +68,7 @@ class FrontendConfig:
     def observation_model(self) -> ObservationModel:
         """How detected corners become observations."""
         return ObservationModel(
-            self.marker_length_m,
-            self.marker_lengths_m,
+            self.marker_sizes,
             self.method,
             self.corner_sigma_px,
             self.depth_model,

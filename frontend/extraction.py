@@ -20,6 +20,7 @@ from markergraph.estimator.types import Observation, OdometrySample
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.odometry_kind import OdometryEvidence
 from markergraph.frontend.posed import LevelledFrame, MarkerDetections
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.topics import TopicChoice
 
 __all__ = ["Extraction", "Join", "Part", "merge_parts"]
@@ -128,10 +129,9 @@ class Extraction:
     """Of them, those not believed (see ``camera_info_reasons``)."""
     camera_info_reasons: dict[str, int] = field(metadata=_EVIDENCE, default_factory=dict)
     """Why they were set aside -> how many."""
-    marker_size_m_used: float = field(metadata=_EVIDENCE, default=0.0)
-    """The markers' size the observations were made with [m]."""
-    marker_sizes_m_used: dict[int, float] = field(metadata=_EVIDENCE, default_factory=dict)
-    """Markers of their own size, by id [m]."""
+    marker_sizes_used: MarkerSizes | None = field(metadata=_EVIDENCE, default=None)
+    """The markers' sizes the observations were made with, None until :func:`extract` sets
+    them (report.json: ``marker_size_m_used`` and ``marker_sizes_m_used``) [m]."""
     marker_size_m_by_depth: float | None = field(metadata=_EVIDENCE, default=None)
     """The markers' size depth measures (the given size times ``marker_size_ratio_by_depth``
     where that clearly disagrees; see :mod:`~markergraph.frontend.marker_size`), None without
@@ -147,11 +147,18 @@ class Extraction:
     def input_evidence(self) -> dict[str, Any]:
         """What the front end judged of its inputs, JSON-ready (report.json's ``inputs``): what
         it set aside and what it measured, for a verdict to weigh."""
-        return {
-            f.name: _json_ready(getattr(self, f.name))
-            for f in fields(self)
-            if f.metadata.get("evidence")
-        }
+        evidence: dict[str, Any] = {}
+        for f in fields(self):
+            if not f.metadata.get("evidence"):
+                continue
+            value = getattr(self, f.name)
+            if f.name == "marker_sizes_used":
+                sizes = value or MarkerSizes(0.0)
+                evidence["marker_size_m_used"] = sizes.default_m
+                evidence["marker_sizes_m_used"] = _json_ready(dict(sizes.by_id))
+            else:
+                evidence[f.name] = _json_ready(value)
+        return evidence
 
 
 def _json_ready(value: Any) -> Any:

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -13,6 +12,7 @@ from numpy.typing import NDArray
 from markergraph.estimator.types import Observation
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import Detection, Detector
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.yaw import (
     YawMethod,
     marker_centre,
@@ -87,22 +87,16 @@ class ObservationModel:
     noise of corners and depth.
 
     Attributes:
-        marker_length_m: side of the markers' black square [m].
-        marker_lengths_m: the sides of markers whose size differs, by id [m].
+        marker_sizes: the side of each marker's black square [m].
         method: how theta is computed from the corners.
         corner_sigma_px: the corners' noise after sub-pixel refinement [px].
         depth_model: the depth camera's error model.
     """
 
-    marker_length_m: float = 0.2
-    marker_lengths_m: Mapping[int, float] = field(default_factory=dict)
+    marker_sizes: MarkerSizes = MarkerSizes()
     method: YawMethod = YawMethod.PNP
     corner_sigma_px: float = 0.3
     depth_model: DepthModel = DepthModel()
-
-    def length_of(self, marker_id: int) -> float:
-        """The side of one marker's black square [m]."""
-        return self.marker_lengths_m.get(marker_id, self.marker_length_m)
 
 
 def corner_flags(corners: NDArray[np.float64], camera: Camera) -> set[str]:
@@ -244,7 +238,7 @@ def _observe_one(
     """One detection's observation (:func:`observe_detections`); None where theta has no
     solution."""
     method, corner_sigma_px = model.method, model.corner_sigma_px
-    length_m = model.length_of(detection.marker_id)
+    length_m = model.marker_sizes.of(detection.marker_id)
     corners = camera.undistort(detection.corners)
     edge_flags = corner_flags(detection.corners, camera)
     # One PnP solve serves theta (the default method), the range without depth and the
@@ -354,7 +348,7 @@ def _theta_sigma(
 def observe(
     image: NDArray[np.uint8],
     camera: Camera,
-    marker_length_m: float,
+    marker_sizes: MarkerSizes,
     dictionary: str = "DICT_4X4_50",
     *,
     depth: NDArray | None = None,
@@ -364,15 +358,13 @@ def observe(
     detector: Detector | None = None,
     corner_sigma_px: float = 0.3,
     depth_model: DepthModel = DepthModel(),
-    marker_lengths_m: Mapping[int, float] | None = None,
 ) -> list[Observation]:
     """Every marker in one frame as an :class:`Observation` (bearing, theta, range, sigmas).
 
     Args:
         image: grey or RGB image.
         camera: its intrinsics (corners are undistorted with its distortion first).
-        marker_length_m: the black square's side.
-        marker_lengths_m: the sides of markers whose size differs, by id.
+        marker_sizes: the side of each marker's black square [m].
         dictionary: the markers' dictionary (ignored when ``detector`` is given).
         depth: aligned depth, uint16 millimetres or float32 metres, 0 or NaN for no return;
             without it, range comes from the marker's pose (PnP on its corners and size) and
@@ -390,7 +382,5 @@ def observe(
             f"{image.shape[1]}x{image.shape[0]} colour image"
         )
     detections = (detector or Detector(dictionary)).detect(image)
-    model = ObservationModel(
-        marker_length_m, marker_lengths_m or {}, method, corner_sigma_px, depth_model
-    )
+    model = ObservationModel(marker_sizes, method, corner_sigma_px, depth_model)
     return observe_detections(detections, camera, model, depth=depth, mount=mount, t_ns=t_ns)

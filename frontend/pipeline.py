@@ -28,6 +28,7 @@ from markergraph.frontend.logs import DecodeFailures, Log, LogError, open_log
 from markergraph.frontend.marker_size import SizeByDepth, marker_sizes_by_depth
 from markergraph.frontend.odometry_kind import odometry_evidence
 from markergraph.frontend.posed import LEVEL_TOLERANCE_RAD, drop_notes, tally_detections
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.spans import (
     Span,
     SpanReader,
@@ -63,23 +64,22 @@ def extract(
         LogError: the log cannot be read, has no camera, or nothing usable on a topic.
         SettingsError: a bad dictionary, or allowed ids outside it.
     """
-    path, given_m = Path(path), config.marker_length_m
+    path, given_m = Path(path), config.marker_sizes.default_m
     result = _extract_once(path, config, progress, workers)
     size = marker_sizes_by_depth(
-        result.size_ratios, config.marker_length_m, config.marker_lengths_m,
+        result.size_ratios, config.marker_sizes.default_m, config.marker_sizes.by_id,
         config.depth_scale or 1.0,
     )  # fmt: skip
     notes = []
     if size is not None and size.use:
-        sizes_m = {**config.marker_lengths_m, **size.sizes_m}
         notes = _size_notes(size, config)
-        config = replace(config, marker_length_m=size.size_m, marker_lengths_m=sizes_m)
+        sizes = MarkerSizes(size.size_m, config.marker_sizes.by_id).with_sizes(size.sizes_m)
+        config = replace(config, marker_sizes=sizes)
         result = _extract_once(path, config, progress, workers)
     elif size is None and result.observations:
         notes.append(_given_size_note(result, config))
     result.notes += notes
-    result.marker_size_m_used = config.marker_length_m
-    result.marker_sizes_m_used = dict(config.marker_lengths_m)
+    result.marker_sizes_used = config.marker_sizes
     if size is not None:
         result.marker_size_m_by_depth = given_m * size.ratio
         result.marker_size_ratio_by_depth = size.ratio
@@ -92,7 +92,7 @@ def _given_size_note(result: Extraction, config: FrontendConfig) -> Note:
     it (its figure: the markers seen with depth, None without depth)."""
     topic = result.topics.depth
     text = (
-        f"the map's scale rests on the given marker size ({config.marker_length_m:g} m; "
+        f"the map's scale rests on the given marker size ({config.marker_sizes.default_m:g} m; "
         "--marker-size sets it): "
         + (
             f"too few markers seen with depth on {topic} ({len(result.size_ratios)}) to measure it"
@@ -108,10 +108,11 @@ def _size_notes(size: SizeByDepth, config: FrontendConfig) -> list[Note]:
     """What depth measured of the markers' size, and what is used (each note's figure: the
     size used [m])."""
     notes = []
-    if size.size_m != config.marker_length_m:
+    given_m = config.marker_sizes.default_m
+    if size.size_m != given_m:
         short = 100 * (1 - 1 / size.ratio)
         text = (
-            f"markers measure {size.size_m:.3f} m by depth (the given {config.marker_length_m:g}"
+            f"markers measure {size.size_m:.3f} m by depth (the given {given_m:g}"
             f" m would put every range {abs(short):.0f} % {'short' if short > 0 else 'long'}; "
             f"depth over PnP's range in {size.sightings} sightings, "
             f"{100 * size.ratio_sigma:.2f} % error): using {size.size_m:.3f} m. A depth camera "
@@ -120,7 +121,7 @@ def _size_notes(size: SizeByDepth, config: FrontendConfig) -> list[Note]:
         )
         notes.append(Note("marker_size.measured", text, figure=size.size_m))
     for marker_id, size_m in sorted(size.sizes_m.items()):
-        given = config.marker_lengths_m.get(marker_id, config.marker_length_m)
+        given = config.marker_sizes.of(marker_id)
         text = (
             f"marker {marker_id} measures {size_m:.3f} m by depth, apart from the others "
             f"(given {given:g} m): using {size_m:.3f} m for it"

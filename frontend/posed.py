@@ -233,7 +233,7 @@ def observe_levelled_frame(
     observations, dropped, rewound = [], [], []
     camera = view.camera
     for detection in detections:
-        side = model.length_of(detection.marker_id)
+        side = model.marker_sizes.of(detection.marker_id)
         corners, solutions, reversed_ = _wound_solutions(detection.corners, view, side)
         if not solutions:
             dropped.append(Dropped(detection.marker_id, DropReason.NO_POSE))

@@ -319,8 +319,8 @@ class _Reader:
     def _observe(self, views: dict[str, tuple[Camera, Pose3]]) -> None:
         model = self.config.observation_model
         if self.tagslam is not None:
-            sizes = {**self.tagslam.tag_sizes_m, **dict(model.marker_lengths_m)}
-            model = replace(model, marker_lengths_m=sizes)
+            sizes = model.marker_sizes.under(self.tagslam.tag_sizes_m)
+            model = replace(model, marker_sizes=sizes)
         forward = next(iter(views.values()))[1].R[:, 2]  # the heading's axis on the body
         stamps = np.array([t for t, _, _ in self.poses], dtype=np.int64)
         for t_ns, p, R_world_body in self.poses:

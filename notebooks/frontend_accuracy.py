@@ -52,6 +52,7 @@ from markergraph.datasets import Marker, Wall, World
 from markergraph.datasets.render import Renderer
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import ObservationModel, observe_detections
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.yaw import YawMethod
 from markergraph.notebook_figures import NotebookFigures
 
@@ -95,7 +96,7 @@ for d in DISTANCES:
                 found = observe_detections(
                     detections,
                     renderer.camera,
-                    ObservationModel(0.2, method=method),
+                    ObservationModel(MarkerSizes(0.2), method=method),
                     depth=frame.depth_mm,
                     mount=renderer.mount,
                 )

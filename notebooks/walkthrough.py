@@ -87,6 +87,7 @@ from markergraph.frontend import (
 from markergraph.frontend.camera import Camera
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import ObservationModel, observe_detections
+from markergraph.frontend.sizes import MarkerSizes
 
 COLOR = "/camera/camera/color/image_raw/compressed"
 DEPTH = "/camera/camera/aligned_depth_to_color/image_raw"
@@ -126,7 +127,7 @@ for (stamp, image, depth_image, detections), top, bottom in zip(shown, *axes, st
     )  # fmt: skip
     top.imshow(drawn)
     for obs in observe_detections(
-        detections, camera, ObservationModel(0.2), depth=depth_image, mount=mount
+        detections, camera, ObservationModel(MarkerSizes(0.2)), depth=depth_image, mount=mount
     ):
         u, v = np.asarray(obs.corners).mean(axis=0)
         top.annotate(

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 
-from markergraph.cli._settings import FLAGS
 from markergraph.estimator import Method, OdometryNoise, Robust
 from markergraph.frontend import FrontendConfig
 from markergraph.frontend.camera import CameraMount
@@ -75,7 +74,7 @@ def test_defaults_are_the_librarys_defaults() -> None:
     assert config.frontend.default_mount == CameraMount()
     assert config.odometry_noise() == ("wheel", OdometryNoise())
     assert config.odometry_noise("/vio_node/odom")[0] == "vio"
-    assert config.methods == (Method.SLAM,) and config.robust is Robust.HUBER
+    assert config.methods == (Method.SLAM,) and config.noise.robust is Robust.HUBER
     assert config.home_id is None and config.workers is None  # auto: as many as help
 
 
@@ -86,8 +85,8 @@ def test_a_file_sets_every_section(tmp_path: Path, name: str, text: str) -> None
     path.write_text(text)
     config = map_config(read_config_file(path))
     frontend = config.frontend
-    assert frontend.dictionary == "DICT_6X6_250" and frontend.marker_length_m == 0.15
-    assert frontend.marker_lengths_m == {7: 0.1} and frontend.allowed_ids == (1, 2, 3)
+    assert frontend.dictionary == "DICT_6X6_250" and frontend.marker_sizes.default_m == 0.15
+    assert frontend.marker_sizes.by_id == {7: 0.1} and frontend.allowed_ids == (1, 2, 3)
     assert frontend.color_topic == "/cam/image/compressed" and frontend.depth_topic is None
     assert frontend.default_mount.height_m == 0.45
     assert frontend.default_mount.pitch_rad == pytest.approx(math.radians(12.5), abs=1e-15)
@@ -95,7 +94,7 @@ def test_a_file_sets_every_section(tmp_path: Path, name: str, text: str) -> None
     assert frontend.method is YawMethod.PNP and frontend.depth_model == DepthModel()
     assert config.methods == ALL_METHODS and config.home_id == 2
     assert config.odometry_noise() == ("wheel", OdometryNoise(per_m=0.02))
-    assert config.robust is Robust.CAUCHY
+    assert config.noise.robust is Robust.CAUCHY
 
 
 def test_printed_configuration_reads_back_to_the_same_settings(tmp_path: Path) -> None:
@@ -144,9 +143,9 @@ def test_flags_override_the_file_and_bad_flags_exit_1(tmp_path: Path) -> None:
     assert run.returncode == 0, run.stderr
     printed = tmp_path / "printed.toml"
     printed.write_text(run.stdout)
-    values = read_config_file(printed)
-    assert values["marker_size"] == 0.3 and values["marker_sizes"] == {9: 0.05}
-    assert values["dictionary"] == "DICT_6X6_250" and values["camera.height"] == 0.45
+    config = map_config(read_config_file(printed))
+    assert config.marker_sizes.default_m == 0.3 and config.marker_sizes.by_id == {9: 0.05}
+    assert config.dictionary == "DICT_6X6_250" and config.camera.default_mount.height_m == 0.45
     for arguments, named in (
         (("--marker-size", "-1"), "--marker-size must be positive"),
         (("--marker-sizes", "7:0.1"), "--marker-sizes must be ID=M pairs"),
@@ -163,7 +162,7 @@ def test_help_explains_every_setting_with_its_default() -> None:
     run = cli("map", "--help")
     text = " ".join(run.stdout.split())  # argparse wraps lines
     for setting in SETTINGS:
-        assert FLAGS[setting.key].flag in text and f"file: {setting.key}" in text
+        assert setting.flag.flag in text and f"file: {setting.key}" in text
         if setting.default not in (None, {}):
             assert f"{setting.key}, default {setting.default}" in text
 
@@ -175,7 +174,7 @@ def test_readme_example_is_a_valid_settings_file(tmp_path: Path) -> None:
     path = tmp_path / "robot.toml"
     path.write_text(block)
     config = map_config(read_config_file(path))
-    assert config.frontend.marker_lengths_m == {7: 0.3} and config.methods == ALL_METHODS
+    assert config.marker_sizes.by_id == {7: 0.3} and config.methods == ALL_METHODS
     assert config.frontend.default_mount.pitch_rad == pytest.approx(math.radians(5.0))
 
 
@@ -198,3 +197,28 @@ def test_depth_scale_flag_takes_auto_or_a_number() -> None:
         capture_output=True, text=True, check=False,
     )  # fmt: skip
     assert bad.returncode == 1 and "--depth-scale" in bad.stderr
+
+
+def test_every_setting_is_declared_once_with_its_flag_type_and_help() -> None:
+    """One declaration per setting: a unique key and flag, a parser (type and bounds), a help
+    line, and at least one command that takes it."""
+    keys = [s.key for s in SETTINGS]
+    flags = [s.flag.flag for s in SETTINGS]
+    assert len(set(keys)) == len(keys) and len(set(flags)) == len(flags)
+    for setting in SETTINGS:
+        assert setting.flag.flag.startswith("--") and setting.flag.commands, setting.key
+        assert callable(setting.parse) and callable(setting.flag.type), setting.key
+        assert setting.help.strip(), setting.key
+        assert setting.check(setting.default) == setting.default, setting.key
+
+
+def test_defaults_read_back_from_the_printed_file_are_the_same_config(tmp_path: Path) -> None:
+    """MapConfig built from the defaults equals the one config_toml's file reads back to,
+    section by section."""
+    path = tmp_path / "defaults.toml"
+    path.write_text(config_toml({}))
+    config, read_back = map_config(), map_config(read_config_file(path))
+    assert read_back == config
+    for section in ("camera", "noise", "odometry", "overlay", "topics", "rig", "marker_sizes"):
+        assert getattr(read_back, section) == getattr(config, section), section
+    assert read_back.frontend == config.frontend

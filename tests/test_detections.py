@@ -15,6 +15,7 @@ from markergraph.frontend.detect import Detection
 from markergraph.frontend.detections import detections_of
 from markergraph.frontend.observe import ObservationModel
 from markergraph.frontend.posed import DropReason, LevelledCamera, observe_levelled_frame
+from markergraph.frontend.sizes import MarkerSizes
 
 EXACT = 1e-6  # noise-free corners through PnP: the pose comes back to solver precision
 
@@ -111,7 +112,9 @@ def test_levelled_observation_is_exact_through_a_tilted_camera() -> None:
     view = LevelledCamera(camera, R @ R_LEVEL_FORWARD, np.array([0.05, -0.02, 0.3]))
     centre, normal_yaw = np.array([2.5, 1.3, 0.9]), math.radians(200.0)
     corners = seen(view, centre, normal_yaw)
-    frame = observe_levelled_frame([Detection(4, corners)], view, ObservationModel(0.2), 5)
+    frame = observe_levelled_frame(
+        [Detection(4, corners)], view, ObservationModel(MarkerSizes(0.2)), 5
+    )
     (obs,) = frame.observations
     bearing = math.atan2(centre[1], centre[0])
     assert not frame.dropped and obs.t_ns == 5
@@ -121,7 +124,9 @@ def test_levelled_observation_is_exact_through_a_tilted_camera() -> None:
                                       abs=EXACT)  # fmt: skip
     assert 0 < obs.sigma_range < 0.05 and 0 < obs.sigma_theta < 0.2 and obs.sigma_bearing > 0
     ceiling = seen(view, np.array([2.0, 0.5, 2.4]), 0.0, tilt=-math.radians(85))
-    frame = observe_levelled_frame([Detection(9, ceiling)], view, ObservationModel(0.2), 5)
+    frame = observe_levelled_frame(
+        [Detection(9, ceiling)], view, ObservationModel(MarkerSizes(0.2)), 5
+    )
     (dropped,) = frame.dropped
     assert frame.observations == [] and dropped.marker_id == 9
     assert dropped.reason is DropReason.OFF_WALL

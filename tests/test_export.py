@@ -25,6 +25,7 @@ from markergraph.formats import (
     write_g2o,
     write_tum,
 )
+from markergraph.frontend import MarkerSizes
 from markergraph.markermap import MAP_SCHEMA, MarkerMap
 
 
@@ -44,8 +45,7 @@ def map_json(solved, tmp_path_factory: pytest.TempPathFactory) -> Path:
         result,
         log="sim.mcap",
         dictionary="DICT_4X4_50",
-        marker_size_m=0.2,
-        marker_sizes_m={3: 0.1},  # one smaller marker
+        marker_sizes=MarkerSizes(0.2, {3: 0.1}),  # one smaller marker
         heights={0: MarkerHeight(1.0, 0.01, 5)},
     ).save(path)
     return path

@@ -33,6 +33,7 @@ from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import observe
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, header
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.yaw import YawMethod, yaw_from_corners
 from markergraph.settings import MapConfig
 
@@ -172,14 +173,14 @@ def test_range_without_depth_comes_from_size_and_is_flagged() -> None:
     T_world_base = gtsam.Pose2(1.8, 1.5, math.pi)  # 1.7 m in front of the home marker
     frame = renderer.render(T_world_base, np.random.default_rng(0))
     with_depth = observe(
-        frame.rgb, renderer.camera, 0.2, depth=frame.depth_mm, mount=renderer.mount
+        frame.rgb, renderer.camera, MarkerSizes(0.2), depth=frame.depth_mm, mount=renderer.mount
     )
-    without = observe(frame.rgb, renderer.camera, 0.2, mount=renderer.mount)
+    without = observe(frame.rgb, renderer.camera, MarkerSizes(0.2), mount=renderer.mount)
     assert len(with_depth) == len(without) == 1
     assert "no-depth" in without[0].flags and "no-depth" not in with_depth[0].flags
     assert without[0].range_m == pytest.approx(with_depth[0].range_m, abs=0.1)
     with pytest.raises(ValueError, match="not aligned"):
-        observe(frame.rgb, renderer.camera, 0.2, depth=frame.depth_mm[::2, ::2])
+        observe(frame.rgb, renderer.camera, MarkerSizes(0.2), depth=frame.depth_mm[::2, ::2])
 
 
 # --- simulated logs ---------------------------------------------------------------------------
@@ -729,7 +730,7 @@ def test_marker_sizes_per_id_set_the_range_without_depth() -> None:
     ranges = {}
     for sizes in ({1: 0.1}, {}):
         observations = observe(
-            frame.rgb, renderer.camera, 0.2, mount=renderer.mount, marker_lengths_m=sizes
+            frame.rgb, renderer.camera, MarkerSizes(0.2, sizes), mount=renderer.mount
         )
         assert sorted(o.marker_id for o in observations) == [0, 1]
         ranges[len(sizes)] = {o.marker_id: o.range_m for o in observations}
@@ -773,7 +774,9 @@ def test_range_is_the_papers_corrected_distance() -> None:
 
     renderer = Renderer(world, Camera(), mount)
     frame = renderer.render(gtsam.Pose2(0.0, horizontal, -math.pi / 2), np.random.default_rng(1))
-    (obs,) = observe(frame.rgb, renderer.camera, 0.2, depth=frame.depth_mm, mount=mount)
+    (obs,) = observe(
+        frame.rgb, renderer.camera, MarkerSizes(0.2), depth=frame.depth_mm, mount=mount
+    )
     assert obs.range_m == pytest.approx(horizontal, abs=0.01)
 
 
@@ -796,7 +799,7 @@ def test_range_without_depth_comes_from_the_full_pose() -> None:
         for obs in observe_detections(
             detector.detect(renderer.render(T_world_base, rng).rgb),
             renderer.camera,
-            ObservationModel(0.2),
+            ObservationModel(MarkerSizes(0.2)),
             mount=renderer.mount,
         ):
             truth = np.linalg.norm(world.T_world_marker(obs.marker_id).translation() - camera)

@@ -274,15 +274,15 @@ def test_a_wrong_marker_size_is_measured_by_depth(log: Path, clean: MapRun) -> N
     that size is used and said, map.json carries it, and the map is the clean log's."""
     run = map_log(log, MapConfig.from_values({"marker_size": 0.15}))
     extraction = run.extraction
-    assert extraction.marker_size_m_used == pytest.approx(0.2, rel=5e-3)
-    assert extraction.marker_size_m_by_depth == extraction.marker_size_m_used
+    assert extraction.marker_sizes_used.default_m == pytest.approx(0.2, rel=5e-3)
+    assert extraction.marker_size_m_by_depth == extraction.marker_sizes_used.default_m
     assert any(n.kind == "marker_size.measured" and n.figure == pytest.approx(0.2, abs=5e-4)
                and "(the given 0.15 m would put every range 25 % short" in n.text
                for n in extraction.notes)  # fmt: skip
-    assert run.results[0].marker_map.marker_size_m == extraction.marker_size_m_used
+    assert run.results[0].marker_map.marker_size_m == extraction.marker_sizes_used.default_m
     assert moved_m(run, clean) < SAME_MAP_M
     assert clean.extraction.marker_size_m_by_depth == pytest.approx(0.2, rel=5e-3)
-    assert clean.extraction.marker_size_m_used == 0.2
+    assert clean.extraction.marker_sizes_used.default_m == 0.2
 
 
 def test_one_marker_of_another_size_is_measured(clean: MapRun, tmp_path: Path) -> None:
@@ -295,9 +295,9 @@ def test_one_marker_of_another_size_is_measured(clean: MapRun, tmp_path: Path) -
               compressed=True, frame_hz=5.0)  # fmt: skip
     run = map_log(path)
     extraction = run.extraction
-    assert extraction.marker_size_m_used == 0.2
-    assert extraction.marker_sizes_m_used.keys() == {1}
-    assert extraction.marker_sizes_m_used[1] == pytest.approx(0.15, rel=0.01)
+    assert extraction.marker_sizes_used.default_m == 0.2
+    assert extraction.marker_sizes_used.by_id.keys() == {1}
+    assert extraction.marker_sizes_used.by_id[1] == pytest.approx(0.15, rel=0.01)
     assert any(
         n.kind == "marker_size.apart" and n.text.startswith("marker 1 measures 0.15")
         for n in extraction.notes

@@ -18,6 +18,7 @@ from markergraph.frontend.posed import (
     observe_levelled_frame,
     tally_detections,
 )
+from markergraph.frontend.sizes import MarkerSizes
 
 EXACT = 1e-6  # noise-free corners through PnP: the pose comes back to solver precision
 SIDE_M = 0.2
@@ -58,7 +59,7 @@ def test_corners_wound_either_way_give_the_same_observation(normal_deg: float) -
     corners = corners_of(centre, normal)
     bearing = math.atan2(centre[1], centre[0])
     theta = math.remainder(bearing + math.pi - normal, math.tau)
-    model = ObservationModel(SIDE_M)
+    model = ObservationModel(MarkerSizes(SIDE_M))
     as_listed = observe_levelled_frame([Detection(3, corners)], VIEW, model, 7)
     reversed_ = observe_levelled_frame([Detection(3, corners[::-1].copy())], VIEW, model, 7)
     assert as_listed.rewound == [] and reversed_.rewound == [3]
@@ -75,7 +76,7 @@ def test_each_markers_drops_are_counted_and_said_as_they_are() -> None:
     a floor marker seen three times (all dropped): the counts, the drop's elevation, and the
     notes say that one of four detections of the wall marker was dropped (it is mapped) and
     that the floor marker is left out."""
-    model = ObservationModel(SIDE_M)
+    model = ObservationModel(MarkerSizes(SIDE_M))
     wall, floor = 4, 9
     frames = []
     for k in range(4):

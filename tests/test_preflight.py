@@ -20,7 +20,7 @@ from markergraph.datasets import scenario, simulate_fast, write_log
 from markergraph.datasets.rewrite import rewrite_log
 from markergraph.estimator import Method, build_frames, estimate_frames
 from markergraph.formats import ExportFormat
-from markergraph.frontend import Camera
+from markergraph.frontend import Camera, MarkerSizes
 from markergraph.markermap import MarkerMap
 
 DURATION_S, FRAME_HZ, ODOMETRY_HZ = 6.0, 5.0, 50.0  # what the complete log is written with
@@ -242,7 +242,7 @@ def map_json(tmp_path_factory: pytest.TempPathFactory) -> Path:
     result = estimate_frames(frames, Method.SLAM, run.mount.T_base_camera)
     path = tmp_path_factory.mktemp("export") / "map.json"
     MarkerMap.from_estimate(result, log="sim.mcap", dictionary="DICT_4X4_50",
-                            marker_size_m=0.2).save(path)  # fmt: skip
+                            marker_sizes=MarkerSizes(0.2)).save(path)  # fmt: skip
     return path
 
 

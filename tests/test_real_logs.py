@@ -104,7 +104,7 @@ def test_stairs_recording_maps_to_tagslams_map(bags: Path) -> None:
     on positions; the closed form says how it reached each tag. The tags' size comes from
     tagslam.yaml's default_tag_size (0.16 m), and every method's verdict is ok."""
     run = mg.map_log(unpacked("test_21", "tag_detections", bags), settings("test_21"))
-    assert run.config.values["marker_size"] == 0.16
+    assert run.config.marker_sizes.default_m == 0.16
     assert {r.label: r.judgement.verdict.value for r in run.results} == dict.fromkeys(
         ("slam", "closed-form", "marker-graph", "isam2", "ekf"), "ok"
     ), run.judgement.reasons
@@ -200,7 +200,7 @@ def test_outdoor_recording_and_tagslams_odometry_convention(bags: Path) -> None:
     body in the rig (the inverse reading puts them 57 cm off); their yaw within 0.3 deg under the
     T265 noise model the topic's name selects (7.6 deg under the wheel model, 12.8 under VIO's)."""
     run = mg.map_log(unpacked("test_22", "tag_detections", bags), settings("test_22"))
-    assert run.config.values["marker_size"] == 0.42  # tagslam.yaml's default_tag_size
+    assert run.config.marker_sizes.default_m == 0.42  # tagslam.yaml's default_tag_size
     assert run.judgement.verdict.value == "ok", run.judgement.reasons
     reference = reference_wall_tags(unpacked("test_22", "reference", bags))
     assert set(reference) == {2, 3}
@@ -221,6 +221,27 @@ def transform(parent: str, child: str, pose: Any, t_ns: int) -> dict[str, Any]:
         "transform": {"translation": dict(zip("xyz", map(float, pose.t), strict=True)),
                       "rotation": quaternion_from_matrix(pose.R)},
     }  # fmt: skip
+
+
+def test_tagslam_per_tag_size_reaches_map_json(bags: Path, tmp_path: Path) -> None:
+    """A tag that tagslam.yaml sizes apart from its default_tag_size keeps that size in
+    map.json's size_m (it reached the observations but map.json used to carry the default)."""
+    import shutil
+
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    for name in ("cameras.yaml", "camera_poses.yaml", "tagslam.yaml"):
+        shutil.copy(DATA / "test_22" / name, folder / name)
+    rig = folder / "tagslam.yaml"
+    text = rig.read_text()
+    assert text.count("size: 0.42") == 2  # default_tag_size and tag 3's own
+    rig.write_text(text.replace("       size: 0.42", "       size: 0.4"))
+    values = tagslam.settings_for(folder, method="slam")
+    run = mg.map_log(unpacked("test_22", "tag_detections", bags), mg.MapConfig.from_values(values))
+    mg.write_results(run, tmp_path / "map", plots=False)
+    marker_map = mg.MarkerMap.load(tmp_path / "map" / "map.json")
+    assert marker_map.markers[3].size_m == 0.4
+    assert marker_map.markers[2].size_m == 0.42
 
 
 def ros2_mcap_of_test_21(bag: Path, target: Path, clockwise: bool = False) -> None:

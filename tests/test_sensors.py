@@ -30,6 +30,7 @@ from markergraph.frontend.observe import (
     marker_depth,
     observe_detections,
 )
+from markergraph.frontend.sizes import MarkerSizes
 
 RATE = 1.0  # turn rate in the capture tests [rad/s]
 
@@ -191,7 +192,7 @@ def test_depth_at_an_oblique_marker_with_black_cells_is_its_centres(wall_marker)
     truth = Trajectory(np.array([0, 10**9]), np.array([[pose.x(), pose.y(), pose.theta()]] * 2))
     frame = capture(renderer, truth, 0, effects, np.random.default_rng(4))
     (detection,) = Detector().detect(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY))
-    model = ObservationModel(0.3)
+    model = ObservationModel(MarkerSizes(0.3))
     (seen,) = observe_detections([detection], renderer.camera, model, depth=frame.depth_mm,
                                  mount=renderer.mount)  # fmt: skip
     assert Flags.NO_DEPTH not in seen.flags

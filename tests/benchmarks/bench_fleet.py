@@ -172,11 +172,11 @@ def run_one(run: str, folder: Path) -> dict[str, Any]:
     from markergraph.datasets import scenario
     from markergraph.estimator import Method, build_frames, estimate_frames
     from markergraph.executors import extract_logs
-    from markergraph.frontend import FrontendConfig
+    from markergraph.frontend import FrontendConfig, MarkerSizes
 
     world, _ = scenario(SCENARIO)
     marker = world.markers[0]
-    config = FrontendConfig(dictionary=marker.dictionary, marker_length_m=marker.size_m)
+    config = FrontendConfig(dictionary=marker.dictionary, marker_sizes=MarkerSizes(marker.size_m))
     logs = sorted(folder.glob("*.mcap"))
     out: dict[str, Any] = {"run": run, "logs": len(logs)}
     # One OpenCV thread in the driver too, as in every worker: each process is one core's work.

@@ -25,6 +25,7 @@ from markergraph.datasets.route import drive
 from markergraph.frontend.camera import Camera
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import ObservationModel, observe_detections
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.yaw import marker_centre, pnp_pose
 
 TUTORIAL = Path(__file__).resolve().parents[3] / "shared/data/opencv-aruco-tutorial/modules/aruco"
@@ -49,7 +50,9 @@ def rendered() -> None:
         at = T_world_base.compose(mount.T_base_camera).translation()
         for detection in detector.detect(renderer.render(T_world_base, rng).rgb):
             truth = np.linalg.norm(world.T_world_marker(detection.marker_id).translation() - at)
-            (obs,) = observe_detections([detection], camera, ObservationModel(0.2), mount=mount)
+            (obs,) = observe_detections(
+                [detection], camera, ObservationModel(MarkerSizes(0.2)), mount=mount
+            )
             pose_errors.append(abs(obs.range_m - truth))
             corners = camera.undistort(detection.corners)
             centre = marker_centre(corners)

@@ -19,6 +19,7 @@ from markergraph.datasets.render import Renderer
 from markergraph.datasets.route import drive
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import ObservationModel, observe_detections
+from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.yaw import YawMethod
 
 
@@ -38,7 +39,7 @@ def main() -> None:
                 for obs in observe_detections(
                     detections,
                     renderer.camera,
-                    ObservationModel(0.2, method=method),
+                    ObservationModel(MarkerSizes(0.2), method=method),
                     depth=frame.depth_mm,
                     mount=renderer.mount,
                 ):
