@@ -191,7 +191,7 @@ class LocalizationRun:
             "new": [{"id": i, **_pose(m.T_map_marker)} for i, m in sorted(loc.new.items())],
             "pulled_sigmas": {str(i): v for i, v in sorted(loc.checked.items())},
             "ate_m": self.ate_m,
-            "notes": [str(note) for note in self.notes],
+            "notes": [note.text for note in self.notes],
         }
 
 

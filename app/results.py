@@ -23,6 +23,7 @@ REPORT_SCHEMA = f"{REPORT_SCHEMA_PREFIX}1"  # report.json's layout; bump on a br
 
 
 def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
+    """report.json: what was read, what each method made of it, and the verdicts."""
     extraction = run.extraction
     report: dict[str, Any] = {
         "schema": REPORT_SCHEMA,
@@ -57,7 +58,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
             **extraction.input_evidence(),
             "odometry_model_reason": run.odometry_model_reason,
         },
-        "notes": [*map(str, run.notes), *extraction.warnings],
+        "notes": [*(note.text for note in run.notes), *extraction.warnings],
         "ground_truth": bool(run.true_markers),
         "seconds": run.seconds,
         "settings": dict(run.config.values),
@@ -76,35 +77,39 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
             for logs, marker_map in run.separate
         ]
     for result in run.results:
-        entry: dict[str, Any] = {
-            **result.judgement.to_json(),
-            "markers_placed": len(result.estimate.markers),
-            "links": len(result.estimate.links),
-            "unplaced": {str(k): v for k, v in result.estimate.unplaced.items()},
-            "converged": result.estimate.converged,
-            "notes": [str(note) for note in result.estimate.notes],
-            "diagnostics": diagnostics(
-                result.estimate, [s.frames for s in run.sessions] or run.frames
-            ),
-        }
-        if result.estimate.placements:  # the closed form: how each marker was reached
-            entry["placements"] = {
-                str(i): {k: v for k, v in asdict(p).items() if k != "marker_id"}
-                for i, p in result.estimate.placements.items()
-            }
-        if result.map_error is not None:
-            entry["marker_rmse_m"] = result.map_error.rmse_position_m
-            entry["marker_yaw_rmse_rad"] = result.map_error.rmse_yaw_rad
-        if result.map_error_aligned is not None:
-            entry["marker_rmse_aligned_m"] = result.map_error_aligned.rmse_position_m
-        if result.inside_95_ellipse is not None:
-            entry["inside_95_ellipse_share"] = result.inside_95_ellipse
-        if result.trajectory_error is not None:
-            entry["ate_m"] = result.trajectory_error.ate_rmse_m
-            rpe = result.trajectory_error.rpe_rmse_m_per_m
-            entry["rpe_m_per_m"] = rpe if math.isfinite(rpe) else None  # a path under 1 m
-        report["methods"][result.label] = entry
+        report["methods"][result.label] = _method_entry(run, result)
     return report
+
+
+def _method_entry(run: MapRun, result: MethodResult) -> dict[str, Any]:
+    """One method's part of report.json: its verdict, what it placed, its notes and, with
+    ground truth, its errors."""
+    entry: dict[str, Any] = {
+        **result.judgement.to_json(),
+        "markers_placed": len(result.estimate.markers),
+        "links": len(result.estimate.links),
+        "unplaced": {str(k): v for k, v in result.estimate.unplaced.items()},
+        "converged": result.estimate.converged,
+        "notes": [note.text for note in result.estimate.notes],
+        "diagnostics": diagnostics(result.estimate, [s.frames for s in run.sessions] or run.frames),
+    }
+    if result.estimate.placements:  # the closed form: how each marker was reached
+        entry["placements"] = {
+            str(i): {k: v for k, v in asdict(p).items() if k != "marker_id"}
+            for i, p in result.estimate.placements.items()
+        }
+    if result.map_error is not None:
+        entry["marker_rmse_m"] = result.map_error.rmse_position_m
+        entry["marker_yaw_rmse_rad"] = result.map_error.rmse_yaw_rad
+    if result.map_error_aligned is not None:
+        entry["marker_rmse_aligned_m"] = result.map_error_aligned.rmse_position_m
+    if result.inside_95_ellipse is not None:
+        entry["inside_95_ellipse_share"] = result.inside_95_ellipse
+    if result.trajectory_error is not None:
+        entry["ate_m"] = result.trajectory_error.ate_rmse_m
+        rpe = result.trajectory_error.rpe_rmse_m_per_m
+        entry["rpe_m_per_m"] = rpe if math.isfinite(rpe) else None  # a path under 1 m
+    return entry
 
 
 def _rmse(result: MethodResult) -> tuple[float, float] | None:
@@ -230,7 +235,7 @@ def write_localization(run: LocalizationRun, out: Path, *, force: bool = False) 
             "schema": REPORT_SCHEMA, MANIFEST_KEY: sorted([*files, "report.json"]),
             "log": str(run.log), "map": str(run.map_path), "poses": len(loc.trajectory),
             "moved": [m.marker_id for m in loc.moved], "new": sorted(loc.new),
-            "ate_m": run.ate_m, "notes": [str(n) for n in run.notes],
+            "ate_m": run.ate_m, "notes": [note.text for note in run.notes],
             "settings": dict(run.config.values),
         })  # fmt: skip
         written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
