@@ -75,6 +75,7 @@ ALL_METHODS = (Method.SLAM, Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.ISAM
 
 # Which commands take a setting: all four, those that read observations, those that map.
 _ALL = ("map", "localize", "detect", "info")
+TOPIC_ROLES = ("color", "depth", "camera_info", "odom")  # FrontendConfig's ROLE_topic
 _READ = ("map", "localize", "detect")  # what changes the observations, not what info checks
 _MAP = ("map", "localize")
 
@@ -147,7 +148,7 @@ SETTINGS: tuple[Setting, ...] = (
         Setting(f"topics.{role}", None, optional_text,
                 f"{role.replace('_', ' ')} topic (default: chosen from the log)",
                 flag=Flag(f"--{role.replace('_', '-')}-topic", "TOPIC"))
-        for role in ("color", "depth", "camera_info", "odom")
+        for role in TOPIC_ROLES
     ),
     Setting("rig.cameras", None, optional_text,
             "a Kalibr cameras.yaml: intrinsics of the cameras whose detections the log holds",
@@ -161,21 +162,19 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("camera.base_frame", "base_link", nonempty,
             "the robot's base frame, to read the camera mount from /tf_static",
             flag=Flag("--base-frame", "FRAME")),
-    Setting("camera.x", 0.1, bounded(-100.0, 100.0),
-            "without /tf_static: camera ahead of the base origin [m]",
-            flag=Flag("--camera-x", "M", type=float, commands=_READ)),
-    Setting("camera.y", 0.0, bounded(-100.0, 100.0),
-            "without /tf_static: camera left of the base origin [m]",
-            flag=Flag("--camera-y", "M", type=float, commands=_READ)),
-    Setting("camera.height", 0.6, bounded(0.0, 100.0),
-            "without /tf_static: optical centre above the floor [m]",
-            flag=Flag("--camera-height", "M", type=float, commands=_READ)),
-    Setting("camera.pitch_deg", 0.0, bounded(-90.0, 90.0),
-            "without /tf_static: optical axis tilted up from level [deg]",
-            flag=Flag("--camera-pitch", "DEG", type=float, commands=_READ)),
-    Setting("camera.yaw_deg", 0.0, bounded(-360.0, 360.0),
-            "without /tf_static: optical axis turned left of the base's x axis [deg]",
-            flag=Flag("--camera-yaw", "DEG", type=float, commands=_READ)),
+    # The camera's mount without /tf_static; the flag is the key's first word.
+    *(
+        Setting(f"camera.{name}", default, bounded(lowest, limit), f"without /tf_static: {text}",
+                flag=Flag(f"--camera-{name.split('_')[0]}", unit, type=float, commands=_READ))
+        for name, default, lowest, limit, unit, text in (
+            ("x", 0.1, -100.0, 100.0, "M", "camera ahead of the base origin [m]"),
+            ("y", 0.0, -100.0, 100.0, "M", "camera left of the base origin [m]"),
+            ("height", 0.6, 0.0, 100.0, "M", "optical centre above the floor [m]"),
+            ("pitch_deg", 0.0, -90.0, 90.0, "DEG", "optical axis tilted up from level [deg]"),
+            ("yaw_deg", 0.0, -360.0, 360.0, "DEG",
+             "optical axis turned left of the base's x axis [deg]"),
+        )
+    ),
     Setting("camera.delay_ms", None, optional(bounded(-500.0, 500.0)),
             "how late the camera's stamps are against odometry [ms] (default: chosen by "
             "SLAM's residuals over -50..100 ms)",
@@ -388,10 +387,7 @@ class MapConfig:
             marker_sizes=self.marker_sizes,
             method=self.yaw_method,
             allowed_ids=self.ids,
-            color_topic=topics.color,
-            depth_topic=topics.depth,
-            camera_info_topic=topics.camera_info,
-            odom_topic=topics.odom,
+            **{f"{role}_topic": getattr(topics, role) for role in TOPIC_ROLES},
             base_frame=self.camera.base_frame,
             default_mount=self.camera.default_mount,
             depth_scale=noise.depth_scale,

@@ -1,9 +1,6 @@
 """Worker processes: how many to start (the cores there are and how busy they are now), and a
-``spawn``ed pool whose workers end themselves when their parent dies.
-
-Used by the front end (a process per stretch of a log) and the application (a process per log),
-so both get the same safety and the same count of cores.
-"""
+``spawn``ed pool whose workers end themselves when their parent dies. The front end (a process
+per stretch of a log) and the application (a process per log) share it, and so its safety."""
 
 from __future__ import annotations
 

@@ -64,8 +64,8 @@ def extract(
         LogError: the log cannot be read, has no camera, or nothing usable on a topic.
         SettingsError: a bad dictionary, or allowed ids outside it.
     """
-    path, given_m = Path(path), config.marker_sizes.default_m
-    result = _extract_once(path, config, progress, workers)
+    log, given_m = open_log(Path(path)), config.marker_sizes.default_m
+    result = _extract_once(log, config, progress, workers)
     size = marker_sizes_by_depth(
         result.size_ratios, config.marker_sizes.default_m, config.marker_sizes.by_id,
         config.depth_scale or 1.0,
@@ -75,7 +75,7 @@ def extract(
         notes = _size_notes(size, config)
         sizes = MarkerSizes(size.size_m, config.marker_sizes.by_id).with_sizes(size.sizes_m)
         config = replace(config, marker_sizes=sizes)
-        result = _extract_once(path, config, progress, workers)
+        result = _extract_once(log, config, progress, workers)
     elif size is None and result.observations:
         notes.append(_given_size_note(result, config))
     result.notes += notes
@@ -131,10 +131,10 @@ def _size_notes(size: SizeByDepth, config: FrontendConfig) -> list[Note]:
 
 
 def _extract_once(
-    path: Path,
-    config: FrontendConfig = FrontendConfig(),
-    progress: Callable[[int, int], None] | None = None,
-    workers: int | None = 1,
+    log: Log,
+    config: FrontendConfig,
+    progress: Callable[[int, int], None] | None,
+    workers: int | None,
 ) -> Extraction:
     """Observations and odometry from a ROS 2 or Foxglove MCAP log (file or rosbag2 folder).
 
@@ -149,8 +149,7 @@ def _extract_once(
         LogError: the log cannot be read, has no camera, or nothing usable on a topic.
         SettingsError: a bad dictionary, or allowed ids outside it.
     """
-    path = Path(path)
-    log = open_log(path)
+    path = log.path
     topics = log.topics
     choice = choose_topics(path, topics, config)
     if choice.color is None and not choice.detections:

@@ -358,10 +358,7 @@ class _Reader:
             detections_by_topic[frame.topic] += len(detections)
             rewound_by_topic[frame.topic] += len(levelled.rewound)
         self.log.marker_detections = tally_detections(frames)
-        self.log.notes += [
-            Note("markers.detections_dropped", text)
-            for text in drop_notes(self.log.marker_detections)
-        ]
+        self.log.notes += drop_notes(self.log.marker_detections)
         for topic, rewound in rewound_by_topic.items():
             if rewound:
                 text = (

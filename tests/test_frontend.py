@@ -489,10 +489,7 @@ def to_foxglove(source: Path, target: Path) -> None:
                 topic = "/front/image"
             elif message.topic.endswith("camera_info"):
                 out = CameraCalibration(
-                    timestamp=timestamp(m),
-                    frame_id=m.header.frame_id,
-                    width=m.width,
-                    height=m.height,
+                    **_image_header(m, timestamp(m)),
                     distortion_model=m.distortion_model,
                     D=list(m.d),
                     K=list(m.k),
@@ -508,10 +505,7 @@ def to_foxglove(source: Path, target: Path) -> None:
                 topic = "/transforms"
             else:
                 out = RawImage(
-                    timestamp=timestamp(m),
-                    frame_id=m.header.frame_id,
-                    width=m.width,
-                    height=m.height,
+                    **_image_header(m, timestamp(m)),
                     encoding=m.encoding,
                     step=m.step,
                     data=m.data,
@@ -519,6 +513,14 @@ def to_foxglove(source: Path, target: Path) -> None:
                 topic = "/front/depth"
             writer.write_message(topic, out, log_time=message.log_time_ns)
         writer.finish()
+
+
+def _image_header(message: Any, stamp: Any) -> dict[str, Any]:
+    """What Foxglove's image and calibration messages share, from a ROS 2 image or info."""
+    return {
+        "timestamp": stamp, "frame_id": message.header.frame_id,
+        "width": message.width, "height": message.height,
+    }  # fmt: skip
 
 
 def _foxglove_pose(pose: Any, timestamp: Any) -> Any:

@@ -299,3 +299,16 @@ def test_every_function_is_under_80_lines() -> None:
                     where = f"{path.relative_to(ROOT)}:{node.lineno}"
                     offenders.append(f"{where}: {node.name} has {lines} lines")
     assert not offenders, _report(offenders)
+
+
+def test_readme_names_every_module() -> None:
+    """README's architecture section names every module of the package, so a newcomer finds
+    where a feature lives."""
+    section = (ROOT / "README.md").read_text(encoding="utf-8").split("\n## Architecture\n")[1]
+    missing = [
+        str(path.relative_to(ROOT))
+        for folder in LAYERS
+        for path in sorted((ROOT / folder).rglob("*.py"))
+        if path.name not in ("__init__.py", "__main__.py") and path.name not in section
+    ]
+    assert not missing, _report(missing)
