@@ -281,6 +281,7 @@ class _Reader:
     def _views(self) -> dict[str, tuple[Camera, Pose3]]:
         """Each detection topic's camera and mount; topics without either are left out."""
         views = {}
+        left_out: list[Note] = []  # topics without a camera or a mount, said in the notes
         bases = (self.body_frame, self.config.base_frame)
         for topic in self.choice.detections:
             frame = next((f.frame_id for f in self.frames if f.topic == topic), "")
@@ -297,16 +298,17 @@ class _Reader:
                     )
                 )
             if camera is None:
-                self.log.notes.append(Note("detections.no_camera", no_camera_text(topic), topic))
+                left_out.append(Note("detections.no_camera", no_camera_text(topic), topic))
             elif mount is None:
                 text = no_mount_text(topic, frame)
-                self.log.notes.append(Note("detections.no_mount", text, topic))
+                left_out.append(Note("detections.no_mount", text, topic))
             else:
                 views[topic] = (camera.camera, mount.T_body_optical)
+        self.log.notes += left_out
         if not views:
             raise LogError(
                 f"{self.path}: no detection topic has both its camera and its mount "
-                f"({'; '.join(n.text for n in self.log.notes[-len(self.choice.detections) :])})"
+                f"({'; '.join(note.text for note in left_out)})"
             )
         self.log.camera = next(iter(views.values()))[0]
         return views
