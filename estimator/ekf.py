@@ -189,38 +189,31 @@ class MarkerEkf:
         y = _wrapped_residual(z.reshape(3), predicted)
         S = H @ self.kf.P[np.ix_(columns, columns)] @ H.T + R
         hx, H = self._linearised(z, R, obs.marker_id, columns, at_prior)
-        if dense:
-            self._dense_update(z, R, hx, H, columns)
-        else:
-            self._sparse_update(z, R, hx, H, columns)
+        self._apply_update(z, R, hx, H, columns, dense)
         self.kf.y, self.kf.S = y.reshape(3, 1), S
         self.innovations.append(y.copy())
         self.nis.append(float(y @ np.linalg.solve(S, y)))
         # Every yaw (rows 2, 5, 8, ...) moved with the update; keep them in (-pi, pi].
         self.kf.x[2::3, 0] = wrap_array(self.kf.x[2::3, 0])
 
-    def _dense_update(
+    def _apply_update(
         self,
         z: NDArray[np.float64],
         R: NDArray[np.float64],
         hx: NDArray[np.float64],
         H: NDArray[np.float64],
         columns: list[int],
+        dense: bool,
     ) -> None:
-        H_full = np.zeros((3, self.kf.dim_x))
-        H_full[:, columns] = H
-        self.kf.update(
-            z, lambda x: H_full, lambda x: hx.reshape(3, 1), R=R, residual=_wrapped_residual
-        )
-
-    def _sparse_update(
-        self,
-        z: NDArray[np.float64],
-        R: NDArray[np.float64],
-        hx: NDArray[np.float64],
-        H: NDArray[np.float64],
-        columns: list[int],
-    ) -> None:
+        """The update at the linearisation ``hx``, ``H`` (over ``columns``): filterpy's
+        Joseph form on a small state, a rank-3 downdate of the touched columns on a large one."""
+        if dense:
+            H_full = np.zeros((3, self.kf.dim_x))
+            H_full[:, columns] = H
+            self.kf.update(
+                z, lambda x: H_full, lambda x: hx.reshape(3, 1), R=R, residual=_wrapped_residual
+            )
+            return
         P = self.kf.P
         PHt = P[:, columns] @ H.T  # (n, 3): only the touched columns of P take part
         S = H @ PHt[columns, :] + R
