@@ -547,8 +547,9 @@ def _toml_value(value: Any) -> str:
 
 def config_toml(values: Mapping[str, Any]) -> str:
     """Settings as a TOML file that :func:`read_config_file` reads back to the same values;
-    unset optional settings are left as comments."""
-    v = _complete(values)
+    unset optional settings are left as comments. What a rig file gives is written as given
+    (written as a default, the marker size would then beat the rig's own)."""
+    v = _with_rig_defaults(values)
     sections: dict[str, list[str]] = {"": []}
     for setting in SETTINGS:
         section, _, name = setting.key.rpartition(".")

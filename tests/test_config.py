@@ -17,6 +17,7 @@ from markergraph.frontend.yaw import YawMethod
 from markergraph.settings import (
     ALL_METHODS,
     SETTINGS,
+    MapConfig,
     config_toml,
     map_config,
     read_config_file,
@@ -222,3 +223,18 @@ def test_defaults_read_back_from_the_printed_file_are_the_same_config(tmp_path: 
     for section in ("camera", "noise", "odometry", "overlay", "topics", "rig", "marker_sizes"):
         assert getattr(read_back, section) == getattr(config, section), section
     assert read_back.frontend == config.frontend
+
+
+def test_a_rig_files_tag_sizes_survive_a_written_settings_file(tmp_path: Path) -> None:
+    """config_toml of settings naming a tagslam.yaml writes the rig's tag sizes, not the
+    default 0.2 m, so the file read back maps at the rig's size (once it beat the rig's)."""
+    rig = tmp_path / "tagslam.yaml"
+    rig.write_text(
+        "bodies:\n - yard:\n     is_static: true\n     default_tag_size: 0.42\n"
+        "     type: simple\n     tags:\n     - id: 3\n       size: 0.4\n"
+    )
+    written = tmp_path / "robot.toml"
+    written.write_text(config_toml({"rig.tagslam": str(rig)}))
+    config = MapConfig.from_values(read_config_file(written))
+    assert config.marker_sizes.default_m == 0.42
+    assert config.marker_sizes.of(3) == 0.4
