@@ -52,7 +52,11 @@ class RigSettings:
     camera_poses: Path | None
     """A TagSLAM ``camera_poses.yaml``: each camera's pose on the rig."""
     tagslam: Path | None
-    """A TagSLAM ``tagslam.yaml``: tag sizes, and the odometry's body on the rig."""
+    """A TagSLAM ``tagslam.yaml``: tag sizes, surveyed tags, and the odometry's body on the rig."""
+    survey: Path | None
+    """Surveyed tags for a 3-D map (a CSV, a map.json or a tagslam.yaml)."""
+    seed_mounts: bool
+    """Given mounts seed the 3-D estimate instead of holding fixed."""
 
 
 @dataclass(frozen=True, slots=True)

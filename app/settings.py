@@ -157,8 +157,16 @@ SETTINGS: tuple[Setting, ...] = (
             "a TagSLAM camera_poses.yaml: each camera's pose on the rig (without /tf_static)",
             flag=Flag("--camera-poses", "FILE")),
     Setting("rig.tagslam", None, optional_text,
-            "a TagSLAM tagslam.yaml: tag sizes, and the odometry's body on the rig",
+            "a TagSLAM tagslam.yaml: tag sizes, surveyed tags, and the odometry's body on the rig",
             flag=Flag("--tagslam", "FILE")),
+    Setting("rig.survey", None, optional_text,
+            "surveyed tags held by their stated noise in a 3-D map: a CSV (id,x,y[,z][,yaw]), a "
+            "map.json or a tagslam.yaml",
+            flag=Flag("--survey", "FILE", commands=("map",))),
+    Setting("rig.mounts", "fixed", nonempty,
+            "cameras' mounts given by /tf_static or camera_poses.yaml in a 3-D map: fixed, or "
+            "seed (estimated from the tags, starting there)",
+            choices=["fixed", "seed"], flag=Flag("--mounts", commands=("map",))),
     Setting("camera.base_frame", "base_link", nonempty,
             "the robot's base frame, to read the camera mount from /tf_static",
             flag=Flag("--base-frame", "FRAME")),
@@ -233,6 +241,10 @@ SETTINGS: tuple[Setting, ...] = (
             "which estimator; all runs every one side by side",
             choices=[m.value for m in Method] + ["all"],
             flag=Flag("--method", commands=("map",))),
+    Setting("dimensions", "auto", nonempty,
+            "2: the wall map of a wheeled robot; 3: every tag's full pose (any rig, with or "
+            "without odometry); auto: 3 for a log of detections without odometry, else 2",
+            choices=["2", "3", "auto"], flag=Flag("--dimensions", commands=("map",))),
     Setting("home", None, optional_id,
             "the marker whose frame is the map (default: the first seen)",
             flag=Flag("--home", "ID", type=int, commands=("map",))),
@@ -327,7 +339,11 @@ class MapConfig:
         """A rig's files."""
         v = self.values
         return RigSettings(
-            _path(v["rig.cameras"]), _path(v["rig.camera_poses"]), _path(v["rig.tagslam"])
+            _path(v["rig.cameras"]),
+            _path(v["rig.camera_poses"]),
+            _path(v["rig.tagslam"]),
+            _path(v["rig.survey"]),
+            v["rig.mounts"] == "seed",
         )
 
     @cached_property
@@ -403,6 +419,11 @@ class MapConfig:
         """The estimators to run; the first one's map is on top of the result folder."""
         method = self.values["method"]
         return ALL_METHODS if method == "all" else (Method(method),)
+
+    @property
+    def dimensions(self) -> str:
+        """``"2"``, ``"3"`` or ``"auto"`` (3 for a log of detections without odometry)."""
+        return cast(str, self.values["dimensions"])
 
     @property
     def home_id(self) -> int | None:

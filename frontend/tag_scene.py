@@ -1,0 +1,242 @@
+"""A log of tag detections as the 3-D estimator's scene: each detection topic with its camera
+(intrinsics as :mod:`.tagged` finds them) and its mount where given (else estimated), the
+detections grouped into rig frames by stamp, each tag's corners undistorted through its camera's
+lens model to rays with a PnP seed, and the odometry's 3-D pose at each frame.
+
+Cameras that share a stamp (to :data:`SYNC_NS`) are one rig frame, as a synchronised rig's
+are; unsynchronised cameras make frames of their own.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.common.notes import Note
+from markergraph.estimator.tags3d import KnownTag, SceneCamera, TagScene, TagView, tag_corners
+from markergraph.frontend.camera import Camera
+from markergraph.frontend.config import FrontendConfig
+from markergraph.frontend.decode import frame_id, stamp_ns
+from markergraph.frontend.detect import Detection
+from markergraph.frontend.detections import detections_of
+from markergraph.frontend.logs import DecodeFailures, Log, LogError
+from markergraph.frontend.tagged import Rig, find_camera, find_mount, no_camera_text
+from markergraph.frontend.tf import rotation_of, transforms_of
+from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
+
+__all__ = ["SceneRead", "read_tag_scene", "seed_pose"]
+
+SYNC_NS = 1_000_000
+"""Detections of different cameras this close in time belong to one rig frame."""
+MAX_ODOMETRY_GAP_NS = 500_000_000
+"""A frame's odometry is interpolated between samples at most this far apart."""
+PIXEL_NOISE_PX = 1.0
+"""The corners' noise on a real rig's detector (TagSLAM's default too) [px]."""
+
+
+@dataclass
+class SceneRead:
+    """The scene and what reading it found."""
+
+    scene: TagScene
+    detection_messages: int = 0
+    views_read: int = 0
+    skipped: Counter[str] = field(default_factory=Counter)
+    """Reason -> detections not made into views."""
+    notes: list[Note] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def seed_pose(rays: NDArray[np.float64], size_m: float) -> gtsam.Pose3 | None:
+    """The tag's pose in the camera from its corners' rays (IPPE's better solution), or None
+    when there is none in front of the camera."""
+    found, rotations, translations, errors = cv2.solvePnPGeneric(
+        tag_corners(size_m),
+        np.ascontiguousarray(rays.reshape(4, 1, 2)),
+        np.eye(3),
+        None,
+        flags=cv2.SOLVEPNP_IPPE_SQUARE,
+    )
+    if not found:
+        return None
+    best = int(np.argmin(np.asarray(errors).ravel()))
+    t = np.asarray(translations[best], dtype=np.float64).ravel()
+    if not np.all(np.isfinite(t)) or t[2] <= 0:
+        return None
+    R, _ = cv2.Rodrigues(rotations[best])
+    return gtsam.Pose3(gtsam.Rot3(R), t)
+
+
+def _interpolated(samples: list[tuple[int, gtsam.Pose3]], t_ns: int) -> gtsam.Pose3 | None:
+    times = np.array([t for t, _ in samples], dtype=np.int64)
+    k = int(np.searchsorted(times, t_ns))
+    if k < len(times) and times[k] == t_ns:
+        return samples[k][1]
+    if k == 0 or k == len(times) or times[k] - times[k - 1] > MAX_ODOMETRY_GAP_NS:
+        return None
+    (ta, a), (tb, b) = samples[k - 1], samples[k]
+    s = (t_ns - ta) / (tb - ta)
+    rotation = a.rotation().slerp(s, b.rotation())
+    return gtsam.Pose3(rotation, (1 - s) * a.translation() + s * b.translation())
+
+
+class _Reader:
+    def __init__(self, log: Log, config: FrontendConfig, choice: TopicChoice) -> None:
+        self.log, self.config, self.choice = log, config, choice
+        self.rig = Rig.read(config)
+        self.failures = DecodeFailures()
+        self.messages: list[tuple[str, int, str, list[Detection]]] = []
+        self.infos: dict[str, Any] = {}
+        self.static: list[Any] = []
+        self.odometry: list[tuple[int, gtsam.Pose3]] = []
+        self.body_frame: str | None = None
+
+    def read(self) -> None:
+        schemas = {t.topic: t.schema for t in self.log.topics}
+        infos = [t for t, schema in schemas.items() if schema in CALIBRATION_SCHEMAS]
+        wanted = [*self.choice.detections, *infos]
+        wanted += [t for t in (self.choice.odom, self.choice.tf_static) if t]
+        for message in self.log.messages(wanted, self.failures):
+            self._take(message.topic, message.decoded)
+        self.odometry.sort(key=lambda s: s[0])
+
+    def _take(self, topic: str, decoded: Any) -> None:
+        if topic in self.choice.detections:
+            try:
+                found = detections_of(decoded)
+            except (ValueError, AttributeError, TypeError) as error:
+                self.failures.add(self.log.path, topic, f"not a detection array ({error})")
+                return
+            self.messages.append((topic, stamp_ns(decoded), frame_id(decoded), found))
+        elif topic == self.choice.tf_static:
+            self.static += transforms_of(decoded)
+        elif topic == self.choice.odom:
+            pose = getattr(decoded, "pose", None)
+            pose = getattr(pose, "pose", pose)
+            R = rotation_of(pose.orientation) if pose is not None else None
+            if R is None:
+                return
+            p = np.array([pose.position.x, pose.position.y, pose.position.z], dtype=np.float64)
+            if np.all(np.isfinite(p)):
+                self.body_frame = self.body_frame or getattr(decoded, "child_frame_id", None)
+                self.odometry.append((stamp_ns(decoded), gtsam.Pose3(gtsam.Rot3(R), p)))
+        elif topic not in self.infos:
+            self.infos[topic] = decoded
+
+    def cameras(self, notes: list[Note]) -> tuple[list[SceneCamera], list[Camera]]:
+        """Each detection topic with intrinsics, its mount where given (else None)."""
+        scene_cameras, models = [], []
+        bases = (self.body_frame, self.config.base_frame)
+        for topic in self.choice.detections:
+            frame = next((f for t, _, f, _ in self.messages if t == topic), "")
+            found = find_camera(topic, frame, self.rig, self.infos)
+            if found is None:
+                notes.append(Note("detections.no_camera", no_camera_text(topic), topic))
+                continue
+            mount, _ = find_mount(self.static, bases, frame, found, self.rig)
+            name = found.kalibr_name or topic
+            pose = (
+                None
+                if mount is None
+                else gtsam.Pose3(gtsam.Rot3(mount.T_body_optical.R), mount.T_body_optical.t)
+            )
+            if mount is None:
+                notes.append(
+                    Note(
+                        "camera.mount_estimated",
+                        f"{topic}: no mount given (no /tf_static "
+                        "chain, not in camera_poses.yaml): estimated from the tags it sees "
+                        "with the rig's other cameras",
+                        topic,
+                    )
+                )
+            scene_cameras.append(SceneCamera(name, topic, pose, None, float(found.camera.fx)))
+            models.append(found.camera)
+        if not scene_cameras:
+            raise LogError(
+                f"{self.log.path}: no detection topic has its camera's intrinsics "
+                f"({'; '.join(n.text for n in notes)})"
+            )
+        return scene_cameras, models
+
+
+def _frames(
+    messages: list[tuple[str, int, str, list[Detection]]],
+) -> tuple[NDArray[np.int64], list[int]]:
+    """Each message's rig frame: stamps within :data:`SYNC_NS` of a frame's first are one."""
+    order = sorted(range(len(messages)), key=lambda k: messages[k][1])
+    starts: list[int] = []
+    index = [0] * len(messages)
+    for k in order:
+        t = messages[k][1]
+        if not starts or t - starts[-1] > SYNC_NS:
+            starts.append(t)
+        index[k] = len(starts) - 1
+    return np.array(starts, dtype=np.int64), index
+
+
+def read_tag_scene(
+    log: Log,
+    config: FrontendConfig,
+    choice: TopicChoice,
+    known_tags: list[KnownTag] | None = None,
+    ignored: frozenset[int] = frozenset(),
+    home_id: int | None = None,
+) -> SceneRead:
+    """The 3-D scene of a log of tag detections.
+
+    Raises:
+        LogError: no detection topic has its camera's intrinsics, or no detection at all.
+        SettingsError: a Kalibr, camera-poses or tagslam file that cannot be read.
+    """
+    reader = _Reader(log, config, choice)
+    reader.read()
+    empty = sum(1 for message in reader.messages if not message[3])
+    reader.messages = [message for message in reader.messages if message[3]]
+    notes: list[Note] = []
+    cameras, models = reader.cameras(notes)
+    topics = {c.topic: i for i, c in enumerate(cameras)}
+    sizes = config.marker_sizes
+    if reader.rig.tagslam is not None:
+        sizes = sizes.under(reader.rig.tagslam.tag_sizes_m)
+    times, frame_of = _frames(reader.messages)
+    read = SceneRead(TagScene(times, [], cameras, {}), len(reader.messages) + empty)
+    if empty:
+        read.skipped["detection messages with no tag"] = empty
+    views: list[TagView] = []
+    allowed = config.allowed_ids
+    for k, (topic, _, _, detections) in enumerate(reader.messages):
+        if topic not in topics:
+            read.skipped[f"detections on {topic} without a camera"] += len(detections)
+            continue
+        camera, model = topics[topic], models[topics[topic]]
+        for d in detections:
+            read.views_read += 1
+            if d.marker_id in ignored or (allowed is not None and d.marker_id not in allowed):
+                read.skipped["tag ignored by the settings"] += 1
+                continue
+            rays = model.rays(d.corners)
+            seed = seed_pose(rays, sizes.of(d.marker_id)) if np.all(np.isfinite(rays)) else None
+            if seed is None:
+                read.skipped["corners with no pose in front of the camera"] += 1
+                continue
+            views.append(TagView(frame_of[k], camera, d.marker_id, rays, _ray_sigma(model), seed))
+    if not views:
+        raise LogError(f"{log.path}: no tag detection gives a pose ({dict(read.skipped)})")
+    odometry = [_interpolated(reader.odometry, int(t)) for t in times] if reader.odometry else []
+    tag_sizes = {v.tag_id: sizes.of(v.tag_id) for v in views}
+    read.scene = TagScene(times, views, cameras, tag_sizes, odometry, known_tags or [], home_id)
+    read.notes = notes
+    read.warnings = reader.failures.warnings()
+    return read
+
+
+def _ray_sigma(camera: Camera) -> float:
+    """A corner ray's standard deviation: the rig's pixel noise over the focal length."""
+    return PIXEL_NOISE_PX / float(np.sqrt(camera.fx * camera.fy))
