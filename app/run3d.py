@@ -1,0 +1,136 @@
+"""The 3-D map as a library call: a log of tag detections, with or without odometry, to every
+tag's full pose (:func:`~markergraph.estimator.tag_slam.map_tags`), and its wall tags as the 2-D
+map from the same solution.
+
+``dimensions = "auto"`` maps a log of detections without odometry in 3-D (the only way it maps:
+from the tags alone) and everything else in 2-D, saying so in a note.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from markergraph.common import EstimationError, Note, SettingsError
+from markergraph.common.errors import LogError
+from markergraph.estimator import Method
+from markergraph.estimator.tag_slam import map_tags
+from markergraph.estimator.tags3d import KnownTag, TagScene
+from markergraph.frontend import open_log
+from markergraph.frontend.survey import Survey, read_survey
+from markergraph.frontend.tag_scene import read_tag_scene
+from markergraph.frontend.topics import choose_topics
+from markergraph.markermap import MarkerMap
+from markergraph.results3d import Map3dRun
+from markergraph.settings import MapConfig
+
+__all__ = ["MOUNT_SEED_SIGMAS", "map_log_3d", "wants_3d"]
+
+MOUNT_SEED_SIGMAS = np.array([0.1, 0.1, 0.1, 0.05, 0.05, 0.05])
+"""How far a seeded mount may move (rotation [rad], translation [m]): about 6 deg and 5 cm."""
+
+Stage = Callable[[str], None]
+
+
+def wants_3d(log: Path, config: MapConfig) -> tuple[bool, Note | None]:
+    """Whether ``log`` is mapped in 3-D, and the note saying why when the data chose.
+
+    Raises:
+        LogError: the log cannot be read.
+    """
+    if config.dimensions != "auto":
+        return config.dimensions == "3", None
+    opened = open_log(log)
+    choice = choose_topics(opened.path, opened.topics, config.frontend)
+    if choice.detections and choice.color is None and not choice.odom:
+        text = (
+            f"{log}: tag detections and no odometry: mapped in 3-D from the tags alone "
+            "(--dimensions 2 needs odometry)"
+        )
+        return True, Note("map.dimensions", text)
+    return False, None
+
+
+def _surveys(config: MapConfig) -> tuple[list[KnownTag], frozenset[int], list[Note], Survey | None]:
+    """The surveyed tags of ``--survey`` and of ``tagslam.yaml`` (the survey file wins where
+    both place a tag), the ids to leave out, and the notes of reading them."""
+    tags: dict[int, KnownTag] = {}
+    ignored: set[int] = set()
+    notes: list[Note] = []
+    tagslam = None
+    for path in (config.rig.tagslam, config.rig.survey):
+        if path is None:
+            continue
+        survey = read_survey(path)
+        tagslam = survey if path == config.rig.tagslam else tagslam
+        tags.update({t.tag_id: t for t in survey.tags})
+        ignored |= survey.ignored_ids
+        notes += survey.notes
+        if survey.tags:
+            notes.append(Note("survey.tags", f"{path}: {len(survey.tags)} surveyed tags held "
+                              "by their stated noise", str(path), len(survey.tags)))  # fmt: skip
+    return [tags[i] for i in sorted(tags)], frozenset(ignored), notes, tagslam
+
+
+def _seeded(scene: TagScene) -> TagScene:
+    cameras = [
+        c if c.T_rig_camera is None else replace(c, sigmas=MOUNT_SEED_SIGMAS) for c in scene.cameras
+    ]
+    return replace(scene, cameras=cameras)
+
+
+def map_log_3d(
+    log: Path, config: MapConfig, *, notes: list[Note] | None = None, stage: Stage | None = None
+) -> Map3dRun:
+    """The 3-D map of a log of tag detections.
+
+    Raises:
+        LogError: no tag detections in the log, or none with its camera's intrinsics.
+        SettingsError: a method that makes no 3-D map, or a rig or survey file that cannot be read.
+        EstimationError: nothing to map, or a graph that cannot be solved.
+    """
+    stage = stage or (lambda name: None)
+    if len(config.methods) == 1 and config.methods[0] not in (Method.SLAM, Method.ISAM2):
+        raise SettingsError(
+            f"--method {config.methods[0].value}: a 3-D map is made by slam (the paper's forms, "
+            "the marker graph and the EKF are 2-D)"
+        )
+    seconds: dict[str, float] = {}
+    start = time.perf_counter()
+    stage(f"reading {Path(log).name}")
+    opened = open_log(log)
+    choice = choose_topics(opened.path, opened.topics, config.frontend)
+    if not choice.detections:
+        raise LogError(
+            f"{log}: a 3-D map is made from tag detections (AprilTag detection messages); "
+            "this log has none"
+        )
+    known, ignored, survey_notes, _ = _surveys(config)
+    read = read_tag_scene(opened, config.frontend, choice, known, ignored, config.home_id)
+    scene = _seeded(read.scene) if config.rig.seed_mounts else read.scene
+    seconds["front end"] = time.perf_counter() - start
+    stage("estimating: 3-D tag map")
+    start = time.perf_counter()
+    try:
+        tag_map = map_tags(scene)
+    except EstimationError as error:
+        raise EstimationError(f"{log}: {error}") from None
+    seconds["slam"] = time.perf_counter() - start
+    skipped = [
+        Note("views.skipped", f"{count:,} tag detections skipped: {reason}", figure=count)
+        for reason, count in sorted(read.skipped.items())
+    ]
+    marker_map = MarkerMap.from_tag_map(
+        tag_map, log=str(log), dictionary=config.dictionary,
+        marker_size_m=config.marker_sizes.default_m, method=Method.SLAM.value,
+    )  # fmt: skip
+    return Map3dRun(
+        Path(log), config, tag_map, marker_map, len(scene.frame_times), read.views_read,
+        [*(notes or []), *read.notes, *survey_notes, *skipped,
+         *(Note("log.unreadable", text) for text in read.warnings)], seconds,
+        truth=None,
+    )  # fmt: skip
