@@ -172,11 +172,6 @@ def observation_errors(
     return np.array(rows, dtype=np.float64).reshape(-1, 5)
 
 
-_TAG_FRAME = re.compile(r"^tag_(\d+)$")
-"""TagSLAM's optimised tag frames (its surveyed priors are ``o_tag_<id>``, its bodies may be
-named ``tag_board``: neither matches)."""
-
-
 def _last_transforms(bag: Path) -> dict[str, tuple[str, gtsam.Pose3]]:
     """Each /tf child frame's last transform: child -> (parent, T_parent_child)."""
     last = {}
@@ -205,18 +200,23 @@ def _in_frame(
     return pose if frame is None or node == frame else None
 
 
-def reference_tags_3d(bag: Path, frame: str | None = None) -> dict[int, gtsam.Pose3]:
+def reference_tags_3d(
+    bag: Path, frame: str | None = None, prefix: str = "tag_"
+) -> dict[int, gtsam.Pose3]:
     """TagSLAM's final tag poses (the tag frame: AprilTag's, z out of the print), each its last
     /tf value composed up the tree: to the tree's root (TagSLAM's ``map``) by default, or to
     ``frame`` (a static body's name) if given, leaving out tags not under it.
 
     TagSLAM hangs a tag under its body's frame (``perch``, ``lab``, ``board_60``, ...), and the
     body under ``map``, at an offset where the body has a pose (test 16's ``lab`` is 1 m up).
+    Frames named ``<prefix><id>`` are read: ``tag_`` its optimised tags, ``o_tag_`` the surveyed
+    poses it was given (a body named ``tag_board`` matches neither).
     """
+    pattern = re.compile(rf"^{re.escape(prefix)}(\d+)$")
     last = _last_transforms(bag)
     tags = {}
     for name in last:
-        match = _TAG_FRAME.match(name)
+        match = pattern.match(name)
         pose = _in_frame(name, last, frame) if match else None
         if match and pose is not None:
             tags[int(match.group(1))] = pose
@@ -283,7 +283,7 @@ def _fit_points(poses: list[gtsam.Pose3], reach_m: float) -> NDArray[np.float64]
     """Each pose's position, and where its tag lies on a line (or is alone), also the tips of
     its axes at ``reach_m``."""
     return np.array(
-        [p.transformPoint(np.asarray(v) * reach_m) for p in poses for v in np.eye(3)]
+        [p.transformFrom(np.asarray(v) * reach_m) for p in poses for v in np.eye(3)]
         + [p.translation() for p in poses]
     )
 
