@@ -1,9 +1,17 @@
-"""The corrected marker map as a type, and its file ``map.json`` (schema ``markergraph.map/1``).
+"""The corrected marker map as a type, and its file ``map.json`` (schema ``markergraph.map/2``;
+``markergraph.map/1`` files still read).
 
 A :class:`MarkerMap` is what ``markergraph map`` writes and what ``export``, ``heading``, the
 plots and the overlay take: each marker's pose in the map frame (the home marker's), its
 covariance, side and height where known; the links between markers with the paper's edge
 values; and where the map came from.
+
+A 3-D map (``dimensions`` 3, :meth:`MarkerMap.from_tag_map`) holds every tag's full pose and
+6x6 covariance in :attr:`MarkerMap.markers3d` and the rig's cameras; its :attr:`~MarkerMap.markers`
+are its wall tags alone as a 2-D map (the tags whose normal is within
+:data:`~markergraph.frontend.posed.WALL_TILT_RAD` of horizontal, in a map whose z is up), so
+that everything that reads a 2-D map (localisation, ``--prior``, ``heading``, the 2-D plots and
+the overlay) takes a 3-D map unchanged and sees only what it can use.
 """
 
 from __future__ import annotations
@@ -24,11 +32,23 @@ from markergraph.common.files import written_whole
 from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.heights import MarkerHeight
 from markergraph.estimator.paper import Edge, Form, edge_from_pose2, heading
+from markergraph.estimator.tags3d import Camera3d, TagMap3d
+from markergraph.frontend.posed import WALL_TILT_RAD
 from markergraph.frontend.sizes import MarkerSizes
 
-__all__ = ["MAP_SCHEMA", "MapLink", "MapMarker", "MarkerMap", "MarkerMapError"]
+__all__ = [
+    "MAP_SCHEMA",
+    "MAP_SCHEMAS_READ",
+    "MapLink",
+    "MapMarker",
+    "MarkerMap",
+    "MarkerMapError",
+    "heading_jacobian",
+    "is_wall",
+]
 
-MAP_SCHEMA = "markergraph.map/1"
+MAP_SCHEMA = "markergraph.map/2"
+MAP_SCHEMAS_READ = ("markergraph.map/1", MAP_SCHEMA)  # /1 is /2 without "dimensions" (2-D)
 
 
 class MarkerMapError(MarkerGraphError):
@@ -50,6 +70,14 @@ class MapMarker:
         sigma_z_m: the height's standard deviation [m], where known.
         relative_covariance: ``covariance`` with the map's common rigid motion removed (the
             marker's uncertainty relative to the map as a whole), or None.
+        T_map_marker3: its full pose (3-D maps only; x the normal into the room, z up for an
+            upright tag on a wall), else None. ``T_map_marker`` is then its trace on the floor:
+            the position's x, y and the heading of the normal.
+        covariance6: 6x6 over ``T_map_marker3``'s tangent (rotation [rad], then translation
+            [m], in the marker's own frame), or None.
+        wall: on a wall (always, in a 2-D map): in a 3-D map, its normal is within
+            ``WALL_TILT_RAD`` of horizontal and the map's z is up.
+        known: held by a survey prior (3-D maps).
     """
 
     marker_id: int
@@ -60,6 +88,10 @@ class MapMarker:
     z_m: float | None = None
     sigma_z_m: float | None = None
     relative_covariance: NDArray[np.float64] | None = None
+    T_map_marker3: gtsam.Pose3 | None = None
+    covariance6: NDArray[np.float64] | None = None
+    wall: bool = True
+    known: bool = False
 
     def position_ellipse(self, n_sigma: float = 2.0) -> tuple[NDArray[np.float64], float] | None:
         """The ``n_sigma`` position ellipse in the map frame: (diameters (major, minor) [m],
@@ -112,6 +144,12 @@ class MarkerMap:
         log: the log it was made from.
         converged: whether the method's optimiser converged.
         unplaced: marker id -> why it could not be placed.
+        dimensions: 2 for a floor map, 3 for a map of full tag poses.
+        up: (3-D) the map frame's z is up, so that its wall tags make a 2-D map.
+        cameras: (3-D) the rig's cameras with their mounts ``T_rig_camera``.
+        markers3d: (3-D) every tag with its full pose, in id order; ``markers`` holds the wall
+            tags among them (the 2-D map). Empty in a 2-D map.
+        frame: (3-D) what fixed the map frame, in words (map.json's ``frame``).
     """
 
     markers: Mapping[int, MapMarker]
@@ -123,6 +161,56 @@ class MarkerMap:
     log: str
     converged: bool = True
     unplaced: Mapping[int, str] = field(default_factory=dict)
+    dimensions: int = 2
+    up: bool = False
+    cameras: tuple[Camera3d, ...] = ()
+    markers3d: Mapping[int, MapMarker] = field(default_factory=dict)
+    frame: str = ""
+
+    @property
+    def every_marker(self) -> Mapping[int, MapMarker]:
+        """Every marker of the map: a 3-D map's tags (walls or not), a 2-D map's markers."""
+        return self.markers3d if self.dimensions == 3 else self.markers
+
+    @classmethod
+    def from_tag_map(
+        cls, tag_map: TagMap3d, *, log: str, dictionary: str, marker_size_m: float, method: str
+    ) -> MarkerMap:
+        """A 3-D tag map as a map: every tag in ``markers3d`` with its full pose and 6x6
+        covariance in the marker frame, its wall tags also in ``markers`` with (x, y, yaw) and
+        the 3x3 covariance propagated from the 6x6 (:func:`heading_jacobian`).
+
+        The home id is the estimator's home tag, or (when surveyed tags fixed the frame) the
+        lowest surveyed tag's id.
+        """
+        tags = {
+            i: _marker_of(i, tag.T_map_marker, tag.marker_covariance, tag.n_views, tag.size_m,
+                          up=tag_map.up, known=tag.known)
+            for i, tag in sorted(tag_map.tags.items())
+        }  # fmt: skip
+        home = tag_map.home_id
+        anchor = f"home tag {home}"
+        if home is None:
+            known = [i for i, tag in tags.items() if tag.known]
+            home = min(known or list(tags) or [0])
+            anchor = "the surveyed tags"
+        level = "z up" if tag_map.up else "z not known to be up"
+        return cls(
+            {i: m for i, m in tags.items() if m.wall},
+            (),
+            home,
+            dictionary,
+            marker_size_m,
+            method,
+            log,
+            tag_map.converged,
+            dimensions=3,
+            up=tag_map.up,
+            cameras=tuple(tag_map.cameras[name] for name in sorted(tag_map.cameras)),
+            markers3d=tags,
+            frame=f"map: fixed by {anchor}, {level}; each tag's marker frame has x along its "
+            "normal",
+        )
 
     @classmethod
     def from_estimate(
@@ -203,26 +291,14 @@ class MarkerMap:
     # --- map.json ---------------------------------------------------------------------------
 
     def to_document(self) -> dict[str, Any]:
-        """The map as a JSON-ready document (schema ``markergraph.map/1``)."""
-        markers = []
-        for m in self.markers.values():
-            T = m.T_map_marker
-            entry: dict[str, Any] = {
-                "id": m.marker_id,
-                "x": T.x(),
-                "y": T.y(),
-                "yaw": T.theta(),
-                "size_m": m.size_m,
-                "covariance": _matrix(m.covariance),
-                "n_observations": m.n_observations,
-            }
-            if m.z_m is not None:
-                entry["z"] = m.z_m
-            if m.sigma_z_m is not None:
-                entry["sigma_z"] = m.sigma_z_m
-            if m.relative_covariance is not None:
-                entry["relative_covariance"] = _matrix(m.relative_covariance)
-            markers.append(entry)
+        """The map as a JSON-ready document (schema ``markergraph.map/2``): a 2-D map as in
+        ``markergraph.map/1`` plus ``"dimensions": 2``; a 3-D map with every tag's full pose
+        (``x, y, z``, ``quaternion`` [w, x, y, z] of ``T_map_marker``, ``covariance_6x6``,
+        ``wall``, ``known``), ``up`` and the rig's ``cameras``."""
+        if self.dimensions == 3:
+            markers = [_marker3_entry(m) for m in self.markers3d.values()]
+        else:
+            markers = [_marker2_entry(m) for m in self.markers.values()]
         links = [
             {
                 "a": link.marker_a,
@@ -236,9 +312,10 @@ class MarkerMap:
             }
             for link in self.links
         ]
-        return {
+        document: dict[str, Any] = {
             "schema": MAP_SCHEMA,
-            "frame": f"map: the frame of home marker {self.home_id} (x along its normal)",
+            "dimensions": self.dimensions,
+            "frame": _frame_text(self),
             "units": {"length": "m", "angle": "rad"},
             "home_id": self.home_id,
             "dictionary": self.dictionary,
@@ -246,6 +323,12 @@ class MarkerMap:
             "method": self.method,
             "log": self.log,
             "converged": self.converged,
+        }
+        if self.dimensions == 3:
+            document["up"] = self.up
+            document["cameras"] = [_camera_entry(c) for c in self.cameras]
+        return {
+            **document,
             "markers": markers,
             "links": links,
             "unplaced": {str(k): v for k, v in self.unplaced.items()},
@@ -253,37 +336,30 @@ class MarkerMap:
 
     @classmethod
     def from_document(cls, document: Any, source: str = "the map") -> MarkerMap:
-        """A map from a ``markergraph.map/1`` document, every field checked.
+        """A map from a ``markergraph.map/2`` (or ``/1``) document, every field checked.
 
         Raises:
             MarkerMapError: one line naming ``source`` and the first bad field.
         """
-        if not isinstance(document, dict) or document.get("schema") != MAP_SCHEMA:
+        if not isinstance(document, dict) or document.get("schema") not in MAP_SCHEMAS_READ:
             found = document.get("schema") if isinstance(document, dict) else document
             raise MarkerMapError(f"{source}: not a {MAP_SCHEMA} document (schema {found!r})")
         read = _Reader(source)
+        dimensions = document.get("dimensions", 2)
+        if dimensions not in (2, 3) or isinstance(dimensions, bool):
+            raise read.fail("dimensions", "2 or 3", dimensions)
         size = read.number("marker_size_m", document.get("marker_size_m"), positive=True)
-        markers = {}
+        up = dimensions == 3 and read.boolean("up", document.get("up"))
+        markers: dict[int, MapMarker] = {}
         for i, entry in enumerate(read.items("markers", document.get("markers"))):
             where = f"markers[{i}]"
-            marker_id = read.whole(f"{where}.id", entry.get("id"))
-            if marker_id in markers:
-                raise MarkerMapError(f"{source}: {where}.id {marker_id} appears twice")
-            pose = [read.number(f"{where}.{k}", entry.get(k)) for k in ("x", "y", "yaw")]
-            markers[marker_id] = MapMarker(
-                marker_id,
-                gtsam.Pose2(*pose),
-                read.covariance(f"{where}.covariance", entry.get("covariance")),
-                read.whole(f"{where}.n_observations", entry.get("n_observations")),
-                read.number(f"{where}.size_m", entry.get("size_m", size), positive=True),
-                None if "z" not in entry else read.number(f"{where}.z", entry["z"]),
-                None
-                if "sigma_z" not in entry
-                else read.number(f"{where}.sigma_z", entry["sigma_z"], positive=True),
-                None
-                if "relative_covariance" not in entry
-                else read.covariance(f"{where}.relative_covariance", entry["relative_covariance"]),
-            )
+            if dimensions == 3:
+                marker = _read_marker3(read, where, entry, size, up)
+            else:
+                marker = _read_marker2(read, where, entry, size)
+            if marker.marker_id in markers:
+                raise MarkerMapError(f"{source}: {where}.id {marker.marker_id} appears twice")
+            markers[marker.marker_id] = marker
         links = []
         for i, entry in enumerate(read.items("links", document.get("links", []))):
             where = f"links[{i}]"
@@ -302,8 +378,14 @@ class MarkerMap:
         if not isinstance(dictionary, str) or not dictionary.isprintable() or not dictionary:
             raise MarkerMapError(f"{source}: dictionary must be a name, got {dictionary!r}")
         unplaced = document.get("unplaced") or {}
+        cameras = ()
+        if dimensions == 3:
+            cameras = tuple(
+                _read_camera(read, f"cameras[{i}]", entry)
+                for i, entry in enumerate(read.items("cameras", document.get("cameras", [])))
+            )
         return cls(
-            markers,
+            {i: m for i, m in markers.items() if m.wall},
             tuple(links),
             read.whole("home_id", home),
             dictionary,
@@ -312,6 +394,11 @@ class MarkerMap:
             str(document.get("log", "")),
             bool(document.get("converged", True)),
             {int(k): str(v) for k, v in unplaced.items()} if isinstance(unplaced, dict) else {},
+            dimensions=dimensions,
+            up=up,
+            cameras=cameras,
+            markers3d=markers if dimensions == 3 else {},
+            frame=str(document.get("frame", "")) if dimensions == 3 else "",
         )
 
     def save(self, path: Path) -> None:
@@ -338,11 +425,233 @@ class MarkerMap:
         return cls.from_document(document, str(path))
 
 
+def _marker2_entry(m: MapMarker) -> dict[str, Any]:
+    """A 2-D map's marker in map.json (as in ``markergraph.map/1``)."""
+    T = m.T_map_marker
+    entry: dict[str, Any] = {
+        "id": m.marker_id,
+        "x": T.x(),
+        "y": T.y(),
+        "yaw": T.theta(),
+        "size_m": m.size_m,
+        "covariance": _matrix(m.covariance),
+        "n_observations": m.n_observations,
+    }
+    if m.z_m is not None:
+        entry["z"] = m.z_m
+    if m.sigma_z_m is not None:
+        entry["sigma_z"] = m.sigma_z_m
+    if m.relative_covariance is not None:
+        entry["relative_covariance"] = _matrix(m.relative_covariance)
+    return entry
+
+
+def _read_marker2(read: _Reader, where: str, entry: dict[str, Any], size: float) -> MapMarker:
+    """A 2-D map's marker from map.json."""
+    pose = [read.number(f"{where}.{k}", entry.get(k)) for k in ("x", "y", "yaw")]
+    return MapMarker(
+        read.whole(f"{where}.id", entry.get("id")),
+        gtsam.Pose2(*pose),
+        read.covariance(f"{where}.covariance", entry.get("covariance")),
+        read.whole(f"{where}.n_observations", entry.get("n_observations")),
+        read.number(f"{where}.size_m", entry.get("size_m", size), positive=True),
+        None if "z" not in entry else read.number(f"{where}.z", entry["z"]),
+        None
+        if "sigma_z" not in entry
+        else read.number(f"{where}.sigma_z", entry["sigma_z"], positive=True),
+        None
+        if "relative_covariance" not in entry
+        else read.covariance(f"{where}.relative_covariance", entry["relative_covariance"]),
+    )
+
+
+# --- 3-D maps -------------------------------------------------------------------------------
+
+# The marker frame's normal is its x axis; [e1]x, so that d(R e1) = -R [e1]x omega.
+_E1_CROSS = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+_VERTICAL = 1e-9  # a normal whose horizontal part is shorter than this has no heading
+
+
+def is_wall(T_map_marker3: gtsam.Pose3, up: bool) -> bool:
+    """Whether a tag is a wall tag: the map's z is up and its normal (the marker frame's x) is
+    within :data:`~markergraph.frontend.posed.WALL_TILT_RAD` of horizontal."""
+    normal = T_map_marker3.rotation().matrix()[:, 0]
+    return up and abs(float(normal[2])) <= math.sin(WALL_TILT_RAD)
+
+
+def floor_pose(T_map_marker3: gtsam.Pose3) -> gtsam.Pose2:
+    """A tag's trace on the floor: its x, y and the heading of its normal (0 for a vertical
+    normal)."""
+    t = T_map_marker3.translation()
+    normal = T_map_marker3.rotation().matrix()[:, 0]
+    level = math.hypot(normal[0], normal[1])
+    yaw = math.atan2(normal[1], normal[0]) if level > _VERTICAL else 0.0
+    return gtsam.Pose2(float(t[0]), float(t[1]), yaw)
+
+
+def heading_jacobian(T_map_marker3: gtsam.Pose3) -> NDArray[np.float64]:
+    """(3, 6) the derivative of :func:`floor_pose`'s local coordinates (x, y along and across
+    the normal's heading, yaw) by the Pose3 tangent (rotation, translation) in the marker's
+    own frame, both perturbed on the right as GTSAM does.
+
+    Position: ``t' = t + R v``, seen in the floor pose's frame. Heading: ``n' = n + R (w x
+    e1)`` and ``d yaw = (n_x dn_y - n_y dn_x) / (n_x^2 + n_y^2)``: it grows without bound as the
+    normal turns vertical (a floor tag has no heading); use it for wall tags.
+    """
+    R = T_map_marker3.rotation().matrix()
+    normal = R[:, 0]
+    level2 = float(normal[0] ** 2 + normal[1] ** 2)
+    if level2 <= _VERTICAL**2:
+        raise ValueError("a vertical normal has no heading to propagate a covariance to")
+    yaw = math.atan2(normal[1], normal[0])
+    c, s = math.cos(yaw), math.sin(yaw)
+    J = np.zeros((3, 6))
+    J[:2, 3:] = np.array([[c, s], [-s, c]]) @ R[:2, :]
+    g = np.array([-normal[1], normal[0], 0.0]) / level2
+    J[2, :3] = -g @ R @ _E1_CROSS
+    return J
+
+
+def _marker_of(
+    marker_id: int,
+    T_map_marker3: gtsam.Pose3,
+    covariance6: NDArray[np.float64] | None,
+    n_observations: int,
+    size_m: float,
+    *,
+    up: bool,
+    known: bool,
+    wall: bool | None = None,
+) -> MapMarker:
+    """A 3-D map's marker: its full pose, and its floor trace with the 3x3 covariance (a wall
+    tag's) propagated from the 6x6; ``wall`` None decides it by :func:`is_wall`."""
+    wall = is_wall(T_map_marker3, up) if wall is None else wall
+    covariance = sigma_z = None
+    if covariance6 is not None:
+        R = T_map_marker3.rotation().matrix()
+        sigma_z = math.sqrt(max(float((R @ covariance6[3:, 3:] @ R.T)[2, 2]), 0.0))
+        if wall:
+            J = heading_jacobian(T_map_marker3)
+            covariance = J @ covariance6 @ J.T
+            covariance = (covariance + covariance.T) / 2.0  # exactly symmetric, as written
+    return MapMarker(
+        marker_id,
+        floor_pose(T_map_marker3),
+        covariance,
+        n_observations,
+        size_m,
+        float(T_map_marker3.translation()[2]),
+        sigma_z,
+        None,
+        T_map_marker3,
+        covariance6,
+        wall,
+        known,
+    )
+
+
+def _quaternion(rotation: gtsam.Rot3) -> list[float]:
+    """[w, x, y, z], w >= 0."""
+    q = rotation.toQuaternion()
+    wxyz = [float(q.w()), float(q.x()), float(q.y()), float(q.z())]
+    return wxyz if wxyz[0] >= 0 else [-v for v in wxyz]
+
+
+def _pose_fields(T: gtsam.Pose3) -> dict[str, Any]:
+    t = T.translation()
+    return {
+        "x": float(t[0]),
+        "y": float(t[1]),
+        "z": float(t[2]),
+        "quaternion": _quaternion(T.rotation()),
+    }
+
+
+def _marker3_entry(m: MapMarker) -> dict[str, Any]:
+    """A 3-D map's marker in map.json."""
+    assert m.T_map_marker3 is not None  # a 3-D map's markers all have one
+    T = m.T_map_marker
+    return {
+        "id": m.marker_id,
+        **_pose_fields(m.T_map_marker3),
+        "yaw": T.theta(),
+        "size_m": m.size_m,
+        "covariance": _matrix(m.covariance),
+        "covariance_6x6": _matrix(m.covariance6),
+        "n_observations": m.n_observations,
+        "wall": m.wall,
+        "known": m.known,
+    }
+
+
+def _camera_entry(camera: Camera3d) -> dict[str, Any]:
+    return {
+        "name": camera.name,
+        "topic": camera.topic,
+        **_pose_fields(camera.T_rig_camera),
+        "covariance_6x6": _matrix(camera.covariance),
+        "estimated": camera.estimated,
+        "n_views": camera.n_views,
+    }
+
+
+def _frame_text(marker_map: MarkerMap) -> str:
+    if marker_map.dimensions == 3 and marker_map.frame:
+        return marker_map.frame
+    return f"map: the frame of home marker {marker_map.home_id} (x along its normal)"
+
+
+def _read_marker3(
+    read: _Reader, where: str, entry: dict[str, Any], size: float, up: bool
+) -> MapMarker:
+    """A 3-D map's marker from map.json. ``wall`` is taken as written (a wall tag needs a map
+    whose z is up and a normal that is not vertical); the floor trace and its 3x3 are derived
+    again from the full pose and the 6x6, so ``yaw`` and ``covariance`` are checked, not used."""
+    read.number(f"{where}.yaw", entry.get("yaw"))
+    read.covariance(f"{where}.covariance", entry.get("covariance"))
+    T = read.pose3(where, entry)
+    wall = read.boolean(f"{where}.wall", entry.get("wall"))
+    normal = T.rotation().matrix()[:, 0]
+    if wall and (not up or math.hypot(normal[0], normal[1]) <= _VERTICAL):
+        why = "the map's z is not up" if not up else "its normal is vertical"
+        raise read.fail(f"{where}.wall", f"false ({why})", wall)
+    return _marker_of(
+        read.whole(f"{where}.id", entry.get("id")),
+        T,
+        read.covariance6(f"{where}.covariance_6x6", entry.get("covariance_6x6")),
+        read.whole(f"{where}.n_observations", entry.get("n_observations")),
+        read.number(f"{where}.size_m", entry.get("size_m", size), positive=True),
+        up=up,
+        known=read.boolean(f"{where}.known", entry.get("known", False)),
+        wall=wall,
+    )
+
+
+def _read_camera(read: _Reader, where: str, entry: dict[str, Any]) -> Camera3d:
+    name, topic = entry.get("name"), entry.get("topic")
+    for key, value in (("name", name), ("topic", topic)):
+        if not isinstance(value, str) or not value.isprintable():
+            raise read.fail(f"{where}.{key}", "a name", value)
+    return Camera3d(
+        str(name),
+        str(topic),
+        read.pose3(where, entry),
+        read.covariance6(f"{where}.covariance_6x6", entry.get("covariance_6x6")),
+        read.boolean(f"{where}.estimated", entry.get("estimated")),
+        read.whole(f"{where}.n_views", entry.get("n_views", 0)),
+    )
+
+
 _EDGE_KEYS = ("phi", "theta_ab", "theta_ba", "d")
 # Bounds on what a map may hold: any coordinate beyond 10,000 km, or a variance whose square
 # root squared would overflow in a peer format, is a corrupted file, not a map.
 MAX_VALUE = 1e7
 MAX_VARIANCE = 1e100
+# A quaternion written by us is unit to rounding; one further off than this is not a rotation.
+QUATERNION_TOLERANCE = 1e-6
+# Asymmetry, and a negative eigenvalue, allowed in a 6x6 covariance relative to its largest
+# entry: what rounding in an optimiser's marginals leaves, and no more.
+SYMMETRY_TOLERANCE = 1e-9
 
 
 def _matrix(matrix: NDArray[np.float64] | None) -> list[list[float]] | None:
@@ -401,6 +710,42 @@ class _Reader:
             if not isinstance(item, dict):
                 raise self.fail(f"{where}[{i}]", "an object", item)
         return value
+
+    def boolean(self, where: str, value: Any) -> bool:
+        if not isinstance(value, bool):
+            raise self.fail(where, "true or false", value)
+        return value
+
+    def pose3(self, where: str, entry: dict[str, Any]) -> gtsam.Pose3:
+        """``x, y, z`` and ``quaternion`` [w, x, y, z] (unit to 1e-6, normalised)."""
+        t = [self.number(f"{where}.{k}", entry.get(k)) for k in ("x", "y", "z")]
+        value = entry.get("quaternion")
+        if not isinstance(value, list) or len(value) != 4:
+            raise self.fail(f"{where}.quaternion", "[w, x, y, z]", value)
+        q = np.array([self.number(f"{where}.quaternion", v) for v in value])
+        norm = float(np.linalg.norm(q))
+        if not abs(norm - 1.0) <= QUATERNION_TOLERANCE:
+            raise self.fail(f"{where}.quaternion", "a unit quaternion [w, x, y, z]", value)
+        w, x, y, z = q / norm
+        return gtsam.Pose3(gtsam.Rot3.Quaternion(w, x, y, z), np.array(t))
+
+    def covariance6(self, where: str, value: Any) -> NDArray[np.float64] | None:
+        """A 6x6 covariance or null: symmetric and positive semi-definite to rounding."""
+        if value is None:
+            return None
+        if (
+            not isinstance(value, list)
+            or len(value) != 6
+            or not all(isinstance(row, list) and len(row) == 6 for row in value)
+        ):
+            raise self.fail(where, "a 6x6 matrix or null", value)
+        P = np.array([[self.number(where, v, limit=MAX_VARIANCE) for v in row] for row in value])
+        scale = max(float(np.max(np.abs(P))), 1e-300)
+        if not np.all(np.abs(P - P.T) <= SYMMETRY_TOLERANCE * scale):
+            raise self.fail(where, "a symmetric matrix", value)
+        if float(np.linalg.eigvalsh(P)[0]) < -SYMMETRY_TOLERANCE * scale:
+            raise self.fail(where, "positive semi-definite (a covariance)", value)
+        return P
 
     def covariance(self, where: str, value: Any) -> NDArray[np.float64] | None:
         if value is None:

@@ -34,6 +34,11 @@ _CAPTIONS = {
     "diagnostics.png": "Residual diagnostics; the figures behind it are under Diagnostics by "
     "method below.",
 }
+_CAPTIONS_3D = {
+    "map.png": "The 3-D map: a top view and a side view, each tag's square with its normal, "
+    "surveyed tags in red, the rig's path and, when known, the true tags (grey) after a rigid "
+    "alignment.",
+}
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_ROWS = 200  # a generic table longer than this is cut, saying how much is left in report.json
 MAX_ITEMS = 50  # the same for a list of plain values
@@ -206,7 +211,7 @@ def render_report_page(report: Mapping[str, Any], figures: Mapping[str, bytes]) 
         _verdict_section(report),
         _methods_section(report),
         _notes_section(report),
-        _figures_section(figures),
+        _figures_section(figures, _CAPTIONS_3D if report.get("dimensions") == 3 else _CAPTIONS),
         *_method_sections(report),
         *_generic_sections(report),
         _log_section(report),
@@ -232,7 +237,7 @@ def render_report_page(report: Mapping[str, Any], figures: Mapping[str, bytes]) 
 def _lead(report: Mapping[str, Any]) -> str:
     parts = [
         f"{_plain(report[key])} {key}"
-        for key in ("frames", "observations")
+        for key in ("frames", "observations", "views")
         if _is_number(report.get(key))
     ]
     if _is_number(report.get("markers_seen")):
@@ -385,7 +390,7 @@ def _notes_section(report: Mapping[str, Any]) -> str:
     return '<h2 id="notes">Notes</h2>\n<ul class="notes">\n' + "\n".join(lines) + "\n</ul>"
 
 
-def _figures_section(figures: Mapping[str, bytes]) -> str:
+def _figures_section(figures: Mapping[str, bytes], captions: Mapping[str, str]) -> str:
     if not figures:
         return ""
     parts = ['<h2 id="figures">Figures</h2>']
@@ -396,7 +401,7 @@ def _figures_section(figures: Mapping[str, bytes]) -> str:
         # A figure much wider than the page (the comparison of five methods) is shown at its
         # own size and scrolls sideways: shrunk to the page, its labels would be 6 px high.
         wide = ' class="wide"' if height and width / height > 3.0 else ""
-        caption = _CAPTIONS.get(name, "")
+        caption = captions.get(name, "")
         encoded = base64.b64encode(data).decode("ascii")
         parts.append(
             f"<figure{wide}>"

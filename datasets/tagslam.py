@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bz2
 import math
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -27,9 +28,13 @@ from markergraph.frontend.rig import Pose3, read_camera_poses, read_tagslam
 from markergraph.frontend.tf import planar_pose, rotation_of
 
 __all__ = [
+    "align_rigid_3d",
     "aligned_errors",
+    "aligned_errors_3d",
     "observation_errors",
     "odometry_and_reference",
+    "reference_path_3d",
+    "reference_tags_3d",
     "reference_wall_tags",
     "settings_for",
     "unpacked",
@@ -165,3 +170,154 @@ def observation_errors(
         rows.append((o.range_m - range_m, math.remainder(o.theta - theta, math.tau),
                      o.sigma_range, o.sigma_theta, range_m))  # fmt: skip
     return np.array(rows, dtype=np.float64).reshape(-1, 5)
+
+
+def _last_transforms(bag: Path) -> dict[str, tuple[str, gtsam.Pose3]]:
+    """Each /tf child frame's last transform: child -> (parent, T_parent_child)."""
+    last = {}
+    for message in open_log(bag).messages(["/tf"]):
+        for transform in message.decoded.transforms:
+            q, t = transform.transform.rotation, transform.transform.translation
+            pose = gtsam.Pose3(gtsam.Rot3.Quaternion(q.w, q.x, q.y, q.z), np.array([t.x, t.y, t.z]))
+            parent = transform.header.frame_id.lstrip("/")
+            last[transform.child_frame_id.lstrip("/")] = (parent, pose)
+    return last
+
+
+def _in_frame(
+    child: str, last: Mapping[str, tuple[str, gtsam.Pose3]], frame: str | None
+) -> gtsam.Pose3 | None:
+    """``T_frame_child`` walked up the tree (to its root when ``frame`` is None); None when
+    ``frame`` is not an ancestor."""
+    pose, node, seen = gtsam.Pose3(), child, {child}
+    while node in last and node != frame:
+        parent, T_parent_node = last[node]
+        pose = T_parent_node.compose(pose)
+        if parent in seen:  # a loop in /tf: no root to reach
+            return None
+        seen.add(parent)
+        node = parent
+    return pose if frame is None or node == frame else None
+
+
+def reference_tags_3d(
+    bag: Path, frame: str | None = None, prefix: str = "tag_"
+) -> dict[int, gtsam.Pose3]:
+    """TagSLAM's final tag poses (the tag frame: AprilTag's, z out of the print), each its last
+    /tf value composed up the tree: to the tree's root (TagSLAM's ``map``) by default, or to
+    ``frame`` (a static body's name) if given, leaving out tags not under it.
+
+    TagSLAM hangs a tag under its body's frame (``perch``, ``lab``, ``board_60``, ...), and the
+    body under ``map``, at an offset where the body has a pose (test 16's ``lab`` is 1 m up).
+    Frames named ``<prefix><id>`` are read: ``tag_`` its optimised tags, ``o_tag_`` the surveyed
+    poses it was given (a body named ``tag_board`` matches neither).
+    """
+    pattern = re.compile(rf"^{re.escape(prefix)}(\d+)$")
+    last = _last_transforms(bag)
+    tags = {}
+    for name in last:
+        match = pattern.match(name)
+        pose = _in_frame(name, last, frame) if match else None
+        if match and pose is not None:
+            tags[int(match.group(1))] = pose
+    return dict(sorted(tags.items()))
+
+
+def reference_path_3d(
+    bag: Path, body: str | None = None
+) -> tuple[NDArray[np.int64], list[gtsam.Pose3]]:
+    """TagSLAM's optimised path of a body, ``T_map_body`` at each header stamp [ns], from
+    ``/tagslam/odom/body_<body>`` (the message's child frame says ``odom``, but the pose is the
+    body in the map). Without ``body``: the bag's one such topic, or ``rig`` among several.
+
+    Raises:
+        ValueError: no such topic, or several and none of them the rig's.
+    """
+    prefix = "/tagslam/odom/body_"
+    topics = sorted(t.topic for t in open_log(bag).topics if t.topic.startswith(prefix))
+    if body is not None:
+        chosen = f"{prefix}{body}"
+    elif len(topics) == 1 or f"{prefix}rig" in topics:
+        chosen = topics[0] if len(topics) == 1 else f"{prefix}rig"
+    else:
+        raise ValueError(f"{bag}: body paths {topics}: name the body")
+    if chosen not in topics:
+        raise ValueError(f"{bag}: no {chosen} (it has {topics})")
+    times, poses = [], []
+    for message in open_log(bag).messages([chosen]):
+        pose = message.decoded.pose.pose
+        q, p = pose.orientation, pose.position
+        times.append(stamp_ns(message.decoded))
+        poses.append(
+            gtsam.Pose3(gtsam.Rot3.Quaternion(q.w, q.x, q.y, q.z), np.array([p.x, p.y, p.z]))
+        )
+    return np.array(times, dtype=np.int64), poses
+
+
+def align_rigid_3d(source_xyz: NDArray[np.float64], target_xyz: NDArray[np.float64]) -> gtsam.Pose3:
+    """The rotation and translation (no scale) taking ``source_xyz`` (n, 3) onto
+    ``target_xyz`` (n, 3) in least squares: Kabsch's SVD of the centred cross-covariance, with
+    the reflection removed (Umeyama 1991, eq. 39-42 with c = 1).
+
+    Raises:
+        ValueError: fewer than three points, or shapes that differ.
+    """
+    source, target = np.asarray(source_xyz, float), np.asarray(target_xyz, float)
+    if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3:
+        raise ValueError(f"shapes {source.shape} and {target.shape}: need two (n, 3) arrays")
+    if source.shape[0] < 3:
+        raise ValueError(f"{source.shape[0]} points: a 3-D alignment needs at least three")
+    mu_s, mu_t = source.mean(axis=0), target.mean(axis=0)
+    U, _, Vt = np.linalg.svd((target - mu_t).T @ (source - mu_s))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    R = U @ D @ Vt
+    return gtsam.Pose3(gtsam.Rot3(R), mu_t - R @ mu_s)
+
+
+COLLINEAR_RATIO = 1e-3
+"""Positions whose second principal spread is below this share of the first lie on a line: a
+fit on them cannot fix the rotation about it."""
+
+
+def _fit_points(poses: list[gtsam.Pose3], reach_m: float) -> NDArray[np.float64]:
+    """Each pose's position, and where its tag lies on a line (or is alone), also the tips of
+    its axes at ``reach_m``."""
+    return np.array(
+        [p.transformFrom(np.asarray(v) * reach_m) for p in poses for v in np.eye(3)]
+        + [p.translation() for p in poses]
+    )
+
+
+def aligned_errors_3d(
+    ours: Mapping[int, gtsam.Pose3], reference: Mapping[int, gtsam.Pose3]
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """Each tag's position error [m] and rotation error [rad] (the angle of
+    ``R_ref^T R_ours``) against the reference after the rigid 3-D alignment fitted on the
+    positions of the tags in common (so a tag turned round shows, not aligned away). Where
+    those positions lie on a line (TagSLAM's test 16) or are fewer than three, the fit also
+    takes points on each tag's axes at the tags' spread (a rotation error is then shared out).
+
+    Returns:
+        (ids (n,), position errors (n,) [m], rotation errors (n,) [rad]), in id order.
+
+    Raises:
+        ValueError: fewer than two tags in common.
+    """
+    ids = np.array(sorted(set(ours) & set(reference)), dtype=np.int64)
+    if ids.size < 2:
+        raise ValueError(f"{ids.size} tags in common with the reference: no 3-D alignment")
+    mine = [ours[int(i)] for i in ids]
+    theirs = [reference[int(i)] for i in ids]
+    source = np.array([p.translation() for p in mine])
+    target = np.array([p.translation() for p in theirs])
+    spread = np.linalg.svd(target - target.mean(axis=0), compute_uv=False)
+    if ids.size < 3 or spread[1] < COLLINEAR_RATIO * spread[0]:
+        reach = max(float(spread[0]) / math.sqrt(ids.size), 0.1)
+        source, target = _fit_points(mine, reach), _fit_points(theirs, reach)
+    T = align_rigid_3d(source, target)
+    pairs = [(T.compose(p), q) for p, q in zip(mine, theirs, strict=True)]
+    position = np.array([np.linalg.norm(a.translation() - b.translation()) for a, b in pairs])
+    rotation = np.array(
+        [np.linalg.norm(gtsam.Rot3.Logmap(b.rotation().between(a.rotation()))) for a, b in pairs]
+    )
+    return ids, position, rotation

@@ -18,12 +18,15 @@ __all__ = [
     "ELLIPSE_95_D2",
     "EllipseCoverage",
     "MapError",
+    "TagErrors3d",
     "TrajectoryError",
     "align_rigid_2d",
+    "align_rigid_3d",
     "chi2_interval",
     "ellipse_coverage",
     "map_error",
     "nees",
+    "tag_errors_3d",
     "trajectory_error",
 ]
 
@@ -250,3 +253,96 @@ def ellipse_coverage(estimate: Estimate, truth: Mapping[int, gtsam.Pose2]) -> El
     d2_array = np.array(d2)
     share = float(np.mean(d2_array <= ELLIPSE_95_D2)) if d2 else float("nan")
     return EllipseCoverage(np.array(ids, dtype=np.int64), d2_array, share, np.array(sigma_max))
+
+
+def align_rigid_3d(source: NDArray[np.float64], target: NDArray[np.float64]) -> gtsam.Pose3:
+    """The rotation and translation (no scale) that best maps ``source`` onto ``target`` in
+    least squares (Kabsch/Umeyama), as a Pose3 ``T_target_source``.
+
+    Args:
+        source, target: (n, 3) matching points, n >= 3 and not all on one line.
+
+    Raises:
+        ValueError: shapes that differ or are not (n, 3), fewer than 3 points, or points on
+            one line (the rotation about it is not determined).
+    """
+    source, target = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
+    if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3:
+        raise ValueError(f"need two (n, 3) arrays, got {source.shape} and {target.shape}")
+    if len(source) < 3:
+        raise ValueError(f"a 3-D alignment needs 3 points or more, got {len(source)}")
+    source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
+    covariance = (target - target_mean).T @ (source - source_mean)
+    U, singular, Vt = np.linalg.svd(covariance)
+    if singular[1] <= 1e-12 * max(singular[0], 1e-300):
+        raise ValueError("the points lie on one line: the rotation about it is not determined")
+    # The sign fix keeps a proper rotation when the best orthogonal fit is a reflection.
+    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)) or 1.0)])
+    R = U @ D @ Vt
+    return gtsam.Pose3(gtsam.Rot3(R), target_mean - R @ source_mean)
+
+
+@dataclass(frozen=True)
+class TagErrors3d:
+    """Each tag's 3-D error against a reference after the rigid alignment of the positions.
+
+    Attributes:
+        tag_ids: (N,) the tags compared (in both maps).
+        position_m: (N,) position error of each after the alignment [m].
+        rotation_rad: (N,) the angle of each tag's rotation error after the alignment [rad].
+        T_reference_map: the alignment (the estimate's map frame in the reference's).
+    """
+
+    tag_ids: NDArray[np.int64]
+    position_m: NDArray[np.float64]
+    rotation_rad: NDArray[np.float64]
+    T_reference_map: gtsam.Pose3
+
+    @property
+    def median_position_m(self) -> float:
+        return float(np.median(self.position_m))
+
+    @property
+    def max_position_m(self) -> float:
+        return float(np.max(self.position_m))
+
+    @property
+    def median_rotation_rad(self) -> float:
+        return float(np.median(self.rotation_rad))
+
+    @property
+    def max_rotation_rad(self) -> float:
+        return float(np.max(self.rotation_rad))
+
+
+def tag_errors_3d(
+    poses: Mapping[int, gtsam.Pose3], reference: Mapping[int, gtsam.Pose3]
+) -> TagErrors3d:
+    """Each tag's position and rotation error against the reference after the rigid 3-D
+    alignment fitted on the positions alone (so a tag turned round shows, not aligned away).
+
+    Args:
+        poses, reference: tag id -> pose, both in the same tag convention.
+
+    Raises:
+        ValueError: fewer than 3 tags in common, or all on one line.
+    """
+    ids = np.array(sorted(set(poses) & set(reference)), dtype=np.int64)
+    ours = [poses[int(i)] for i in ids]
+    theirs = [reference[int(i)] for i in ids]
+    T = align_rigid_3d(
+        np.array([p.translation() for p in ours]).reshape(-1, 3),
+        np.array([p.translation() for p in theirs]).reshape(-1, 3),
+    )
+    aligned = [T.compose(p) for p in ours]
+    position = np.array(
+        [
+            np.linalg.norm(a.translation() - t.translation())
+            for a, t in zip(aligned, theirs, strict=True)
+        ]
+    )
+    rotation = np.array(
+        [np.linalg.norm(gtsam.Rot3.Logmap(t.rotation().between(a.rotation())))
+         for a, t in zip(aligned, theirs, strict=True)]
+    )  # fmt: skip
+    return TagErrors3d(ids, position, rotation, T)

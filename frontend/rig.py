@@ -25,9 +25,11 @@ __all__ = [
     "Pose3",
     "RigCamera",
     "TagslamConfig",
+    "load_yaml",
     "read_camera_poses",
     "read_kalibr_cameras",
     "read_tagslam",
+    "tagslam_pose",
 ]
 
 
@@ -159,3 +161,21 @@ def read_tagslam(path: Path) -> TagslamConfig:
                 if body.get("T_body_odom") is not None:
                     T_rig_odom = _pose(body["T_body_odom"], f"{path}: {name}.T_body_odom")
     return TagslamConfig(default_size, sizes, T_rig_odom, odom_topic)
+
+
+def load_yaml(path: Path, what: str) -> Any:
+    """A YAML file's document (``what`` names the kind of file in the error).
+
+    Raises:
+        SettingsError: unreadable or not YAML; one line naming the file.
+    """
+    return _load(path, what)
+
+
+def tagslam_pose(entry: Any, where: str) -> Pose3:
+    """A TagSLAM pose (``position`` x, y, z [m], ``rotation`` x, y, z a rotation vector [rad]).
+
+    Raises:
+        SettingsError: not such a pose, or a non-finite value; naming ``where``.
+    """
+    return _pose(entry, where)

@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
+import gtsam
 import numpy as np
+from numpy.typing import NDArray
 
 from markergraph.common.errors import MarkerGraphError
 from markergraph.common.files import written_whole
 from markergraph.estimator.trajectory import Trajectory
 
-__all__ = ["read_tum", "write_tum"]
+__all__ = ["read_tum", "write_tum", "write_tum_3d"]
 
 
 def write_tum(path: Path, trajectory: Trajectory) -> None:
@@ -30,6 +33,32 @@ def write_tum(path: Path, trajectory: Trajectory) -> None:
             f"{seconds} {float(x)!r} {float(y)!r} 0.0 0.0 0.0 "
             f"{math.sin(half)!r} {math.cos(half)!r}\n"
         )
+    with written_whole(path) as partial:
+        partial.write_text("".join(lines), encoding="utf-8")
+
+
+def _seconds(t_ns: int) -> str:
+    """Integer nanoseconds as exact decimal seconds."""
+    sign = "-" if t_ns < 0 else ""
+    return f"{sign}{abs(t_ns) // 1_000_000_000}.{abs(t_ns) % 1_000_000_000:09d}"
+
+
+def write_tum_3d(path: Path, t_ns: NDArray[np.int64], poses: Sequence[gtsam.Pose3]) -> None:
+    """A 3-D path (``T_map_rig`` at each stamp [ns]) in TUM format, ``t x y z qx qy qz qw``,
+    whole or not at all; non-finite poses are refused.
+
+    Raises:
+        MarkerGraphError: a pose is NaN or infinite, or the stamps and poses differ in number.
+    """
+    if len(t_ns) != len(poses):
+        raise MarkerGraphError(f"{path}: {len(t_ns)} stamps for {len(poses)} poses")
+    lines = []
+    for t, T in zip(t_ns, poses, strict=True):
+        if not np.all(np.isfinite(T.matrix())):
+            raise MarkerGraphError(f"{path}: refusing to write a trajectory with non-finite poses")
+        p, q = T.translation(), T.rotation().toQuaternion()
+        values = (*p, q.x(), q.y(), q.z(), q.w())
+        lines.append(_seconds(int(t)) + "".join(f" {float(v)!r}" for v in values) + "\n")
     with written_whole(path) as partial:
         partial.write_text("".join(lines), encoding="utf-8")
 
