@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from markergraph.common import EstimationError, Note, SettingsError
-from markergraph.common.errors import LogError
 from markergraph.estimator import Method
 from markergraph.estimator.tag_slam import map_tags
 from markergraph.estimator.tags3d import KnownTag, TagScene
 from markergraph.frontend import open_log
+from markergraph.frontend.logs import LogError
 from markergraph.frontend.survey import Survey, read_survey
 from markergraph.frontend.tag_scene import read_tag_scene
 from markergraph.frontend.topics import choose_topics

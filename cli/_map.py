@@ -9,13 +9,16 @@ from pathlib import Path
 import numpy as np
 
 from markergraph.cli._settings import add_settings, add_verbosity, settings_from
+from markergraph.common import Note, SettingsError
 from markergraph.common.files import check_output_folder
 from markergraph.common.progress import ProgressBar, Stages
 from markergraph.markermap import MarkerMap
 from markergraph.records import MapRun
 from markergraph.results import write_localization, write_results
+from markergraph.results3d import write_results_3d
 from markergraph.run import localize_log, map_logs
-from markergraph.settings import config_toml, map_config
+from markergraph.run3d import map_log_3d, wants_3d
+from markergraph.settings import MapConfig, config_toml, map_config
 from markergraph.verdicts import Verdict
 
 SUMMARY = "estimate a corrected marker map from an MCAP log (default: the bundled sample)"
@@ -129,6 +132,11 @@ def run(args: argparse.Namespace) -> int:
     if not args.logs:
         logs = [sample_log(DEFAULT_SAMPLE)]
         print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({logs[0]})")
+    three_d, why = wants_3d(logs[0], config) if args.logs else (config.dimensions == "3", None)
+    if three_d:
+        if len(logs) > 1 or prior is not None:
+            raise SettingsError("a 3-D map is made from one log (several logs and --prior are 2-D)")
+        return _run_3d(args, logs[0], out, config, [why] if why else [])
     stages = Stages(quiet=args.quiet, verbose=args.verbose)
     with ProgressBar(f"reading {Path(logs[0]).name}", quiet=args.quiet) as bar:
         result = map_logs(logs, config, prior=prior, executor=args.executor,
@@ -140,6 +148,32 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {len(written)} files to {out}/")
     if args.strict and result.judgement.verdict is not Verdict.OK:
         return EXIT_NOT_OK
+    return 0
+
+
+def _run_3d(
+    args: argparse.Namespace, log: Path, out: Path, config: MapConfig, notes: list[Note]
+) -> int:
+    stages = Stages(quiet=args.quiet, verbose=args.verbose)
+    run = map_log_3d(log, config, notes=notes, stage=stages)
+    stages(f"writing {out}/")
+    written = write_results_3d(run, out, force=args.force, plots=not args.no_plots)
+    stages.close()
+    tag_map = run.tag_map
+    walls = sum(1 for m in run.marker_map.markers.values())
+    print(
+        f"{run.frames_read:,} rig frames ({tag_map.frames_skipped:,} placed by no tag), "
+        f"{run.views_read:,} tag views; 3-D map of {len(tag_map.tags)} tags ({walls} on walls), "
+        f"home tag {tag_map.home_id if tag_map.home_id is not None else '(the survey frame)'}, "
+        f"reprojection RMS {tag_map.reprojection_rms_px:.2f} px"
+    )
+    for camera in tag_map.cameras.values():
+        how = "estimated" if camera.estimated else "given"
+        print(f"camera {camera.name} ({camera.topic}): mount {how}, {camera.n_views:,} views")
+    if not args.quiet:
+        for note in [*run.notes, *tag_map.notes]:
+            print(f"note: {note}", file=sys.stderr)
+    print(f"wrote {len(written)} files to {out}/")
     return 0
 
 

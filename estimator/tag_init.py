@@ -30,6 +30,9 @@ class Placed:
     frames: dict[int, gtsam.Pose3] = field(default_factory=dict)
     tags: dict[int, gtsam.Pose3] = field(default_factory=dict)
     cameras: dict[int, gtsam.Pose3] = field(default_factory=dict)
+    order: list[tuple[str, int]] = field(default_factory=list)
+    """What was placed, in the order it was: ``("f", frame)``, ``("t", tag id)``,
+    ``("c", camera)`` (each placed from what came before it)."""
 
 
 def _cost(view: TagView, size_m: float) -> float:
@@ -59,6 +62,7 @@ class _Search:
             if key in table:
                 continue
             table[key] = pose
+            self.placed.order.append((kind, key))
             for view in self.by[kind, key]:
                 self._extend(view, cost)
             if kind == "f":

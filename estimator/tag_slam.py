@@ -10,8 +10,8 @@ far from the solution (a PnP flip, a misdetection) are dropped and the graph sol
 
 from __future__ import annotations
 
-import itertools
-from collections import Counter, defaultdict
+from collections import Counter
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -19,22 +19,15 @@ from numpy.typing import NDArray
 
 from markergraph.common.errors import EstimationError
 from markergraph.common.notes import Note
-from markergraph.estimator.corner_factor import FrameViews, frame_errors, frame_factor
 from markergraph.estimator.solution import first_line, lm_params, marginals_or_note
 from markergraph.estimator.tag_frames import map_framing
-from markergraph.estimator.tag_init import Placed, place
+from markergraph.estimator.tag_graph import TagGraph, camera_key, rig_key, tag_key, view_errors_px
+from markergraph.estimator.tag_incremental import solve_incremental
+from markergraph.estimator.tag_init import place
 from markergraph.estimator.tags3d import Camera3d, Tag3d, TagMap3d, TagScene
 
 __all__ = ["map_tags"]
 
-MOTION_SIGMA = (0.1, 0.1)
-"""The motion prior's standard deviations at no time apart (rotation [rad], translation [m])."""
-MOTION_RATE = (2.0, 2.0)
-"""Their growth per second apart [rad/s, m/s]: a hand or a robot turning and moving briskly."""
-ODOMETRY_SIGMA = (0.01, 0.01)
-"""Odometry's standard deviations per step (rotation [rad], translation [m]) ..."""
-ODOMETRY_RATE = (0.05, 0.05)
-"""... plus this share of the step's own rotation and translation."""
 OUTLIER_PX = 3.0
 """A view whose corners stay farther than this (RMS) from the solution, and farther than
 :data:`OUTLIER_SHARE` times the median view's, is dropped."""
@@ -43,18 +36,6 @@ FIRST_TOLERANCE = 1e-5
 """The first solve's relative error tolerance: with its outliers still in, the last steps only
 trade one outlier's error for another's."""
 FINAL_TOLERANCE = 1e-7
-
-
-def _X(i: int) -> int:
-    return gtsam.symbol("x", i)
-
-
-def _T(i: int) -> int:
-    return gtsam.symbol("t", i)
-
-
-def _C(i: int) -> int:
-    return gtsam.symbol("c", i)
 
 
 def _home(scene: TagScene) -> int | None:
@@ -87,130 +68,6 @@ def _mounts(scene: TagScene, notes: list[Note]) -> tuple[dict[int, gtsam.Pose3],
     return known, estimated
 
 
-def _noise(sigmas: tuple[float, float] | NDArray[np.float64]) -> gtsam.noiseModel.Base:
-    values = np.asarray(sigmas, dtype=np.float64)
-    if values.size == 2:
-        values = np.repeat(values, 3)
-    return gtsam.noiseModel.Diagonal.Sigmas(values)
-
-
-def _step_noise(step: gtsam.Pose3, dt_s: float, odometry: bool) -> gtsam.noiseModel.Base:
-    if odometry:
-        angle = float(np.linalg.norm(gtsam.Rot3.Logmap(step.rotation())))
-        distance = float(np.linalg.norm(step.translation()))
-        return _noise(
-            (
-                ODOMETRY_SIGMA[0] + ODOMETRY_RATE[0] * angle,
-                ODOMETRY_SIGMA[1] + ODOMETRY_RATE[1] * distance,
-            )
-        )
-    return _noise(
-        (MOTION_SIGMA[0] + MOTION_RATE[0] * dt_s, MOTION_SIGMA[1] + MOTION_RATE[1] * dt_s)
-    )
-
-
-class _Problem:
-    """The graph over what the search placed."""
-
-    def __init__(self, scene: TagScene, placed: Placed, estimated: set[int], home: int | None):
-        self.scene, self.placed, self.estimated, self.home = scene, placed, estimated, home
-        self.views = [
-            v
-            for v in scene.views
-            if v.frame in placed.frames and v.tag_id in placed.tags and v.camera in placed.cameras
-        ]
-
-    def frame_views(self) -> list[tuple[list[int], FrameViews]]:
-        """Each frame's views (their indices in :attr:`views`) laid out for its factor."""
-        by_frame: dict[int, list[int]] = defaultdict(list)
-        for k, view in enumerate(self.views):
-            by_frame[view.frame].append(k)
-        laid_out = []
-        for frame, indices in sorted(by_frame.items()):
-            views = [self.views[k] for k in indices]
-            fixed = [
-                np.eye(4) if v.camera in self.estimated else self.placed.cameras[v.camera].matrix()
-                for v in views
-            ]
-            laid_out.append(
-                (
-                    indices,
-                    FrameViews(
-                        _X(frame),
-                        [_T(v.tag_id) for v in views],
-                        np.array([self.scene.tag_sizes[v.tag_id] for v in views]),
-                        np.array([v.rays for v in views]),
-                        np.array([v.sigma for v in views]),
-                        np.array(fixed),
-                        [_C(v.camera) if v.camera in self.estimated else None for v in views],
-                    ),
-                )
-            )
-        return laid_out
-
-    def priors(self) -> gtsam.NonlinearFactorGraph:
-        graph = gtsam.NonlinearFactorGraph()
-        for known in self.scene.known_tags:
-            if known.tag_id in self.placed.tags:
-                graph.add(
-                    gtsam.PriorFactorPose3(_T(known.tag_id), known.T_map_tag, _noise(known.sigmas))
-                )
-        if self.home is not None:
-            graph.add(gtsam.PriorFactorPose3(_T(self.home), gtsam.Pose3(), _noise((1e-6, 1e-6))))
-        for i in sorted(self.estimated & set(self.placed.cameras)):
-            camera = self.scene.cameras[i]
-            if camera.T_rig_camera is not None and camera.sigmas is not None:
-                graph.add(gtsam.PriorFactorPose3(_C(i), camera.T_rig_camera, _noise(camera.sigmas)))
-        return graph
-
-    def steps(self) -> gtsam.NonlinearFactorGraph:
-        """Odometry between consecutive placed frames, or the motion prior without it."""
-        graph = gtsam.NonlinearFactorGraph()
-        frames = sorted(self.placed.frames)
-        odometry = self.scene.odometry
-        times = self.scene.frame_times
-        for a, b in itertools.pairwise(frames):
-            dt_s = (int(times[b]) - int(times[a])) * 1e-9
-            if odometry and odometry[a] is not None and odometry[b] is not None:
-                step = odometry[a].between(odometry[b])
-                graph.add(
-                    gtsam.BetweenFactorPose3(_X(a), _X(b), step, _step_noise(step, dt_s, True))
-                )
-            else:
-                step = gtsam.Pose3()
-                graph.add(
-                    gtsam.BetweenFactorPose3(_X(a), _X(b), step, _step_noise(step, dt_s, False))
-                )
-        return graph
-
-    def values(self) -> gtsam.Values:
-        values = gtsam.Values()
-        for i, pose in self.placed.frames.items():
-            values.insert(_X(i), pose)
-        for i, pose in self.placed.tags.items():
-            values.insert(_T(i), pose)
-        for i in self.estimated & set(self.placed.cameras):
-            values.insert(_C(i), self.placed.cameras[i])
-        return values
-
-    def graph(self) -> gtsam.NonlinearFactorGraph:
-        graph = self.priors()
-        graph.push_back(self.steps())
-        for _, views in self.frame_views():
-            graph.add(frame_factor(views))
-        return graph
-
-
-def _view_errors_px(problem: _Problem, values: gtsam.Values) -> NDArray[np.float64]:
-    """Each view's RMS corner reprojection error [px]."""
-    errors = np.empty(len(problem.views))
-    for indices, views in problem.frame_views():
-        residual = frame_errors(views, values)
-        focal = np.array([problem.scene.cameras[problem.views[k].camera].focal_px for k in indices])
-        errors[indices] = np.sqrt(np.mean(residual**2, axis=1)) * focal
-    return errors
-
-
 def _optimise(
     graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, tolerance: float
 ) -> tuple[gtsam.Values, bool]:
@@ -224,8 +81,23 @@ def _optimise(
     return result, optimizer.iterations() < params.getMaxIterations()
 
 
-def map_tags(scene: TagScene) -> TagMap3d:
-    """The 3-D tag map of ``scene``.
+def _solve(
+    problem: TagGraph, incremental: bool, tolerance: float, notes: list[Note]
+) -> tuple[gtsam.Values, bool, Any]:
+    """The graph's solution from its placed poses, whether it converged, and what gives the
+    marginal covariances (None when they cannot be had)."""
+    if incremental:
+        values, isam = solve_incremental(problem)
+        return values, True, isam
+    graph = problem.graph()
+    values, converged = _optimise(graph, problem.values(), tolerance)
+    if tolerance == FIRST_TOLERANCE:
+        return values, converged, None
+    return values, converged, marginals_or_note(graph, values, notes)
+
+
+def map_tags(scene: TagScene, incremental: bool = False) -> TagMap3d:
+    """The 3-D tag map of ``scene``, solved in batch or (``incremental``) by iSAM2.
 
     Raises:
         EstimationError: no views, a home tag never seen, or a graph that cannot be solved.
@@ -235,34 +107,33 @@ def map_tags(scene: TagScene) -> TagMap3d:
     notes: list[Note] = []
     home = _home(scene)
     mounts, estimated = _mounts(scene, notes)
-    placed = place(scene, home, mounts)
-    problem = _Problem(scene, placed, estimated, home)
-    values, converged = _optimise(problem.graph(), problem.values(), FIRST_TOLERANCE)
-    errors = _view_errors_px(problem, values)
+    problem = TagGraph(scene, place(scene, home, mounts), estimated, home)
+    values, converged, marginals = _solve(problem, incremental, FIRST_TOLERANCE, notes)
+    errors = view_errors_px(problem, values)
     limit = max(OUTLIER_PX, OUTLIER_SHARE * float(np.median(errors)))
     dropped = int(np.sum(errors > limit))
-    if dropped:
+    if dropped or marginals is None:
         problem.views = [v for v, e in zip(problem.views, errors, strict=True) if e <= limit]
+        problem.warm(values)
+        values, converged, marginals = _solve(problem, incremental, FINAL_TOLERANCE, notes)
+        errors = view_errors_px(problem, values)
+    if dropped:
         notes.append(
             Note(
                 "views.outliers",
-                f"{dropped:,} tag views whose corners stayed more than "
-                f"{limit:.1f} px from the map were left out and the map solved again",
+                f"{dropped:,} tag views whose corners stayed more than {limit:.1f} px from the "
+                "map were left out and the map solved again",
                 figure=dropped,
             )
         )
-        values, converged = _optimise(problem.graph(), values, FINAL_TOLERANCE)
-        errors = _view_errors_px(problem, values)
-    graph = problem.graph()
-    marginals = marginals_or_note(graph, values, notes)
     return _tag_map(scene, problem, values, marginals, errors, dropped, converged, notes)
 
 
 def _tag_map(
     scene: TagScene,
-    problem: _Problem,
+    problem: TagGraph,
     values: gtsam.Values,
-    marginals: gtsam.Marginals | None,
+    marginals: Any,
     errors: NDArray[np.float64],
     dropped: int,
     converged: bool,
@@ -270,19 +141,24 @@ def _tag_map(
 ) -> TagMap3d:
     views_of = Counter(v.tag_id for v in problem.views)
     frames = sorted({v.frame for v in problem.views})
-    rig_poses = [values.atPose3(_X(i)) for i in frames]
+    rig_poses = [values.atPose3(rig_key(i)) for i in frames]
     G, up, framing_notes = map_framing(scene, problem.placed, values, frames, problem.home)
     notes += framing_notes
 
     def covariance(key: int) -> NDArray[np.float64] | None:
-        return None if marginals is None else np.asarray(marginals.marginalCovariance(key))
+        if marginals is None:
+            return None
+        try:
+            return np.asarray(marginals.marginalCovariance(key))
+        except RuntimeError:  # an indeterminate pose: its mean stands, without a covariance
+            return None
 
     known = {k.tag_id for k in scene.known_tags}
     tags = {
         i: Tag3d(
             i,
-            G.compose(values.atPose3(_T(i))),
-            covariance(_T(i)),
+            G.compose(values.atPose3(tag_key(i))),
+            covariance(tag_key(i)),
             views_of[i],
             scene.tag_sizes[i],
             i in known,
@@ -295,7 +171,7 @@ def _tag_map(
         if i not in problem.placed.cameras:
             continue
         if i in problem.estimated:
-            mount, cov = values.atPose3(_C(i)), covariance(_C(i))
+            mount, cov = values.atPose3(camera_key(i)), covariance(camera_key(i))
         else:
             mount, cov = problem.placed.cameras[i], None
         cameras[camera.name] = Camera3d(
@@ -318,7 +194,7 @@ def _tag_map(
     )
 
 
-def _left_out_notes(scene: TagScene, problem: _Problem, frames: list[int]) -> list[Note]:
+def _left_out_notes(scene: TagScene, problem: TagGraph, frames: list[int]) -> list[Note]:
     notes = []
     seen = {v.tag_id for v in scene.views}
     unplaced = sorted(seen - set(problem.placed.tags))
