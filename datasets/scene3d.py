@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 
 from markergraph.common.errors import MarkerGraphError
 from markergraph.common.files import written_whole
-from markergraph.estimator.tags3d import SceneCamera, TagScene, TagView, tag_corners
+from markergraph.estimator.tags3d import KnownTag, SceneCamera, TagScene, TagView, tag_corners
 from markergraph.frontend.camera import EQUIDISTANT, Camera, CameraMount
 from markergraph.frontend.logs import open_log
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, header, quaternion_from_matrix
@@ -276,7 +276,9 @@ def _camera_of(d: dict[str, Any]) -> SimulatedCamera:
 # --- the rig's cameras -------------------------------------------------------------------------
 
 
-def _mount(x: float, y: float, z: float, yaw_deg: float, pitch_deg: float, roll_deg: float):
+def _mount(
+    x: float, y: float, z: float, yaw_deg: float, pitch_deg: float, roll_deg: float
+) -> gtsam.Pose3:
     """``T_rig_camera`` of an optical frame turned ``yaw`` left, pitched up, rolled."""
     mount = CameraMount(
         x, y, z, math.radians(yaw_deg), math.radians(pitch_deg), math.radians(roll_deg)
@@ -326,6 +328,7 @@ CAMERA_PRESETS: tuple[SimulatedCamera, ...] = (
 # --- worlds -----------------------------------------------------------------------------------
 
 _UP = np.array([0.0, 0.0, 1.0])
+Extent = tuple[float, float, float]  # a room's size along x, y, z [m]
 
 
 def _facing(normal: NDArray[np.float64], x_hint: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -341,10 +344,13 @@ def _upright(normal: NDArray[np.float64]) -> NDArray[np.float64]:
     return _facing(normal, np.cross(_UP, normal))
 
 
-def _jitter(R: NDArray[np.float64], rng: np.random.Generator, spin_rad: float, tilt_rad: float):
+def _jitter(
+    R: NDArray[np.float64], rng: np.random.Generator, spin_rad: float, tilt_rad: float
+) -> NDArray[np.float64]:
     """R turned about its own z by up to ``spin_rad`` and tilted off its plane by ``tilt_rad``."""
     spin = gtsam.Rot3.Rz(float(rng.uniform(-spin_rad, spin_rad)))
-    tilt = gtsam.Rot3.RzRyRx(*rng.uniform(-tilt_rad, tilt_rad, 2), 0.0)
+    about_x, about_y = (float(a) for a in rng.uniform(-tilt_rad, tilt_rad, 2))
+    tilt = gtsam.Rot3.RzRyRx(about_x, about_y, 0.0)
     return (gtsam.Rot3(R) * tilt * spin).matrix()
 
 
@@ -363,7 +369,9 @@ class _World:
         self.sizes[tag_id], self.surfaces[tag_id] = size, on
 
 
-def _walls(extent: tuple[float, float, float]):
+def _walls(
+    extent: Extent,
+) -> list[tuple[NDArray[np.float64], NDArray[np.float64], float]]:
     """Each wall of a box room: (its inward normal, a point at its floor's left end as seen
     from inside, its length along the tag's x)."""
     W, D, _ = extent
@@ -375,7 +383,9 @@ def _walls(extent: tuple[float, float, float]):
     ]
 
 
-def _wall_tags(world: _World, extent, n: int, size: float, rng: np.random.Generator) -> None:
+def _wall_tags(
+    world: _World, extent: Extent, n: int, size: float, rng: np.random.Generator
+) -> None:
     """``n`` upright tags spread along the walls' perimeter at heights 0.5 .. 2.3 m."""
     walls = _walls(extent)
     perimeter = sum(length for _, _, length in walls)
@@ -390,7 +400,9 @@ def _wall_tags(world: _World, extent, n: int, size: float, rng: np.random.Genera
         world.add(_jitter(R, rng, math.radians(8.0), math.radians(2.0)), p, size, "wall")
 
 
-def _flat_tags(world: _World, extent, n: int, size: float, ceiling: bool, rng) -> None:
+def _flat_tags(
+    world: _World, extent: Extent, n: int, size: float, ceiling: bool, rng: np.random.Generator
+) -> None:
     """``n`` tags on the floor (or ceiling) away from the walls, each turned any way."""
     W, D, H = extent
     normal = -_UP if ceiling else _UP
@@ -401,7 +413,14 @@ def _flat_tags(world: _World, extent, n: int, size: float, ceiling: bool, rng) -
         world.add(R, p, size, "ceiling" if ceiling else "floor")
 
 
-def _board(world: _World, centre, facing_yaw: float, lean_deg: float, n: int, size: float):
+def _board(
+    world: _World,
+    centre: tuple[float, float, float],
+    facing_yaw: float,
+    lean_deg: float,
+    n: int,
+    size: float,
+) -> None:
     """A board at ``centre`` facing ``facing_yaw``, leaning back ``lean_deg``, with ``n`` tags
     in a grid of two rows (its size follows from the tags)."""
     lean = math.radians(lean_deg)
@@ -422,7 +441,7 @@ def _board(world: _World, centre, facing_yaw: float, lean_deg: float, n: int, si
         )
 
 
-def _room_world(n_tags: int, size: float, rng: np.random.Generator):
+def _room_world(n_tags: int, size: float, rng: np.random.Generator) -> tuple[_World, Extent]:
     extent = (8.0, 6.0, 3.0)
     world = _World({}, {}, {}, [])
     n_board = 4
@@ -436,7 +455,7 @@ def _room_world(n_tags: int, size: float, rng: np.random.Generator):
     return world, extent
 
 
-def _corridor_world(n_tags: int, size: float, rng: np.random.Generator):
+def _corridor_world(n_tags: int, size: float, rng: np.random.Generator) -> tuple[_World, Extent]:
     extent = (14.0, 2.4, 2.8)
     world = _World({}, {}, {}, [])
     n_flat = max(2, n_tags // 8)
@@ -446,7 +465,7 @@ def _corridor_world(n_tags: int, size: float, rng: np.random.Generator):
     return world, extent
 
 
-def _board_world(n_tags: int, size: float):
+def _board_world(n_tags: int, size: float) -> tuple[_World, Extent]:
     world = _World({}, {}, {}, [])
     _board(world, (0.0, 0.0, 1.0), -math.pi / 2.0, 20.0, n_tags, 0.6 * size)
     return world, (0.0, 0.0, 0.0)
@@ -455,7 +474,9 @@ def _board_world(n_tags: int, size: float):
 # --- the rig's path ---------------------------------------------------------------------------
 
 
-def _wobble(t_s: NDArray[np.float64], rng: np.random.Generator, periods_s: Sequence[float]):
+def _wobble(
+    t_s: NDArray[np.float64], rng: np.random.Generator, periods_s: Sequence[float]
+) -> NDArray[np.float64]:
     """A smooth seeded wobble of unit size: sines of the given periods at random phases."""
     out = np.zeros_like(t_s)
     for period in periods_s:
@@ -468,10 +489,12 @@ def _attitude(yaw: float, pitch: float, roll: float) -> gtsam.Rot3:
     return gtsam.Rot3.Rz(yaw) * gtsam.Rot3.Ry(-pitch) * gtsam.Rot3.Rx(roll)
 
 
-def _path(kind: SceneKind, extent, t_s: NDArray[np.float64], rng: np.random.Generator):
+def _path(
+    kind: SceneKind, extent: Extent, t_s: NDArray[np.float64], rng: np.random.Generator
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """Positions (n, 3), the heading the rig's look-around swings about (n,) and the
     look-around's amplitude [rad]."""
-    n, duration = len(t_s), float(t_s[-1] - t_s[0]) or 1.0
+    duration = float(t_s[-1] - t_s[0]) or 1.0
     phase = 2.0 * math.pi * (t_s - t_s[0]) / duration
     W, D, _ = extent
     if kind is SceneKind.ROOM:
@@ -495,10 +518,12 @@ def _path(kind: SceneKind, extent, t_s: NDArray[np.float64], rng: np.random.Gene
     xyz = np.column_stack(
         [r * np.cos(bearing), r * np.sin(bearing), 1.0 + 0.3 * _wobble(t_s, rng, (6.0, 10.0))]
     )
-    return xyz, bearing + math.pi, 0.2 + 0.0 * n
+    return xyz, bearing + math.pi, 0.2
 
 
-def _rig_poses(kind: SceneKind, extent, t_s: NDArray[np.float64], rng) -> tuple[gtsam.Pose3, ...]:
+def _rig_poses(
+    kind: SceneKind, extent: Extent, t_s: NDArray[np.float64], rng: np.random.Generator
+) -> tuple[gtsam.Pose3, ...]:
     """The rig's path: along :func:`_path`, looking around, pitched and rolled as in a hand."""
     xyz, heading, swing = _path(kind, extent, t_s, rng)
     yaw = heading + swing * _wobble(t_s, rng, (7.0, 12.0)) * 1.6
@@ -557,7 +582,7 @@ def make_scene3d(
     else:
         world, extent = _board_world(n_tags, tag_size_m)
     period_ns = round(1e9 / frame_hz)
-    frame_times = START_NS + period_ns * np.arange(frames, dtype=np.int64)
+    frame_times: NDArray[np.int64] = START_NS + period_ns * np.arange(frames, dtype=np.int64)
     t_s = (frame_times - START_NS) / 1e9
     return Scene3dTruth(
         kind=kind.value,
@@ -639,7 +664,13 @@ def _world_corners(truth: Scene3dTruth) -> tuple[list[int], NDArray[np.float64]]
     return ids, corners
 
 
-def _seen(truth: Scene3dTruth, frame: int, camera: int, corners_w, visibility: Visibility3d):
+def _seen(
+    truth: Scene3dTruth,
+    frame: int,
+    camera: int,
+    corners_w: NDArray[np.float64],
+    visibility: Visibility3d,
+) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
     """(T,) which tags camera ``camera`` detects at frame ``frame``, and their true pixels
     (T, 4, 2) (NaN where not detected)."""
     sim = truth.cameras[camera]
@@ -767,7 +798,9 @@ def tag_scene(
     *,
     pixel_noise_px: float = 0.5,
     odometry: Sequence[gtsam.Pose3] | None = None,
-    mounts_known: bool = True,
+    mounts_for: Sequence[str] | None = None,
+    surveyed: Sequence[int] = (),
+    survey_sigmas: tuple[float, float] = (0.001, 0.001),
     home_id: int | None = None,
 ) -> TagScene:
     """The 3-D estimator's input from simulated detections, without a log in between: each
@@ -777,12 +810,27 @@ def tag_scene(
         found: :func:`detections`' output.
         pixel_noise_px: the noise they were made with (each ray's sigma is it over fx).
         odometry: ``T_odom_rig`` per frame (:func:`odometry3d`), or None for none.
-        mounts_known: give each camera's true mount; False leaves every mount unknown.
+        mounts_for: the cameras whose true mounts are given (None: all; the others' are
+            unknown).
+        surveyed: tags given as known, at their true pose in the world (the map frame is then
+            the world's), with ``survey_sigmas`` = (rotation [rad], translation [m]).
         home_id: the tag that fixes the map's frame (None: the first tag seen).
+
+    Raises:
+        ValueError: a camera name or tag id the scene does not have.
     """
+    names = [c.name for c in truth.cameras]
+    given = set(names if mounts_for is None else mounts_for)
+    unknown = [n for n in given if n not in names] + [i for i in surveyed if i not in truth.tags]
+    if unknown:
+        raise ValueError(f"not in the scene: {unknown} (cameras {names})")
     cameras = [
         SceneCamera(
-            c.name, f"/{c.name}/tags", c.T_rig_camera if mounts_known else None, None, c.camera.fx
+            c.name,
+            f"/{c.name}/tags",
+            c.T_rig_camera if c.name in given else None,
+            None,
+            c.camera.fx,
         )
         for c in truth.cameras
     ]
@@ -795,12 +843,14 @@ def tag_scene(
             TagView(d.frame, d.camera, d.tag_id, rays, pixel_noise_px / camera.fx, T_camera_tag)
         )
     seen = {d.tag_id for d in found}
+    sigmas: NDArray[np.float64] = np.repeat(np.array(survey_sigmas, dtype=np.float64), 3)
     return TagScene(
         frame_times=truth.frame_times.copy(),
         views=views,
         cameras=cameras,
         tag_sizes={i: s for i, s in truth.tag_sizes.items() if i in seen},
         odometry=list(odometry) if odometry is not None else [],
+        known_tags=[KnownTag(i, truth.tags[i], sigmas.copy()) for i in surveyed],
         home_id=home_id,
     )
 
@@ -815,7 +865,9 @@ class _Bag:
         self.writer = Writer(stream)
         self.schemas: dict[str, Schema] = {}
 
-    def write(self, topic: str, schema: str, message: dict[str, Any], t_ns: int, log_ns: int):
+    def write(
+        self, topic: str, schema: str, message: dict[str, Any], t_ns: int, log_ns: int
+    ) -> None:
         if schema not in self.schemas:
             self.schemas[schema] = self.writer.register_msgdef(schema, MESSAGE_DEFINITIONS[schema])
         self.writer.write_message(topic, self.schemas[schema], message, log_ns, t_ns)

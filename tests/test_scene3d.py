@@ -9,6 +9,7 @@ import sys
 from collections import Counter
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import cv2
 import gtsam
@@ -22,6 +23,7 @@ from markergraph.datasets.scene3d import (
     Scene3dError,
     Scene3dTruth,
     SceneKind,
+    TagDetection3d,
     detections,
     make_scene3d,
     odometry3d,
@@ -53,7 +55,7 @@ def _tag_world_corners(truth: Scene3dTruth, tag_id: int) -> np.ndarray:
     return (T.rotation().matrix() @ tag_corners(truth.tag_sizes[tag_id]).T).T + T.translation()
 
 
-def _linked(found) -> int:
+def _linked(found: list[TagDetection3d]) -> int:
     """The number of groups of tags joined by being seen in the same picture."""
     parent: dict[int, int] = {}
 
@@ -115,7 +117,7 @@ def test_projections_equal_opencvs_from_the_world_points(room4: Scene3dTruth) ->
     rational polynomial) or cv2.fisheye.projectPoints (equidistant) of the tag's corners in
     the world, with the camera's pose as rvec/tvec; the noisy ones differ by the noise."""
     found = detections(room4, SEED, 0.5)
-    models = Counter()
+    models: Counter[tuple[str, int]] = Counter()
     for d in found:
         camera = room4.cameras[d.camera].camera
         T_camera_world = room4.T_world_camera(d.frame, d.camera).inverse()
@@ -192,7 +194,7 @@ def test_log_reads_back_through_the_front_end(room4: Scene3dTruth, tmp_path: Pat
             assert m.child_frame_id == "base_link"
             odometry.append(m.pose.pose)
     for pose, T in zip(odometry, odometry3d(room4, SEED), strict=True):
-        _assert_transform(_as_transform(pose), T)
+        _assert_transform(pose, T)
     assert read.keys() == expected.keys()
     for key, corners in read.items():
         np.testing.assert_array_equal(corners, expected[key].corners_px)
@@ -210,13 +212,10 @@ def test_log_reads_back_through_the_front_end(room4: Scene3dTruth, tmp_path: Pat
     assert again.read_bytes() == path.read_bytes()
 
 
-def _as_transform(pose):
-    """A geometry_msgs Pose read as a Transform (translation, rotation)."""
-    return type("Transform", (), {"translation": pose.position, "rotation": pose.orientation})
-
-
-def _assert_transform(transform, T: gtsam.Pose3) -> None:
-    t, q = transform.translation, transform.rotation
+def _assert_transform(transform: Any, T: gtsam.Pose3) -> None:
+    """A geometry_msgs Transform (or Pose) is T."""
+    t = getattr(transform, "translation", None) or transform.position
+    q = getattr(transform, "rotation", None) or transform.orientation
     R = gtsam.Rot3.Quaternion(q.w, q.x, q.y, q.z).matrix()
     np.testing.assert_allclose([t.x, t.y, t.z], T.translation(), atol=EXACT)
     np.testing.assert_allclose(R, T.rotation().matrix(), atol=EXACT)
@@ -287,8 +286,13 @@ def test_tag_scene_gives_the_estimator_true_rays_and_pnp_seeds(room4: Scene3dTru
     """tag_scene's views hold the corners' true normalised rays (noise-free detections) and a
     PnP pose of each tag in the camera near the truth."""
     found = detections(room4, SEED, 0.0)
-    scene = tag_scene(room4, found, pixel_noise_px=0.5, mounts_known=False)
-    assert len(scene.views) == len(found) and all(c.T_rig_camera is None for c in scene.cameras)
+    scene = tag_scene(room4, found, pixel_noise_px=0.5, mounts_for=["cam1"], surveyed=[4])
+    assert len(scene.views) == len(found)
+    assert [c.T_rig_camera is None for c in scene.cameras] == [True, False, True, True]
+    assert scene.cameras[1].T_rig_camera.equals(room4.cameras[1].T_rig_camera, 0)
+    assert [k.tag_id for k in scene.known_tags] == [4] and scene.known_tags[0].T_map_tag.equals(
+        room4.tags[4], 0
+    )
     pnp_errors = []
     for d, view in zip(found, scene.views, strict=True):
         T_camera_tag = room4.T_world_camera(d.frame, d.camera).between(room4.tags[d.tag_id])
