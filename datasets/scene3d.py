@@ -50,6 +50,7 @@ from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, header, quaternion_fr
 
 __all__ = [
     "CAMERA_PRESETS",
+    "OUTLIER_PX",
     "TRUE_RIG3D",
     "TRUE_TAGS3D",
     "TRUE_WORLD3D",
@@ -628,6 +629,7 @@ class TagDetection3d:
         tag_id: the tag's id.
         corners_px: (4, 2) its corners as detected (with pixel noise), in OpenCV's order.
         true_corners_px: (4, 2) the same without noise.
+        outlier: one corner was moved by a gross error (see :func:`detections`).
     """
 
     frame: int
@@ -635,6 +637,7 @@ class TagDetection3d:
     tag_id: int
     corners_px: NDArray[np.float64]
     true_corners_px: NDArray[np.float64]
+    outlier: bool = False
 
 
 def _hidden(board: Board, c: NDArray[np.float64], p: NDArray[np.float64]) -> NDArray[np.bool_]:
@@ -708,23 +711,32 @@ def _seen(
     return ok, pixels
 
 
+OUTLIER_PX = (5.0, 20.0)  # the range of an outlier's gross corner error [px]
+
+
 def detections(
     truth: Scene3dTruth,
     seed: int,
     pixel_noise_px: float = 0.5,
     *,
+    outliers: float = 0.0,
     visibility: Visibility3d = Visibility3d(),
 ) -> list[TagDetection3d]:
     """Every tag each camera detects in each frame: its corners through the camera's lens
     model, with Gaussian pixel noise of ``pixel_noise_px`` on each coordinate; sorted by frame,
     camera, tag id. Which tags are detected does not depend on the noise.
 
+    Args:
+        outliers: the fraction of detections with one corner moved by a gross error (a
+            uniform :data:`OUTLIER_PX` in a random direction, as a corner caught on the wrong
+            edge), drawn from a stream of their own (the rest stay as without outliers).
+
     Raises:
-        ValueError: a negative noise.
+        ValueError: a negative noise, or a fraction outside [0, 1].
     """
-    if not pixel_noise_px >= 0.0:
-        raise ValueError(f"pixel_noise_px={pixel_noise_px}: not a standard deviation")
-    rng = np.random.default_rng([seed, 5])
+    if not pixel_noise_px >= 0.0 or not 0.0 <= outliers <= 1.0:
+        raise ValueError(f"pixel_noise_px={pixel_noise_px}, outliers={outliers}: out of range")
+    rng, gross = np.random.default_rng([seed, 5]), np.random.default_rng([seed, 6])
     ids, corners_w = _world_corners(truth)
     found = []
     for frame in range(len(truth.frame_times)):
@@ -732,7 +744,13 @@ def detections(
             ok, pixels = _seen(truth, frame, camera, corners_w, visibility)
             for k in np.flatnonzero(ok):
                 noisy = pixels[k] + rng.normal(0.0, pixel_noise_px, (4, 2))
-                found.append(TagDetection3d(frame, camera, ids[k], noisy, pixels[k].copy()))
+                outlier = bool(gross.random() < outliers)
+                if outlier:
+                    angle, size = gross.uniform(0.0, 2.0 * math.pi), gross.uniform(*OUTLIER_PX)
+                    noisy[gross.integers(4)] += size * np.array([math.cos(angle), math.sin(angle)])
+                found.append(
+                    TagDetection3d(frame, camera, ids[k], noisy, pixels[k].copy(), outlier)
+                )
     return found
 
 
@@ -891,7 +909,7 @@ def _pose_message(T: gtsam.Pose3) -> dict[str, Any]:
     }
 
 
-def info_model_name(camera: Camera) -> str:
+def _info_model_name(camera: Camera) -> str:
     """The CameraInfo ``distortion_model`` of a camera."""
     if camera.model == EQUIDISTANT:
         return "equidistant"
@@ -904,7 +922,7 @@ def _camera_info(t_ns: int, sim: SimulatedCamera) -> dict[str, Any]:
         "header": header(t_ns, sim.frame_id),
         "height": k.height,
         "width": k.width,
-        "distortion_model": info_model_name(k),
+        "distortion_model": _info_model_name(k),
         "d": list(k.distortion) or [0.0] * 5,
         "k": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
         "r": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
@@ -977,6 +995,7 @@ def write_scene3d_log(
     odometry: bool = False,
     mounts: Mounts | str = Mounts.TF_STATIC,
     pixel_noise_px: float = 0.5,
+    outliers: float = 0.0,
     drift: OdometryDrift = OdometryDrift(),
     visibility: Visibility3d = Visibility3d(),
 ) -> list[TagDetection3d]:
@@ -989,13 +1008,13 @@ def write_scene3d_log(
             the same bytes.
         odometry: write ``/odom`` (:func:`odometry3d`) at each frame's time.
         mounts: where the cameras' mounts are given (:class:`Mounts`).
-        pixel_noise_px, visibility: as in :func:`detections`.
+        pixel_noise_px, outliers, visibility: as in :func:`detections`.
 
     Returns:
         The detections written (corners in OpenCV's order).
     """
     mounts = Mounts(mounts)
-    found = detections(truth, seed, pixel_noise_px, visibility=visibility)
+    found = detections(truth, seed, pixel_noise_px, outliers=outliers, visibility=visibility)
     by_view: dict[tuple[int, int], list[TagDetection3d]] = {}
     for d in found:
         by_view.setdefault((d.frame, d.camera), []).append(d)

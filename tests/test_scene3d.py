@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from markergraph.datasets.scene3d import (
+    OUTLIER_PX,
     TRUE_TAGS3D,
     Board,
     OdometryDrift,
@@ -134,6 +135,22 @@ def test_projections_equal_opencvs_from_the_world_points(room4: Scene3dTruth) ->
     assert set(models) == {(PLUMB_BOB, 5), (EQUIDISTANT, 4), (PLUMB_BOB, 8), (PLUMB_BOB, 0)}
     noise = np.concatenate([(d.corners_px - d.true_corners_px).ravel() for d in found])
     assert abs(noise.std() - 0.5) < 0.02 and abs(noise.mean()) < 0.02
+
+
+def test_outliers_move_one_corner_of_the_fraction_asked(room4: Scene3dTruth) -> None:
+    """outliers=0.1 moves one corner of about a tenth of the detections by 5-20 px (binomial
+    bound at 4 sigma) and leaves every other detection as it is without outliers."""
+    clean = detections(room4, SEED, 0.5)
+    dirty = detections(room4, SEED, 0.5, outliers=0.1)
+    n = len(clean)
+    flagged = [d for d in dirty if d.outlier]
+    assert abs(len(flagged) - 0.1 * n) < 4.0 * math.sqrt(0.09 * n)
+    for a, b in zip(clean, dirty, strict=True):
+        moved = np.linalg.norm(b.corners_px - a.corners_px, axis=1)
+        if b.outlier:
+            assert np.count_nonzero(moved) == 1 and OUTLIER_PX[0] <= moved.max() <= OUTLIER_PX[1]
+        else:
+            np.testing.assert_array_equal(b.corners_px, a.corners_px)
 
 
 def test_a_board_between_camera_and_tag_hides_it(room4: Scene3dTruth) -> None:
