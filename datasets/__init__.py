@@ -1,10 +1,18 @@
 """markergraph.datasets: simulated worlds, routes, and the measurements and logs made in them.
 
 The random convex rooms of the closed-form property tests live in
-:mod:`markergraph.datasets.rooms`."""
+:mod:`markergraph.datasets.rooms`; the 3-D worlds of tags at any pose, seen by a rig of
+cameras, in :mod:`markergraph.datasets.scene3d`."""
 
 from markergraph.datasets.route import GoTo, Look, Route, RoutePlan, WheelErrors, plan
 from markergraph.datasets.scenarios import SCENARIOS, scenario
+from markergraph.datasets.scene3d import (
+    Scene3dTruth,
+    SceneKind,
+    make_scene3d,
+    read_scene3d_truth,
+    write_scene3d_log,
+)
 from markergraph.datasets.simulate import (
     SIMULATED_MOUNT,
     ObservationNoise,
@@ -25,15 +33,20 @@ __all__ = [
     "ObservationNoise",
     "Route",
     "RoutePlan",
+    "Scene3dTruth",
+    "SceneKind",
     "SimulatedRun",
     "Visibility",
     "Wall",
     "WheelErrors",
     "World",
     "WorldFileError",
+    "make_scene3d",
     "plan",
+    "read_scene3d_truth",
     "scenario",
     "simulate_fast",
     "visible_markers",
     "write_log",
+    "write_scene3d_log",
 ]

@@ -68,7 +68,8 @@ class Row:
         )
         if self.error is not None:
             return f"{head}  {self.error}"
-        line = f"{head}, we map {self.mapped_tags:3d} ({self.common_tags} in common)"
+        share = 100 * (self.common_tags or 0) / max(self.reference_tags, 1)
+        line = f"{head}, we map {self.mapped_tags:3d} ({self.common_tags} of its, {share:.0f} %)"
         if self.median_cm is None:
             return line
         angle = "rotation" if self.dimensions == 3 else "yaw"
