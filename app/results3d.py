@@ -21,6 +21,7 @@ from markergraph.markermap import MarkerMap, write_json
 from markergraph.report_page import REPORT_PAGE, write_report_page
 from markergraph.results import REPORT_SCHEMA
 from markergraph.settings import MapConfig
+from markergraph.verdicts import Judgement, Verdict
 
 __all__ = ["FILES_3D", "Map3dRun", "report_3d", "write_results_3d"]
 
@@ -55,6 +56,8 @@ class Map3dRun:
     notes: list[Note] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     truth: dict[int, gtsam.Pose3] | None = None
+    judgement: Judgement = field(default_factory=lambda: Judgement(Verdict.OK))
+    """How far the map can be trusted (:func:`~markergraph.verdicts.judge_tag_map`)."""
 
 
 def _largest_sigma(covariance: NDArray[np.float64]) -> float:
@@ -158,6 +161,7 @@ def report_3d(run: Map3dRun, files: list[str]) -> dict[str, Any]:
         "tags": _tags(run.marker_map),
         "seconds": run.seconds,
         "settings": dict(run.config.values),
+        **run.judgement.to_json(),
     }
     error = _truth_error(run)
     if error is not None:

@@ -13,13 +13,15 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
+import gtsam
 import numpy as np
 
 from markergraph.common import EstimationError, Note, SettingsError
+from markergraph.datasets.scene3d import TRUE_WORLD3D, read_scene3d_truth
 from markergraph.estimator import Method
 from markergraph.estimator.tag_slam import map_tags
 from markergraph.estimator.tags3d import KnownTag, TagScene
-from markergraph.frontend import open_log
+from markergraph.frontend import Log, open_log
 from markergraph.frontend.logs import LogError
 from markergraph.frontend.survey import Survey, read_survey
 from markergraph.frontend.tag_scene import read_tag_scene
@@ -27,6 +29,7 @@ from markergraph.frontend.topics import choose_topics
 from markergraph.markermap import MarkerMap
 from markergraph.results3d import Map3dRun
 from markergraph.settings import MapConfig
+from markergraph.verdicts import judge_tag_map
 
 __all__ = ["MOUNT_SEED_SIGMAS", "map_log_3d", "wants_3d"]
 
@@ -128,9 +131,17 @@ def map_log_3d(
         tag_map, log=str(log), dictionary=config.dictionary,
         marker_size_m=config.marker_sizes.default_m, method=Method.SLAM.value,
     )  # fmt: skip
+    tags_seen = len({v.tag_id for v in scene.views})
     return Map3dRun(
         Path(log), config, tag_map, marker_map, len(scene.frame_times), read.views_read,
         [*(notes or []), *read.notes, *survey_notes, *skipped,
          *(Note("log.unreadable", text) for text in read.warnings)], seconds,
-        truth=None,
+        truth=_truth(opened), judgement=judge_tag_map(tag_map, tags_seen),
     )  # fmt: skip
+
+
+def _truth(log: Log) -> dict[int, gtsam.Pose3] | None:
+    """The tags' true poses a simulated log carries, else None."""
+    if not any(t.topic == TRUE_WORLD3D for t in log.topics):
+        return None
+    return dict(read_scene3d_truth(log.path).tags)

@@ -50,10 +50,11 @@ from markergraph.estimator.evidence import (
     residual_fit,
 )
 from markergraph.estimator.odometry_scale import SCALES
+from markergraph.estimator.tags3d import TagMap3d
 from markergraph.estimator.timing import DELAYS_S
 from markergraph.frontend import Extraction
 
-__all__ = ["Judgement", "Reason", "Verdict", "judge_run", "worst"]
+__all__ = ["Judgement", "Reason", "Verdict", "judge_run", "judge_tag_map", "worst"]
 
 RESIDUAL_RATIO_SUSPECT = 1.5  # chi2 / dof: honest noise reads 1, our cautious sigmas below
 MARKER_RESIDUAL_SUSPECT = 3.0  # a marker's median whitened error
@@ -439,3 +440,56 @@ def _markers(ids: Any) -> str:
     ids = sorted(ids)
     shown = ", ".join(map(str, ids[:6])) + (f" and {len(ids) - 6} more" if len(ids) > 6 else "")
     return f"marker{'s' if len(ids) > 1 else ''} {shown}"
+
+
+MAX_REPROJECTION_RMS_PX = 3.0
+"""A 3-D map whose corners fit it worse than this (RMS, after its outliers are dropped) is
+suspect: a wrong tag size, intrinsics or mount, or a solve that did not find the map."""
+MAX_DROPPED_VIEWS = 0.2
+"""... or that had to leave out more than this share of its views."""
+MAX_UNPLACED_TAGS = 0.1
+"""... or could not place more than this share of the tags seen."""
+
+
+def judge_tag_map(tag_map: TagMap3d, tags_seen: int) -> Judgement:
+    """How far a 3-D tag map can be trusted, from what it alone shows."""
+    reasons = []
+    if not tag_map.converged:
+        reasons.append(_failed("converged", 0.0, "the optimiser did not converge"))
+    rms = tag_map.reprojection_rms_px
+    if rms > MAX_REPROJECTION_RMS_PX:
+        reasons.append(
+            _suspect(
+                "residuals",
+                rms,
+                f"the tags' corners fit the map to {rms:.1f} px "
+                f"RMS (more than {MAX_REPROJECTION_RMS_PX:g} px): a wrong tag size, "
+                "intrinsics or mount, or a map the solve did not find",
+            )
+        )
+    views = tag_map.views_used + tag_map.views_dropped
+    share = tag_map.views_dropped / views if views else 0.0
+    if share > MAX_DROPPED_VIEWS:
+        reasons.append(
+            _suspect(
+                "dropped",
+                100 * share,
+                f"{100 * share:.0f} % of the tag views disagreed with the map and were left out",
+            )
+        )
+    unplaced = 1.0 - len(tag_map.tags) / tags_seen if tags_seen else 0.0
+    if unplaced > MAX_UNPLACED_TAGS:
+        reasons.append(
+            _suspect(
+                "unplaced",
+                100 * unplaced,
+                f"{100 * unplaced:.0f} % of the tags seen could not be placed",
+            )
+        )
+    if any(note.kind == "camera.unplaced" for note in tag_map.notes):
+        reasons.append(
+            _suspect(
+                "unplaced", 0.0, "a camera's mount could not be estimated: its views were left out"
+            )
+        )
+    return Judgement.of(reasons)

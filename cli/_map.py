@@ -170,10 +170,14 @@ def _run_3d(
     for camera in tag_map.cameras.values():
         how = "estimated" if camera.estimated else "given"
         print(f"camera {camera.name} ({camera.topic}): mount {how}, {camera.n_views:,} views")
+    print(f"verdict slam: {run.judgement.verdict.value}", end="")
+    print("".join(f"\n  - {reason.text}" for reason in run.judgement.reasons))
     if not args.quiet:
         for note in [*run.notes, *tag_map.notes]:
             print(f"note: {note}", file=sys.stderr)
     print(f"wrote {len(written)} files to {out}/")
+    if args.strict and run.judgement.verdict is not Verdict.OK:
+        return EXIT_NOT_OK
     return 0
 
 

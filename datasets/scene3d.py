@@ -47,6 +47,7 @@ from markergraph.estimator.tags3d import KnownTag, SceneCamera, TagScene, TagVie
 from markergraph.frontend.camera import EQUIDISTANT, Camera, CameraMount
 from markergraph.frontend.logs import open_log
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, header, quaternion_from_matrix
+from markergraph.frontend.tag_scene import seed_poses
 
 __all__ = [
     "CAMERA_PRESETS",
@@ -795,21 +796,6 @@ def odometry3d(
 # --- the estimator's input, straight from the simulation ---------------------------------------
 
 
-def _pnp(rays: NDArray[np.float64], size_m: float) -> gtsam.Pose3:
-    """T_camera_tag from a tag's undistorted rays (IPPE for squares)."""
-    ok, rvec, tvec = cv2.solvePnP(
-        tag_corners(size_m),
-        rays.reshape(-1, 1, 2),
-        np.eye(3),
-        None,
-        flags=cv2.SOLVEPNP_IPPE_SQUARE,
-    )
-    if not ok:
-        return gtsam.Pose3()
-    R, _ = cv2.Rodrigues(rvec)
-    return gtsam.Pose3(gtsam.Rot3(R), np.asarray(tvec, dtype=np.float64).ravel())
-
-
 def tag_scene(
     truth: Scene3dTruth,
     found: Sequence[TagDetection3d],
@@ -856,10 +842,11 @@ def tag_scene(
     for d in found:
         camera = truth.cameras[d.camera].camera
         rays = camera.rays(d.corners_px)
-        T_camera_tag = _pnp(rays, truth.tag_sizes[d.tag_id])
-        views.append(
-            TagView(d.frame, d.camera, d.tag_id, rays, pixel_noise_px / camera.fx, T_camera_tag)
-        )
+        seeds = seed_poses(rays, truth.tag_sizes[d.tag_id])
+        if seeds is not None:
+            views.append(
+                TagView(d.frame, d.camera, d.tag_id, rays, pixel_noise_px / camera.fx, *seeds)
+            )
     seen = {d.tag_id for d in found}
     sigmas: NDArray[np.float64] = np.repeat(np.array(survey_sigmas, dtype=np.float64), 3)
     return TagScene(

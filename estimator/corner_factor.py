@@ -149,9 +149,14 @@ def _error(
     return residual.ravel()
 
 
-def frame_factor(views: FrameViews) -> gtsam.CustomFactor:
-    """The factor of one rig frame's views."""
+def frame_factor(views: FrameViews, robust_k: float | None = None) -> gtsam.CustomFactor:
+    """The factor of one rig frame's views; with ``robust_k``, a Cauchy kernel of that width
+    (in sigmas) on the factor's whole error."""
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.repeat(views.sigmas, 8))
+    if robust_k is not None:
+        noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Cauchy.Create(robust_k), noise
+        )
     corners = views.corners()
 
     def evaluate(this: gtsam.CustomFactor, values: gtsam.Values, H: Any) -> Any:

@@ -142,7 +142,10 @@ class TagGraph:
             values.insert(camera_key(i), self.placed.cameras[i])
         return values
 
-    def graph(self) -> gtsam.NonlinearFactorGraph:
+    def graph(self, robust_k: float | None = None) -> gtsam.NonlinearFactorGraph:
+        """The whole graph; with ``robust_k``, one factor a view under a Cauchy kernel (a first
+        solve that outliers cannot drag; a frame's factor would share one weight among its
+        views), else one factor a frame."""
         graph = gtsam.NonlinearFactorGraph()
         for tag_id in self.placed.tags:
             prior = self.tag_prior(tag_id)
@@ -154,6 +157,10 @@ class TagGraph:
                 graph.add(camera_prior)
         for a, b in itertools.pairwise(sorted(self.placed.frames)):
             graph.add(self.step(a, b))
+        if robust_k is not None:
+            for k in range(len(self.views)):
+                graph.add(frame_factor(self.layout([k]), robust_k))
+            return graph
         for _, views in self.frame_views():
             graph.add(frame_factor(views))
         return graph

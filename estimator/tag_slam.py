@@ -23,7 +23,7 @@ from markergraph.estimator.solution import first_line, lm_params, marginals_or_n
 from markergraph.estimator.tag_frames import map_framing
 from markergraph.estimator.tag_graph import TagGraph, camera_key, rig_key, tag_key, view_errors_px
 from markergraph.estimator.tag_incremental import solve_incremental
-from markergraph.estimator.tag_init import place
+from markergraph.estimator.tag_init import agree, place
 from markergraph.estimator.tags3d import Camera3d, Tag3d, TagMap3d, TagScene
 
 __all__ = ["map_tags"]
@@ -36,17 +36,21 @@ FIRST_TOLERANCE = 1e-5
 """The first solve's relative error tolerance: with its outliers still in, the last steps only
 trade one outlier's error for another's."""
 FINAL_TOLERANCE = 1e-7
+ROBUST_K = 3.0
+"""The first solve's Cauchy kernel width on each view [sigmas]."""
 
 
-def _home(scene: TagScene) -> int | None:
+def _home(scene: TagScene, mounted: set[int]) -> int | None:
+    """The tag that fixes the frame: none with a survey, else the one named, else the first
+    seen by a camera whose mount is known (a tag only an unplaced camera sees places nothing)."""
     if scene.known_tags:
         return None
     if scene.home_id is not None:
         if all(v.tag_id != scene.home_id for v in scene.views):
             raise EstimationError(f"home tag {scene.home_id} is never seen")
         return scene.home_id
-    first = min(scene.views, key=lambda v: (v.frame, v.tag_id))
-    return first.tag_id
+    views = [v for v in scene.views if v.camera in mounted] or scene.views
+    return min(views, key=lambda v: (v.frame, v.tag_id)).tag_id
 
 
 def _mounts(scene: TagScene, notes: list[Note]) -> tuple[dict[int, gtsam.Pose3], set[int]]:
@@ -89,10 +93,11 @@ def _solve(
     if incremental:
         values, isam = solve_incremental(problem)
         return values, True, isam
+    if tolerance == FIRST_TOLERANCE:
+        values, converged = _optimise(problem.graph(ROBUST_K), problem.values(), tolerance)
+        return values, converged, None
     graph = problem.graph()
     values, converged = _optimise(graph, problem.values(), tolerance)
-    if tolerance == FIRST_TOLERANCE:
-        return values, converged, None
     return values, converged, marginals_or_note(graph, values, notes)
 
 
@@ -105,9 +110,15 @@ def map_tags(scene: TagScene, incremental: bool = False) -> TagMap3d:
     if not scene.views:
         raise EstimationError("no tag views to map")
     notes: list[Note] = []
-    home = _home(scene)
     mounts, estimated = _mounts(scene, notes)
-    problem = TagGraph(scene, place(scene, home, mounts), estimated, home)
+    home = _home(scene, set(mounts))
+    placed = place(scene, home, mounts)
+    agree(scene, placed, estimated)
+    problem = TagGraph(scene, placed, estimated, home)
+    if not problem.views:
+        raise EstimationError(
+            "no tag view could be placed (no chain of views reaches the home tag)"
+        )
     values, converged, marginals = _solve(problem, incremental, FIRST_TOLERANCE, notes)
     errors = view_errors_px(problem, values)
     limit = max(OUTLIER_PX, OUTLIER_SHARE * float(np.median(errors)))

@@ -55,8 +55,10 @@ class TagView:
             optical frame), in OpenCV's order.
         sigma: the standard deviation of each ray coordinate (the pixel noise over the focal
             length) [rad].
-        T_camera_tag: the tag's pose in the camera from its corners alone (a PnP solution), a
-            seed for the solver.
+        T_camera_tag: the tag's pose in the camera from its corners alone (the PnP solution
+            that fits them best), a seed for the solver.
+        T_camera_tag_alt: the other solution of a square's PnP (the tag tilted the other way,
+            nearly as good for a small or far tag), where there is one.
     """
 
     frame: int
@@ -65,6 +67,7 @@ class TagView:
     rays: NDArray[np.float64]
     sigma: float
     T_camera_tag: gtsam.Pose3
+    T_camera_tag_alt: gtsam.Pose3 | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -30,7 +30,7 @@ from markergraph.frontend.tagged import Rig, find_camera, find_mount, no_camera_
 from markergraph.frontend.tf import rotation_of, transforms_of
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
 
-__all__ = ["SceneRead", "read_tag_scene", "seed_pose"]
+__all__ = ["SceneRead", "read_tag_scene", "seed_poses"]
 
 SYNC_NS = 1_000_000
 """Detections of different cameras this close in time belong to one rig frame."""
@@ -53,24 +53,24 @@ class SceneRead:
     warnings: list[str] = field(default_factory=list)
 
 
-def seed_pose(rays: NDArray[np.float64], size_m: float) -> gtsam.Pose3 | None:
-    """The tag's pose in the camera from its corners' rays (IPPE's better solution), or None
-    when there is none in front of the camera."""
+def seed_poses(
+    rays: NDArray[np.float64], size_m: float
+) -> tuple[gtsam.Pose3, gtsam.Pose3 | None] | None:
+    """The tag's pose in the camera from its corners' rays: IPPE's two solutions, the better
+    first (the second None where it is behind the camera), or None when neither is in front."""
     found, rotations, translations, errors = cv2.solvePnPGeneric(
-        tag_corners(size_m),
-        np.ascontiguousarray(rays.reshape(4, 1, 2)),
-        np.eye(3),
-        None,
+        tag_corners(size_m), np.ascontiguousarray(rays.reshape(4, 1, 2)), np.eye(3), None,
         flags=cv2.SOLVEPNP_IPPE_SQUARE,
-    )
-    if not found:
+    )  # fmt: skip
+    poses = []
+    for k in np.argsort(np.asarray(errors).ravel())[:found]:
+        t = np.asarray(translations[k], dtype=np.float64).ravel()
+        if np.all(np.isfinite(t)) and t[2] > 0:
+            R, _ = cv2.Rodrigues(rotations[k])
+            poses.append(gtsam.Pose3(gtsam.Rot3(R), t))
+    if not poses:
         return None
-    best = int(np.argmin(np.asarray(errors).ravel()))
-    t = np.asarray(translations[best], dtype=np.float64).ravel()
-    if not np.all(np.isfinite(t)) or t[2] <= 0:
-        return None
-    R, _ = cv2.Rodrigues(rotations[best])
-    return gtsam.Pose3(gtsam.Rot3(R), t)
+    return poses[0], (poses[1] if len(poses) > 1 else None)
 
 
 def _interpolated(samples: list[tuple[int, gtsam.Pose3]], t_ns: int) -> gtsam.Pose3 | None:
@@ -222,11 +222,11 @@ def read_tag_scene(
                 read.skipped["tag ignored by the settings"] += 1
                 continue
             rays = model.rays(d.corners)
-            seed = seed_pose(rays, sizes.of(d.marker_id)) if np.all(np.isfinite(rays)) else None
-            if seed is None:
+            seeds = seed_poses(rays, sizes.of(d.marker_id)) if np.all(np.isfinite(rays)) else None
+            if seeds is None:
                 read.skipped["corners with no pose in front of the camera"] += 1
                 continue
-            views.append(TagView(frame_of[k], camera, d.marker_id, rays, _ray_sigma(model), seed))
+            views.append(TagView(frame_of[k], camera, d.marker_id, rays, _ray_sigma(model), *seeds))
     if not views:
         raise LogError(f"{log.path}: no tag detection gives a pose ({dict(read.skipped)})")
     odometry = [_interpolated(reader.odometry, int(t)) for t in times] if reader.odometry else []
