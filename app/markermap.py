@@ -32,7 +32,7 @@ from markergraph.common.files import written_whole
 from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.heights import MarkerHeight
 from markergraph.estimator.paper import Edge, Form, edge_from_pose2, heading
-from markergraph.estimator.tags3d import Camera3d, TagMap3d
+from markergraph.estimator.tags3d import Camera3d, TagMap3d, quaternion_wxyz
 from markergraph.frontend.posed import WALL_TILT_RAD
 from markergraph.frontend.sizes import MarkerSizes
 
@@ -378,7 +378,7 @@ class MarkerMap:
         if not isinstance(dictionary, str) or not dictionary.isprintable() or not dictionary:
             raise MarkerMapError(f"{source}: dictionary must be a name, got {dictionary!r}")
         unplaced = document.get("unplaced") or {}
-        cameras = ()
+        cameras: tuple[Camera3d, ...] = ()
         if dimensions == 3:
             cameras = tuple(
                 _read_camera(read, f"cameras[{i}]", entry)
@@ -552,9 +552,7 @@ def _marker_of(
 
 def _quaternion(rotation: gtsam.Rot3) -> list[float]:
     """[w, x, y, z], w >= 0."""
-    q = rotation.toQuaternion()
-    wxyz = [float(q.w()), float(q.x()), float(q.y()), float(q.z())]
-    return wxyz if wxyz[0] >= 0 else [-v for v in wxyz]
+    return list(quaternion_wxyz(rotation))
 
 
 def _pose_fields(T: gtsam.Pose3) -> dict[str, Any]:

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from markergraph.common import Note
 from markergraph.common.files import MANIFEST_KEY, result_folder
 from markergraph.estimator.metrics import tag_errors_3d
-from markergraph.estimator.tags3d import Camera3d, TagMap3d
+from markergraph.estimator.tags3d import Camera3d, TagMap3d, quaternion_wxyz
 from markergraph.formats import write_g2o_3d, write_tum_3d
 from markergraph.markermap import MarkerMap, write_json
 from markergraph.report_page import REPORT_PAGE, write_report_page
@@ -74,7 +74,7 @@ def _sigmas(covariance: NDArray[np.float64] | None) -> dict[str, list[float] | N
 
 
 def _camera(camera: Camera3d) -> dict[str, Any]:
-    t, q = camera.T_rig_camera.translation(), camera.T_rig_camera.rotation().toQuaternion()
+    t, q = camera.T_rig_camera.translation(), quaternion_wxyz(camera.T_rig_camera.rotation())
     return {
         "topic": camera.topic,
         "estimated": camera.estimated,
@@ -82,7 +82,7 @@ def _camera(camera: Camera3d) -> dict[str, Any]:
         "x_m": float(t[0]),
         "y_m": float(t[1]),
         "z_m": float(t[2]),
-        "quaternion_wxyz": [float(q.w()), float(q.x()), float(q.y()), float(q.z())],
+        "quaternion_wxyz": list(q),
         **_sigmas(camera.covariance),
     }
 

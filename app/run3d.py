@@ -23,7 +23,7 @@ from markergraph.estimator.tag_slam import map_tags
 from markergraph.estimator.tags3d import KnownTag, TagScene
 from markergraph.frontend import Log, open_log
 from markergraph.frontend.logs import LogError
-from markergraph.frontend.survey import Survey, read_survey
+from markergraph.frontend.survey import TagRemap, read_survey
 from markergraph.frontend.tag_scene import read_tag_scene
 from markergraph.frontend.topics import choose_topics
 from markergraph.markermap import MarkerMap
@@ -58,25 +58,27 @@ def wants_3d(log: Path, config: MapConfig) -> tuple[bool, Note | None]:
     return False, None
 
 
-def _surveys(config: MapConfig) -> tuple[list[KnownTag], frozenset[int], list[Note], Survey | None]:
+def _surveys(
+    config: MapConfig,
+) -> tuple[list[KnownTag], frozenset[int], list[Note], tuple[TagRemap, ...]]:
     """The surveyed tags of ``--survey`` and of ``tagslam.yaml`` (the survey file wins where
     both place a tag), the ids to leave out, and the notes of reading them."""
     tags: dict[int, KnownTag] = {}
     ignored: set[int] = set()
     notes: list[Note] = []
-    tagslam = None
+    remaps: tuple[TagRemap, ...] = ()
     for path in (config.rig.tagslam, config.rig.survey):
         if path is None:
             continue
         survey = read_survey(path)
-        tagslam = survey if path == config.rig.tagslam else tagslam
+        remaps += survey.remaps
         tags.update({t.tag_id: t for t in survey.tags})
         ignored |= survey.ignored_ids
         notes += survey.notes
         if survey.tags:
             notes.append(Note("survey.tags", f"{path}: {len(survey.tags)} surveyed tags held "
                               "by their stated noise", str(path), len(survey.tags)))  # fmt: skip
-    return [tags[i] for i in sorted(tags)], frozenset(ignored), notes, tagslam
+    return [tags[i] for i in sorted(tags)], frozenset(ignored), notes, remaps
 
 
 def _seeded(scene: TagScene) -> TagScene:
@@ -112,8 +114,8 @@ def map_log_3d(
             f"{log}: a 3-D map is made from tag detections (AprilTag detection messages); "
             "this log has none"
         )
-    known, ignored, survey_notes, _ = _surveys(config)
-    read = read_tag_scene(opened, config.frontend, choice, known, ignored, config.home_id)
+    known, ignored, survey_notes, remaps = _surveys(config)
+    read = read_tag_scene(opened, config.frontend, choice, known, ignored, config.home_id, remaps)
     scene = _seeded(read.scene) if config.rig.seed_mounts else read.scene
     seconds["front end"] = time.perf_counter() - start
     stage("estimating: 3-D tag map")
@@ -124,7 +126,7 @@ def map_log_3d(
         raise EstimationError(f"{log}: {error}") from None
     seconds["slam"] = time.perf_counter() - start
     skipped = [
-        Note("views.skipped", f"{count:,} tag detections skipped: {reason}", figure=count)
+        Note("views.skipped", f"skipped: {count:,} {reason}", figure=count)
         for reason, count in sorted(read.skipped.items())
     ]
     marker_map = MarkerMap.from_tag_map(

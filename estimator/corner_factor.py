@@ -25,6 +25,11 @@ from markergraph.estimator.tags3d import tag_corners
 __all__ = ["FrameViews", "frame_errors", "frame_factor", "residuals"]
 
 
+MIN_DEPTH_M = 1e-3
+"""A corner's depth is taken as at least this: a guess that puts it behind the camera gives a
+large error that a solver can step back from, not an infinite one."""
+
+
 def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
     """(..., 3) vectors to (..., 3, 3) cross-product matrices."""
     out = np.zeros((*v.shape, 3))
@@ -61,7 +66,7 @@ def residuals(
     Rb, tb = T_map_tag[:, :3, :3], T_map_tag[:, :3, 3]
     q = np.einsum("nij,nkj->nki", Rb, corners) + (tb - ta)[:, None, :]
     p = np.einsum("nji,nkj->nki", Ra, q)  # the corners in the camera: Ra^T (Rb c + tb - ta)
-    inverse_z = 1.0 / p[..., 2]
+    inverse_z = 1.0 / np.maximum(p[..., 2], MIN_DEPTH_M)  # a corner behind: large, not infinite
     residual = (p[..., :2] * inverse_z[..., None] - rays).reshape(len(p), 8)
     if not jacobians:
         return residual, None, None
@@ -152,7 +157,7 @@ def _error(
 def frame_factor(views: FrameViews, robust_k: float | None = None) -> gtsam.CustomFactor:
     """The factor of one rig frame's views; with ``robust_k``, a Cauchy kernel of that width
     (in sigmas) on the factor's whole error."""
-    noise = gtsam.noiseModel.Diagonal.Sigmas(np.repeat(views.sigmas, 8))
+    noise: Any = gtsam.noiseModel.Diagonal.Sigmas(np.repeat(views.sigmas, 8))
     if robust_k is not None:
         noise = gtsam.noiseModel.Robust.Create(
             gtsam.noiseModel.mEstimator.Cauchy.Create(robust_k), noise

@@ -49,13 +49,13 @@ def _up_from_odometry(
     scene: TagScene, values: gtsam.Values, frames: list[int]
 ) -> NDArray[np.float64] | None:
     pairs = [
-        (values.atPose3(_X(i)).rotation().matrix(), scene.odometry[i])
+        (values.atPose3(_X(i)).rotation().matrix(), odometry.rotation().matrix())
         for i in frames
-        if scene.odometry and scene.odometry[i] is not None
+        if scene.odometry and (odometry := scene.odometry[i]) is not None
     ]
     if not pairs:
         return None
-    total = sum(R_map_rig @ odometry.rotation().matrix().T for R_map_rig, odometry in pairs)
+    total = np.sum([R_map_rig @ R_odom_rig.T for R_map_rig, R_odom_rig in pairs], axis=0)
     U, _, Vt = np.linalg.svd(total)
     return np.asarray((U @ Vt)[:, 2])  # the odometry frame's z in the map
 
@@ -75,16 +75,22 @@ def _cameras_up(
 def _up_from_walls(
     normals: NDArray[np.float64], prior: NDArray[np.float64]
 ) -> NDArray[np.float64] | None:
-    walls = normals[np.abs(normals @ prior) < math.sin(WALL_LIMIT_RAD)]
-    if len(walls) < 2:
-        return None
-    spread = np.linalg.norm(np.cross(walls[:, None, :], walls[None, :, :]), axis=2)
-    if spread.max() < math.sin(SPREAD_RAD):
-        return None  # one wall (or one board): its normal leaves up free about it
-    up = np.linalg.eigh(walls.T @ walls)[1][:, 0]
-    up = up if up @ prior > 0 else -up
-    level = np.abs(walls @ up) < math.sin(LEVEL_RAD)
-    return up if level.mean() >= LEVEL_SHARE else None
+    """The direction most normals lie level with: the tags within 45 degrees of level for the
+    cameras' up first, then (twice) those within :data:`LEVEL_RAD` of the up they give, so
+    that a board leaning back or a tag on a ramp does not tilt it."""
+    up, limit = prior, WALL_LIMIT_RAD
+    for _ in range(3):
+        walls = normals[np.abs(normals @ up) < math.sin(limit)]
+        if len(walls) < 2:
+            return None
+        spread = np.linalg.norm(np.cross(walls[:, None, :], walls[None, :, :]), axis=2)
+        if spread.max() < math.sin(SPREAD_RAD):
+            return None  # one wall (or one board): its normal leaves up free about it
+        up = np.linalg.eigh(walls.T @ walls)[1][:, 0]
+        up = up if up @ prior > 0 else -up
+        limit = LEVEL_RAD
+    level = np.abs(normals @ up) < math.sin(LEVEL_RAD)
+    return up if level.sum() >= LEVEL_SHARE * len(walls) else None
 
 
 def map_framing(

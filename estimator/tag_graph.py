@@ -119,8 +119,9 @@ class TagGraph:
         """Odometry from frame a to frame b, or the motion prior where there is none."""
         odometry = self.scene.odometry
         dt_s = (int(self.scene.frame_times[b]) - int(self.scene.frame_times[a])) * 1e-9
-        measured = bool(odometry) and odometry[a] is not None and odometry[b] is not None
-        step = odometry[a].between(odometry[b]) if measured else gtsam.Pose3()
+        start, end = (odometry[a], odometry[b]) if odometry else (None, None)
+        measured = start is not None and end is not None
+        step = start.between(end) if start is not None and end is not None else gtsam.Pose3()
         noise = _step_noise(step, dt_s, measured)
         return gtsam.BetweenFactorPose3(rig_key(a), rig_key(b), step, noise)
 

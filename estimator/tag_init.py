@@ -34,7 +34,7 @@ class Placed:
     cameras: dict[int, gtsam.Pose3] = field(default_factory=dict)
     order: list[tuple[str, int]] = field(default_factory=list)
     """What was placed, in the order it was: ``("f", frame)``, ``("t", tag id)``,
-    ``("c", camera)`` (each placed from what came before it)."""
+    ``("c", camera)``."""
 
 
 def _cost(view: TagView, size_m: float) -> float:
@@ -89,9 +89,11 @@ class _Search:
         odometry = self.scene.odometry
         if not odometry or odometry[frame] is None:
             return
+        here = odometry[frame]
         for neighbour in (frame - 1, frame + 1):
-            if 0 <= neighbour < len(odometry) and odometry[neighbour] is not None:
-                step = odometry[frame].between(odometry[neighbour])
+            there = odometry[neighbour] if 0 <= neighbour < len(odometry) else None
+            if here is not None and there is not None:
+                step = here.between(there)
                 rig = self.placed.frames[frame].compose(step)
                 self.push(cost + ODOMETRY_COST, "f", neighbour, rig)
 
@@ -270,11 +272,13 @@ class _Consensus:
 
     def _from_odometry(self, frame: int) -> list[gtsam.Pose3]:
         odometry, p = self.scene.odometry, self.placed
-        if not odometry or odometry[frame] is None:
+        here = odometry[frame] if odometry else None
+        if here is None:
             return []
         return [
-            p.frames[i].compose(odometry[i].between(odometry[frame]))
+            p.frames[i].compose(there.between(here))
             for i in (frame - 1, frame + 1)
+            if (there := odometry[i] if 0 <= i < len(odometry) else None) is not None
             if i in p.frames and 0 <= i < len(odometry) and odometry[i] is not None
         ]
 

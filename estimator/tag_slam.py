@@ -1,6 +1,6 @@
 """The 3-D tag map: rig poses, tag poses and unknown camera mounts in SE(3), in one GTSAM graph
 of corner reprojection factors, odometry (or a weak motion prior where there is none) and the
-surveyed tags' priors, solved in batch (Levenberg-Marquardt) or incrementally (iSAM2).
+surveyed tags' priors, solved in batch (Levenberg-Marquardt).
 
 The gauge: surveyed tags fix the map frame where there are any, else the home tag (the first
 tag seen unless named) sits at the identity; a camera whose mount is given holds the rig's frame,
@@ -22,7 +22,6 @@ from markergraph.common.notes import Note
 from markergraph.estimator.solution import first_line, lm_params, marginals_or_note
 from markergraph.estimator.tag_frames import map_framing
 from markergraph.estimator.tag_graph import TagGraph, camera_key, rig_key, tag_key, view_errors_px
-from markergraph.estimator.tag_incremental import solve_incremental
 from markergraph.estimator.tag_init import agree, place
 from markergraph.estimator.tags3d import Camera3d, Tag3d, TagMap3d, TagScene
 
@@ -86,13 +85,10 @@ def _optimise(
 
 
 def _solve(
-    problem: TagGraph, incremental: bool, tolerance: float, notes: list[Note]
+    problem: TagGraph, tolerance: float, notes: list[Note]
 ) -> tuple[gtsam.Values, bool, Any]:
     """The graph's solution from its placed poses, whether it converged, and what gives the
     marginal covariances (None when they cannot be had)."""
-    if incremental:
-        values, isam = solve_incremental(problem)
-        return values, True, isam
     if tolerance == FIRST_TOLERANCE:
         values, converged = _optimise(problem.graph(ROBUST_K), problem.values(), tolerance)
         return values, converged, None
@@ -101,8 +97,8 @@ def _solve(
     return values, converged, marginals_or_note(graph, values, notes)
 
 
-def map_tags(scene: TagScene, incremental: bool = False) -> TagMap3d:
-    """The 3-D tag map of ``scene``, solved in batch or (``incremental``) by iSAM2.
+def map_tags(scene: TagScene) -> TagMap3d:
+    """The 3-D tag map of ``scene``, solved in batch.
 
     Raises:
         EstimationError: no views, a home tag never seen, or a graph that cannot be solved.
@@ -119,14 +115,14 @@ def map_tags(scene: TagScene, incremental: bool = False) -> TagMap3d:
         raise EstimationError(
             "no tag view could be placed (no chain of views reaches the home tag)"
         )
-    values, converged, marginals = _solve(problem, incremental, FIRST_TOLERANCE, notes)
+    values, converged, marginals = _solve(problem, FIRST_TOLERANCE, notes)
     errors = view_errors_px(problem, values)
     limit = max(OUTLIER_PX, OUTLIER_SHARE * float(np.median(errors)))
     dropped = int(np.sum(errors > limit))
     if dropped or marginals is None:
         problem.views = [v for v, e in zip(problem.views, errors, strict=True) if e <= limit]
         problem.warm(values)
-        values, converged, marginals = _solve(problem, incremental, FINAL_TOLERANCE, notes)
+        values, converged, marginals = _solve(problem, FINAL_TOLERANCE, notes)
         errors = view_errors_px(problem, values)
     if dropped:
         notes.append(

@@ -13,6 +13,7 @@ then translation) in the pose's own frame.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -29,12 +30,20 @@ __all__ = [
     "TagMap3d",
     "TagScene",
     "TagView",
+    "quaternion_wxyz",
     "tag_corners",
 ]
 
 R_TAG_MARKER = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
 """The marker frame's axes in the tag frame: x the normal (the tag's z), y the tag's x, z the
 tag's y (up, for a tag printed upright on a wall)."""
+
+
+def quaternion_wxyz(rotation: gtsam.Rot3) -> tuple[float, float, float, float]:
+    """A rotation's unit quaternion (w, x, y, z), w >= 0."""
+    q: Any = rotation.toQuaternion()  # gtsam's stubs leave its Quaternion untyped
+    wxyz = (float(q.w()), float(q.x()), float(q.y()), float(q.z()))
+    return wxyz if wxyz[0] >= 0 else (-wxyz[0], -wxyz[1], -wxyz[2], -wxyz[3])
 
 
 def tag_corners(size_m: float) -> NDArray[np.float64]:

@@ -26,6 +26,7 @@ from markergraph.frontend.decode import frame_id, stamp_ns
 from markergraph.frontend.detect import Detection
 from markergraph.frontend.detections import detections_of
 from markergraph.frontend.logs import DecodeFailures, Log, LogError
+from markergraph.frontend.survey import TagRemap
 from markergraph.frontend.tagged import Rig, find_camera, find_mount, no_camera_text
 from markergraph.frontend.tf import rotation_of, transforms_of
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
@@ -120,7 +121,7 @@ class _Reader:
             pose = getattr(decoded, "pose", None)
             pose = getattr(pose, "pose", pose)
             R = rotation_of(pose.orientation) if pose is not None else None
-            if R is None:
+            if pose is None or R is None:
                 return
             p = np.array([pose.position.x, pose.position.y, pose.position.z], dtype=np.float64)
             if np.all(np.isfinite(p)):
@@ -188,6 +189,7 @@ def read_tag_scene(
     known_tags: list[KnownTag] | None = None,
     ignored: frozenset[int] = frozenset(),
     home_id: int | None = None,
+    remaps: tuple[TagRemap, ...] = (),
 ) -> SceneRead:
     """The 3-D scene of a log of tag detections.
 
@@ -211,12 +213,12 @@ def read_tag_scene(
         read.skipped["detection messages with no tag"] = empty
     views: list[TagView] = []
     allowed = config.allowed_ids
-    for k, (topic, _, _, detections) in enumerate(reader.messages):
+    for k, (topic, t_ns, _, detections) in enumerate(reader.messages):
         if topic not in topics:
             read.skipped[f"detections on {topic} without a camera"] += len(detections)
             continue
         camera, model = topics[topic], models[topics[topic]]
-        for d in detections:
+        for d in _remapped(detections, t_ns, remaps):
             read.views_read += 1
             if d.marker_id in ignored or (allowed is not None and d.marker_id not in allowed):
                 read.skipped["tag ignored by the settings"] += 1
@@ -235,6 +237,22 @@ def read_tag_scene(
     read.notes = notes
     read.warnings = reader.failures.warnings()
     return read
+
+
+def _remapped(
+    detections: list[Detection], t_ns: int, remaps: tuple[TagRemap, ...]
+) -> list[Detection]:
+    """Detections with TagSLAM's id remaps applied (two tags printed with one id, told apart by
+    when they were seen)."""
+    if not remaps:
+        return detections
+    out = []
+    for d in detections:
+        remap = next(
+            (r for r in remaps if r.tag_id == d.marker_id and r.start_ns <= t_ns <= r.end_ns), None
+        )
+        out.append(d if remap is None else Detection(remap.remap_id, d.corners))
+    return out
 
 
 def _ray_sigma(camera: Camera) -> float:

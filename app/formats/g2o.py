@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from markergraph.common.errors import MarkerGraphError
 from markergraph.common.files import written_whole
+from markergraph.estimator.tags3d import quaternion_wxyz
 
 __all__ = ["MARKER_VERTEX_OFFSET", "write_g2o", "write_g2o_3d"]
 
@@ -70,8 +71,8 @@ def write_g2o(path: Path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Value
 
 def _se3(T: gtsam.Pose3) -> str:
     """``x y z qx qy qz qw`` at full precision."""
-    t, q = T.translation(), T.rotation().toQuaternion()
-    values = [*(float(v) for v in t), float(q.x()), float(q.y()), float(q.z()), float(q.w())]
+    t, (w, x, y, z) = T.translation(), quaternion_wxyz(T.rotation())
+    values = [*(float(v) for v in t), x, y, z, w]
     return " ".join(repr(v) for v in values)
 
 

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common.files import written_whole
-from markergraph.estimator.tags3d import R_TAG_MARKER
+from markergraph.estimator.tags3d import R_TAG_MARKER, quaternion_wxyz
 from markergraph.markermap import MapMarker, MarkerMap
 
 __all__ = ["ExportFormat", "export_map"]
@@ -93,8 +93,7 @@ def _csv_3d(marker_map: MarkerMap) -> list[str]:
     lines = [_CSV_3D]
     for m in marker_map.markers3d.values():
         assert m.T_map_marker3 is not None  # a 3-D map's markers all have one
-        q = m.T_map_marker3.rotation().toQuaternion()
-        sign = 1.0 if q.w() >= 0 else -1.0
+        q = quaternion_wxyz(m.T_map_marker3.rotation())
         sigma_p, sigma_r = np.zeros(3), np.zeros(3)
         if m.covariance6 is not None:
             R = np.asarray(m.T_map_marker3.rotation().matrix())
@@ -107,7 +106,7 @@ def _csv_3d(marker_map: MarkerMap) -> list[str]:
             sigma_yaw,
             repr(float(sigma_p[2])),
             str(m.n_observations),
-            *(repr(sign * float(v)) for v in (q.w(), q.x(), q.y(), q.z())),
+            *(repr(v) for v in q),
             *(repr(float(v)) for v in sigma_r),
             "true" if m.wall else "false",
         ]

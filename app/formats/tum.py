@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 
 from markergraph.common.errors import MarkerGraphError
 from markergraph.common.files import written_whole
+from markergraph.estimator.tags3d import quaternion_wxyz
 from markergraph.estimator.trajectory import Trajectory
 
 __all__ = ["read_tum", "write_tum", "write_tum_3d"]
@@ -56,8 +57,8 @@ def write_tum_3d(path: Path, t_ns: NDArray[np.int64], poses: Sequence[gtsam.Pose
     for t, T in zip(t_ns, poses, strict=True):
         if not np.all(np.isfinite(T.matrix())):
             raise MarkerGraphError(f"{path}: refusing to write a trajectory with non-finite poses")
-        p, q = T.translation(), T.rotation().toQuaternion()
-        values = (*p, q.x(), q.y(), q.z(), q.w())
+        p, (w, x, y, z) = T.translation(), quaternion_wxyz(T.rotation())
+        values = (*p, x, y, z, w)
         lines.append(_seconds(int(t)) + "".join(f" {float(v)!r}" for v in values) + "\n")
     with written_whole(path) as partial:
         partial.write_text("".join(lines), encoding="utf-8")
