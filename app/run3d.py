@@ -2,8 +2,8 @@
 tag's full pose (:func:`~markergraph.estimator.tag_slam.map_tags`), and its wall tags as the 2-D
 map from the same solution.
 
-``dimensions = "auto"`` maps a log of detections without odometry in 3-D (the only way it maps:
-from the tags alone) and everything else in 2-D, saying so in a note.
+``dimensions = "auto"`` maps a log of tag detections in 3-D (with or without odometry) and a log
+of images in 2-D, saying so in a note.
 """
 
 from __future__ import annotations
@@ -40,7 +40,9 @@ Stage = Callable[[str], None]
 
 
 def wants_3d(log: Path, config: MapConfig) -> tuple[bool, Note | None]:
-    """Whether ``log`` is mapped in 3-D, and the note saying why when the data chose.
+    """Whether ``log`` is mapped in 3-D, and the note saying why when the data chose: a log of
+    tag detections is (its corners give each tag's full pose, and its wall tags' 2-D map
+    comes from the same solution); a log of images stays 2-D.
 
     Raises:
         LogError: the log cannot be read.
@@ -49,13 +51,15 @@ def wants_3d(log: Path, config: MapConfig) -> tuple[bool, Note | None]:
         return config.dimensions == "3", None
     opened = open_log(log)
     choice = choose_topics(opened.path, opened.topics, config.frontend)
-    if choice.detections and choice.color is None and not choice.odom:
-        text = (
-            f"{log}: tag detections and no odometry: mapped in 3-D from the tags alone "
-            "(--dimensions 2 needs odometry)"
-        )
-        return True, Note("map.dimensions", text)
-    return False, None
+    if not choice.detections or choice.color is not None:
+        return False, None
+    how = "with its odometry" if choice.odom else "from the tags alone"
+    text = (
+        f"{log}: a log of tag detections: mapped in 3-D {how}, its wall tags the 2-D map "
+        "(--dimensions 2 for the 2-D estimators"
+        + (")" if choice.odom else ", which need odometry)")
+    )
+    return True, Note("map.dimensions", text)
 
 
 def _surveys(

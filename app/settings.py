@@ -243,7 +243,7 @@ SETTINGS: tuple[Setting, ...] = (
             flag=Flag("--method", commands=("map",))),
     Setting("dimensions", "auto", nonempty,
             "2: the wall map of a wheeled robot; 3: every tag's full pose (any rig, with or "
-            "without odometry); auto: 3 for a log of detections without odometry, else 2",
+            "without odometry); auto: 3 for a log of tag detections, 2 for a log of images",
             choices=["2", "3", "auto"], flag=Flag("--dimensions", commands=("map",))),
     Setting("home", None, optional_id,
             "the marker whose frame is the map (default: the first seen)",
@@ -422,7 +422,7 @@ class MapConfig:
 
     @property
     def dimensions(self) -> str:
-        """``"2"``, ``"3"`` or ``"auto"`` (3 for a log of detections without odometry)."""
+        """``"2"``, ``"3"`` or ``"auto"`` (3 for a log of tag detections, 2 for images)."""
         return cast(str, self.values["dimensions"])
 
     @property

@@ -47,7 +47,7 @@ from markergraph.estimator.tags3d import KnownTag, SceneCamera, TagScene, TagVie
 from markergraph.frontend.camera import EQUIDISTANT, Camera, CameraMount
 from markergraph.frontend.logs import open_log
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, header, quaternion_from_matrix
-from markergraph.frontend.tag_scene import seed_poses
+from markergraph.frontend.tag_scene import ray_per_px, seed_poses
 
 __all__ = [
     "CAMERA_PRESETS",
@@ -834,7 +834,6 @@ def tag_scene(
             f"/{c.name}/tags",
             c.T_rig_camera if c.name in given else None,
             None,
-            c.camera.fx,
         )
         for c in truth.cameras
     ]
@@ -844,9 +843,9 @@ def tag_scene(
         rays = camera.rays(d.corners_px)
         seeds = seed_poses(rays, truth.tag_sizes[d.tag_id])
         if seeds is not None:
-            views.append(
-                TagView(d.frame, d.camera, d.tag_id, rays, pixel_noise_px / camera.fx, *seeds)
-            )
+            per_px = ray_per_px(camera, d.corners_px)
+            sigma = pixel_noise_px * per_px
+            views.append(TagView(d.frame, d.camera, d.tag_id, rays, sigma, per_px, *seeds))
     seen = {d.tag_id for d in found}
     sigmas: NDArray[np.float64] = np.repeat(np.array(survey_sigmas, dtype=np.float64), 3)
     return TagScene(

@@ -90,7 +90,7 @@ class FrameViews:
         tag_keys: each view's tag key.
         sizes: (n,) each view's tag side [m].
         rays: (n, 4, 2) the corners seen.
-        sigmas: (n,) each view's ray noise.
+        sigmas: (n, 8) each view's ray noise, coordinate by coordinate.
         mounts: (n, 4, 4) each view's camera mount where fixed (unused rows where estimated).
         mount_keys: each view's mount key where estimated, else None.
     """
@@ -157,7 +157,7 @@ def _error(
 def frame_factor(views: FrameViews, robust_k: float | None = None) -> gtsam.CustomFactor:
     """The factor of one rig frame's views; with ``robust_k``, a Cauchy kernel of that width
     (in sigmas) on the factor's whole error."""
-    noise: Any = gtsam.noiseModel.Diagonal.Sigmas(np.repeat(views.sigmas, 8))
+    noise: Any = gtsam.noiseModel.Diagonal.Sigmas(views.sigmas.ravel())
     if robust_k is not None:
         noise = gtsam.noiseModel.Robust.Create(
             gtsam.noiseModel.mEstimator.Cauchy.Create(robust_k), noise

@@ -172,6 +172,6 @@ def view_errors_px(problem: TagGraph, values: gtsam.Values) -> NDArray[np.float6
     errors = np.empty(len(problem.views))
     for indices, views in problem.frame_views():
         residual = frame_errors(views, values)
-        focal = np.array([problem.scene.cameras[problem.views[k].camera].focal_px for k in indices])
-        errors[indices] = np.sqrt(np.mean(residual**2, axis=1)) * focal
+        per_px = np.array([problem.views[k].ray_per_px for k in indices])
+        errors[indices] = np.sqrt(np.mean((residual / per_px) ** 2, axis=1))
     return errors

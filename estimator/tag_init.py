@@ -39,7 +39,7 @@ class Placed:
 
 def _cost(view: TagView, size_m: float) -> float:
     depth = float(np.linalg.norm(view.T_camera_tag.translation()))
-    return view.sigma * depth * depth / size_m + 1e-9
+    return float(np.mean(view.sigma)) * depth * depth / size_m + 1e-9
 
 
 class _Search:
@@ -187,8 +187,8 @@ class _Consensus:
             corners.reshape(-1, 4, 3),
             rays.reshape(-1, 4, 2),
         )
-        sigma = np.array([v.sigma for v in views])
-        chi2 = np.mean(residual.reshape(k, n, 8) ** 2, axis=2) / sigma**2
+        sigma = np.array([v.sigma for v in views])  # (n, 8)
+        chi2 = np.mean((residual.reshape(k, n, 8) / sigma) ** 2, axis=2)
         return np.minimum(np.nan_to_num(chi2, nan=CHI2_CAP), CHI2_CAP)
 
     def _pick(

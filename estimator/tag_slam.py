@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from markergraph.common.errors import EstimationError
 from markergraph.common.notes import Note
-from markergraph.estimator.solution import first_line, lm_params, marginals_or_note
+from markergraph.estimator.solution import MAX_ITERATIONS, first_line, lm_params, marginals_or_note
 from markergraph.estimator.tag_frames import map_framing
 from markergraph.estimator.tag_graph import TagGraph, camera_key, rig_key, tag_key, view_errors_px
 from markergraph.estimator.tag_init import agree, place
@@ -31,9 +31,10 @@ OUTLIER_PX = 3.0
 """A view whose corners stay farther than this (RMS) from the solution, and farther than
 :data:`OUTLIER_SHARE` times the median view's, is dropped."""
 OUTLIER_SHARE = 4.0
-FIRST_TOLERANCE = 1e-5
-"""The first solve's relative error tolerance: with its outliers still in, the last steps only
-trade one outlier's error for another's."""
+FIRST_TOLERANCE = 1e-3
+"""The first (robust) solve's relative error tolerance ..."""
+FIRST_ITERATIONS = 20
+"""... and its most iterations."""
 FINAL_TOLERANCE = 1e-7
 ROBUST_K = 3.0
 """The first solve's Cauchy kernel width on each view [sigmas]."""
@@ -72,28 +73,32 @@ def _mounts(scene: TagScene, notes: list[Note]) -> tuple[dict[int, gtsam.Pose3],
 
 
 def _optimise(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, tolerance: float
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, tolerance: float, iterations: int
 ) -> tuple[gtsam.Values, bool]:
     params = lm_params()
     params.setRelativeErrorTol(tolerance)
+    params.setMaxIterations(iterations)
     try:
         optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
         result = optimizer.optimize()
     except RuntimeError as error:
         raise EstimationError(f"the 3-D graph could not be solved: {first_line(error)}") from None
-    return result, optimizer.iterations() < params.getMaxIterations()
+    return result, optimizer.iterations() < iterations
 
 
-def _solve(
-    problem: TagGraph, tolerance: float, notes: list[Note]
-) -> tuple[gtsam.Values, bool, Any]:
-    """The graph's solution from its placed poses, whether it converged, and what gives the
-    marginal covariances (None when they cannot be had)."""
-    if tolerance == FIRST_TOLERANCE:
-        values, converged = _optimise(problem.graph(ROBUST_K), problem.values(), tolerance)
-        return values, converged, None
+def _first_solve(problem: TagGraph) -> gtsam.Values:
+    """A robust solve from the first guess, far enough to tell the outliers (not to the end:
+    a Cauchy kernel's last steps are slow and change nothing the final solve does not)."""
+    values, _ = _optimise(problem.graph(ROBUST_K), problem.values(), FIRST_TOLERANCE,
+                          FIRST_ITERATIONS)  # fmt: skip
+    return values
+
+
+def _final_solve(problem: TagGraph, notes: list[Note]) -> tuple[gtsam.Values, bool, Any]:
+    """The plain solve from where the problem stands, whether it converged, and its marginals
+    (None when they cannot be had)."""
     graph = problem.graph()
-    values, converged = _optimise(graph, problem.values(), tolerance)
+    values, converged = _optimise(graph, problem.values(), FINAL_TOLERANCE, MAX_ITERATIONS)
     return values, converged, marginals_or_note(graph, values, notes)
 
 
@@ -115,15 +120,14 @@ def map_tags(scene: TagScene) -> TagMap3d:
         raise EstimationError(
             "no tag view could be placed (no chain of views reaches the home tag)"
         )
-    values, converged, marginals = _solve(problem, FIRST_TOLERANCE, notes)
+    values = _first_solve(problem)
     errors = view_errors_px(problem, values)
     limit = max(OUTLIER_PX, OUTLIER_SHARE * float(np.median(errors)))
     dropped = int(np.sum(errors > limit))
-    if dropped or marginals is None:
-        problem.views = [v for v, e in zip(problem.views, errors, strict=True) if e <= limit]
-        problem.warm(values)
-        values, converged, marginals = _solve(problem, FINAL_TOLERANCE, notes)
-        errors = view_errors_px(problem, values)
+    problem.views = [v for v, e in zip(problem.views, errors, strict=True) if e <= limit]
+    problem.warm(values)
+    values, converged, marginals = _final_solve(problem, notes)
+    errors = view_errors_px(problem, values)
     if dropped:
         notes.append(
             Note(

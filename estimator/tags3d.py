@@ -62,8 +62,10 @@ class TagView:
         tag_id: the tag's id.
         rays: (4, 2) the corners as undistorted normalised image coordinates (x/z, y/z in the
             optical frame), in OpenCV's order.
-        sigma: the standard deviation of each ray coordinate (the pixel noise over the focal
-            length) [rad].
+        sigma: (8,) each ray coordinate's standard deviation (the pixel noise through the lens
+            at that corner: a fisheye's rim stretches a pixel over a wider angle).
+        ray_per_px: (8,) how far each ray coordinate moves for a pixel there (to state
+            reprojection errors in pixels).
         T_camera_tag: the tag's pose in the camera from its corners alone (the PnP solution
             that fits them best), a seed for the solver.
         T_camera_tag_alt: the other solution of a square's PnP (the tag tilted the other way,
@@ -74,7 +76,8 @@ class TagView:
     camera: int
     tag_id: int
     rays: NDArray[np.float64]
-    sigma: float
+    sigma: NDArray[np.float64]
+    ray_per_px: NDArray[np.float64]
     T_camera_tag: gtsam.Pose3
     T_camera_tag_alt: gtsam.Pose3 | None = None
 
@@ -89,14 +92,12 @@ class SceneCamera:
         T_rig_camera: its optical frame on the rig where known (given, or a seed), else None.
         sigmas: how well a given mount is known (6: rotation [rad], translation [m]); None
             holds a given mount fixed.
-        focal_px: its focal length [px] (to state reprojection errors in pixels).
     """
 
     name: str
     topic: str
     T_rig_camera: gtsam.Pose3 | None
     sigmas: NDArray[np.float64] | None = None
-    focal_px: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -136,6 +136,22 @@ class TagslamConfig:
     odom_topic: str | None
 
 
+def _board_sizes(body: dict[str, Any], where: str) -> dict[int, float]:
+    """The tag sizes of a board body (``board`` or ``staggered_board``): ``tag_rows`` x
+    ``tag_columns`` ids from ``tag_start_id``, each ``tag_size`` on a side."""
+    board = body.get("board") or body.get("staggered_board")
+    if not isinstance(board, dict) or board.get("tag_size") is None:
+        return {}
+    try:
+        start, size = int(board["tag_start_id"]), float(board["tag_size"])
+        count = int(board.get("tag_rows", 1)) * int(board.get("tag_columns", 1))
+    except (KeyError, TypeError, ValueError) as error:
+        raise SettingsError(f"{where}: a board without a readable layout ({error})") from None
+    if not (0 < size < 100 and start >= 0 and 0 < count <= 10_000):
+        raise SettingsError(f"{where}: a board of {count} tags of {size} m from id {start}")
+    return {start + k: size for k in range(count)}
+
+
 def read_tagslam(path: Path) -> TagslamConfig:
     """Tag sizes and the rig's odometry body from a TagSLAM ``tagslam.yaml``.
 
@@ -156,6 +172,7 @@ def read_tagslam(path: Path) -> TagslamConfig:
             for tag in body.get("tags") or []:
                 if isinstance(tag, dict) and "id" in tag and tag.get("size") is not None:
                     sizes[int(tag["id"])] = float(tag["size"])
+            sizes.update(_board_sizes(body, f"{path}: {name}"))
             if body.get("odom_topic"):
                 odom_topic = str(body["odom_topic"])
                 if body.get("T_body_odom") is not None:

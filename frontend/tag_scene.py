@@ -31,7 +31,7 @@ from markergraph.frontend.tagged import Rig, find_camera, find_mount, no_camera_
 from markergraph.frontend.tf import rotation_of, transforms_of
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
 
-__all__ = ["SceneRead", "read_tag_scene", "seed_poses"]
+__all__ = ["SceneRead", "ray_per_px", "read_tag_scene", "seed_poses"]
 
 SYNC_NS = 1_000_000
 """Detections of different cameras this close in time belong to one rig frame."""
@@ -72,6 +72,29 @@ def seed_poses(
     if not poses:
         return None
     return poses[0], (poses[1] if len(poses) > 1 else None)
+
+
+def _wound(
+    rays: NDArray[np.float64], size_m: float
+) -> tuple[NDArray[np.float64], tuple[gtsam.Pose3, gtsam.Pose3 | None] | None, bool]:
+    """(rays in the winding that faces the camera, their PnP seeds, whether they were
+    reversed). Corners listed the other way round mirror the square: it would face away from
+    the camera, or stand behind it."""
+    if not np.all(np.isfinite(rays)):
+        return rays, None, False
+    seeds = seed_poses(rays, size_m)
+    if seeds is not None and _faces_camera(seeds[0]):
+        return rays, seeds, False
+    reversed_rays = rays[::-1].copy()
+    other = seed_poses(reversed_rays, size_m)
+    if other is not None and _faces_camera(other[0]):
+        return reversed_rays, other, True
+    return rays, seeds, False
+
+
+def _faces_camera(T_camera_tag: gtsam.Pose3) -> bool:
+    """Whether the tag's front (its z, out of the print) points toward the camera."""
+    return float(T_camera_tag.rotation().matrix()[:, 2] @ T_camera_tag.translation()) < 0.0
 
 
 def _interpolated(samples: list[tuple[int, gtsam.Pose3]], t_ns: int) -> gtsam.Pose3 | None:
@@ -157,7 +180,7 @@ class _Reader:
                         topic,
                     )
                 )
-            scene_cameras.append(SceneCamera(name, topic, pose, None, float(found.camera.fx)))
+            scene_cameras.append(SceneCamera(name, topic, pose))
             models.append(found.camera)
         if not scene_cameras:
             raise LogError(
@@ -212,6 +235,7 @@ def read_tag_scene(
     if empty:
         read.skipped["detection messages with no tag"] = empty
     views: list[TagView] = []
+    rewound: Counter[str] = Counter()
     allowed = config.allowed_ids
     for k, (topic, t_ns, _, detections) in enumerate(reader.messages):
         if topic not in topics:
@@ -224,13 +248,22 @@ def read_tag_scene(
                 read.skipped["tag ignored by the settings"] += 1
                 continue
             rays = model.rays(d.corners)
-            seeds = seed_poses(rays, sizes.of(d.marker_id)) if np.all(np.isfinite(rays)) else None
+            rays, seeds, reversed_ = _wound(rays, sizes.of(d.marker_id))
+            rewound[topic] += int(reversed_)
             if seeds is None:
                 read.skipped["corners with no pose in front of the camera"] += 1
                 continue
-            views.append(TagView(frame_of[k], camera, d.marker_id, rays, _ray_sigma(model), *seeds))
+            per_px = ray_per_px(model, d.corners)
+            views.append(TagView(frame_of[k], camera, d.marker_id, rays,
+                                 PIXEL_NOISE_PX * per_px, per_px, *seeds))  # fmt: skip
     if not views:
         raise LogError(f"{log.path}: no tag detection gives a pose ({dict(read.skipped)})")
+    for topic, count in (item for item in rewound.items() if item[1]):
+        text = (
+            f"{count:,} detections on {topic} had their corners wound the other way round "
+            "(the tag would face away from the camera): read in reverse"
+        )
+        notes.append(Note("detections.rewound", text, topic, count))
     odometry = [_interpolated(reader.odometry, int(t)) for t in times] if reader.odometry else []
     tag_sizes = {v.tag_id: sizes.of(v.tag_id) for v in views}
     read.scene = TagScene(times, views, cameras, tag_sizes, odometry, known_tags or [], home_id)
@@ -255,6 +288,18 @@ def _remapped(
     return out
 
 
-def _ray_sigma(camera: Camera) -> float:
-    """A corner ray's standard deviation: the rig's pixel noise over the focal length."""
-    return PIXEL_NOISE_PX / float(np.sqrt(camera.fx * camera.fy))
+def ray_per_px(camera: Camera, corners_px: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(8,) how far each corner's ray coordinates (x/z, y/z) move for a pixel of noise there,
+    through the lens model (the norm of each row of the pixels-to-ray Jacobian, by central
+    differences): a fisheye's rim spreads a pixel over several times the angle its centre
+    does."""
+    corners = np.asarray(corners_px, dtype=np.float64).reshape(4, 2)
+    h = 0.5
+    steps = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+    shifted = (corners[None, :, :] + steps[:, None, :]).reshape(16, 2)
+    rays = camera.rays(shifted).reshape(4, 4, 2)
+    d_du, d_dv = (rays[0] - rays[1]) / (2 * h), (rays[2] - rays[3]) / (2 * h)
+    per_px = np.hypot(d_du, d_dv)  # (4, 2): each ray coordinate's change per pixel
+    if not np.all(np.isfinite(per_px)) or np.any(per_px <= 0):
+        return np.full(8, 1.0 / float(np.sqrt(camera.fx * camera.fy)))
+    return per_px.ravel()

@@ -20,6 +20,7 @@ from markergraph.datasets.scene3d import (
     make_scene3d,
     odometry3d,
     tag_scene,
+    write_rig_files,
     write_scene3d_log,
 )
 from markergraph.estimator.corner_factor import FrameViews, frame_factor
@@ -82,7 +83,7 @@ def test_corner_factor_jacobians_match_finite_differences():
         [T1, T2, T1],
         np.array([0.16, 0.2, 0.16]),
         rng.normal(0, 0.1, (3, 4, 2)),
-        np.array([1e-3, 1e-3, 2e-3]),
+        np.repeat([[1e-3], [1e-3], [2e-3]], 8, axis=1),
         np.array([fixed.matrix(), np.eye(4), np.eye(4)]),
         [None, C, C],
     )
@@ -100,7 +101,7 @@ def test_corner_factor_jacobians_match_finite_differences():
             moved.update(key, values.atPose3(key).retract(step))
             J[:, i] = (factor.unwhitenedError(moved) - e0) / 1e-6
         numeric.append(J)
-    whitened = np.hstack(numeric) / np.repeat(views.sigmas, 8)[:, None]
+    whitened = np.hstack(numeric) / views.sigmas.ravel()[:, None]
     assert np.abs(A - whitened).max() < 1e-6 * np.abs(whitened).max()
 
 
@@ -189,6 +190,8 @@ def test_markergraph_map_on_a_log_of_detections_without_odometry(tmp_path):
             str(out),
             "--dictionary",
             "DICT_APRILTAG_36h11",
+            "--tagslam",
+            str(write_rig_files(truth, tmp_path)["tagslam.yaml"]),  # the tags' sizes
         ],
         capture_output=True,
         text=True,
