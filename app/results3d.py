@@ -56,6 +56,8 @@ class Map3dRun:
     notes: list[Note] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     truth: dict[int, gtsam.Pose3] | None = None
+    tags_seen: int = 0
+    """Tags with a view in the log (mapped or not)."""
     judgement: Judgement = field(default_factory=lambda: Judgement(Verdict.OK))
     """How far the map can be trusted (:func:`~markergraph.verdicts.judge_tag_map`)."""
 
@@ -147,7 +149,8 @@ def report_3d(run: Map3dRun, files: list[str]) -> dict[str, Any]:
         "views": run.views_read,
         "views_used": tag_map.views_used,
         "views_dropped": tag_map.views_dropped,
-        "markers_seen": len(run.tag_map.tags),
+        "tags_seen": run.tags_seen,
+        "tags_mapped": len(run.tag_map.tags),
         "wall_tags": sum(m.wall for m in run.marker_map.markers3d.values()),
         "surveyed_tags": sum(tag.known for tag in tag_map.tags.values()),
         "home_id": tag_map.home_id,

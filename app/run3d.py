@@ -1,9 +1,9 @@
-"""The 3-D map as a library call: a log of tag detections, with or without odometry, to every
-tag's full pose (:func:`~markergraph.estimator.tag_slam.map_tags`), and its wall tags as the 2-D
-map from the same solution.
+"""The 3-D map as a library call: a log of tag detections or images, with or without odometry,
+to every tag's full pose (:func:`~markergraph.estimator.tag_slam.map_tags`), and its wall tags
+as the 2-D map from the same solution.
 
-``dimensions = "auto"`` maps a log of tag detections in 3-D (with or without odometry) and a log
-of images in 2-D, saying so in a note.
+``dimensions = "auto"`` maps a log of tag detections in 3-D (with or without odometry), a log of
+images without odometry too, and a log of images with odometry in 2-D, saying so in a note.
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ Stage = Callable[[str], None]
 def wants_3d(log: Path, config: MapConfig) -> tuple[bool, Note | None]:
     """Whether ``log`` is mapped in 3-D, and the note saying why when the data chose: a log of
     tag detections is (its corners give each tag's full pose, and its wall tags' 2-D map
-    comes from the same solution); a log of images stays 2-D.
+    comes from the same solution), and so is a log of images without odometry; a log of images
+    with odometry stays 2-D.
 
     Raises:
         LogError: the log cannot be read.
@@ -51,13 +52,16 @@ def wants_3d(log: Path, config: MapConfig) -> tuple[bool, Note | None]:
         return config.dimensions == "3", None
     opened = open_log(log)
     choice = choose_topics(opened.path, opened.topics, config.frontend)
-    if not choice.detections or choice.color is not None:
-        return False, None
-    how = "with its odometry" if choice.odom else "from the tags alone"
-    text = (
-        f"{log}: a log of tag detections: mapped in 3-D {how}, its wall tags the 2-D map "
-        "(--dimensions 2 for the 2-D estimators"
-        + (")" if choice.odom else ", which need odometry)")
+    images = not choice.detections or choice.color is not None
+    if images and (choice.odom or choice.color is None):
+        return False, None  # a log of images with odometry: the 2-D map of a wheeled robot
+    if images:
+        text = f"{log}: a log of images without odometry: mapped in 3-D from the tags alone"
+    else:
+        how = "with its odometry" if choice.odom else "from the tags alone"
+        text = f"{log}: a log of tag detections: mapped in 3-D {how}"
+    text += (
+        ", its wall tags the 2-D map (--dimensions 2 for the 2-D estimators, which need odometry)"
     )
     return True, Note("map.dimensions", text)
 
@@ -113,10 +117,9 @@ def map_log_3d(
     stage(f"reading {Path(log).name}")
     opened = open_log(log)
     choice = choose_topics(opened.path, opened.topics, config.frontend)
-    if not choice.detections:
+    if not choice.detections and choice.color is None:
         raise LogError(
-            f"{log}: a 3-D map is made from tag detections (AprilTag detection messages); "
-            "this log has none"
+            f"{log}: a 3-D map is made from tag detections or images; this log has neither"
         )
     known, ignored, survey_notes, remaps = _surveys(config)
     read = read_tag_scene(opened, config.frontend, choice, known, ignored, config.home_id, remaps)
@@ -142,7 +145,7 @@ def map_log_3d(
         Path(log), config, tag_map, marker_map, len(scene.frame_times), read.views_read,
         [*(notes or []), *read.notes, *survey_notes, *skipped,
          *(Note("log.unreadable", text) for text in read.warnings)], seconds,
-        truth=_truth(opened), judgement=judge_tag_map(tag_map, tags_seen),
+        truth=_truth(opened), tags_seen=tags_seen, judgement=judge_tag_map(tag_map, tags_seen),
     )  # fmt: skip
 
 

@@ -1,4 +1,5 @@
-"""A log of tag detections as the 3-D estimator's scene: each detection topic with its camera
+"""A log of tag detections (or of images, detected here) as the 3-D estimator's scene: each
+detection topic (or the image topic) with its camera
 (intrinsics as :mod:`.tagged` finds them) and its mount where given (else estimated), the
 detections grouped into rig frames by stamp, each tag's corners undistorted through its camera's
 lens model to rays with a PnP seed, and the odometry's 3-D pose at each frame.
@@ -22,10 +23,11 @@ from markergraph.common.notes import Note
 from markergraph.estimator.tags3d import KnownTag, SceneCamera, TagScene, TagView, tag_corners
 from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
-from markergraph.frontend.decode import frame_id, stamp_ns
+from markergraph.frontend.decode import decode_image, frame_id, stamp_ns
 from markergraph.frontend.detect import Detection
 from markergraph.frontend.detections import detections_of
-from markergraph.frontend.logs import DecodeFailures, Log, LogError
+from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message
+from markergraph.frontend.spans import detector_for
 from markergraph.frontend.survey import TagRemap
 from markergraph.frontend.tagged import Rig, find_camera, find_mount, no_camera_text
 from markergraph.frontend.tf import rotation_of, transforms_of
@@ -120,15 +122,32 @@ class _Reader:
         self.static: list[Any] = []
         self.odometry: list[tuple[int, gtsam.Pose3]] = []
         self.body_frame: str | None = None
+        self.images = None if choice.detections else choice.color
+        """The image topic detected here, for a log of images."""
+        self.topics = choice.detections or ((choice.color,) if choice.color else ())
 
     def read(self) -> None:
         schemas = {t.topic: t.schema for t in self.log.topics}
         infos = [t for t, schema in schemas.items() if schema in CALIBRATION_SCHEMAS]
-        wanted = [*self.choice.detections, *infos]
+        wanted = [*self.topics, *infos]
         wanted += [t for t in (self.choice.odom, self.choice.tf_static) if t]
         for message in self.log.messages(wanted, self.failures):
-            self._take(message.topic, message.decoded)
+            if message.topic == self.images:
+                self._detect(message)
+            else:
+                self._take(message.topic, message.decoded)
         self.odometry.sort(key=lambda s: s[0])
+
+    def _detect(self, message: Message) -> None:
+        """An image's tags, found by the front end's detector."""
+        try:
+            grey = decode_image(message)
+        except LogError as error:
+            self.failures.add(self.log.path, message.topic, str(error))
+            return
+        found = sorted(detector_for(self.config).detect(grey), key=lambda d: d.marker_id)
+        decoded = message.decoded
+        self.messages.append((message.topic, stamp_ns(decoded), frame_id(decoded), found))
 
     def _take(self, topic: str, decoded: Any) -> None:
         if topic in self.choice.detections:
@@ -157,7 +176,7 @@ class _Reader:
         """Each detection topic with intrinsics, its mount where given (else None)."""
         scene_cameras, models = [], []
         bases = (self.body_frame, self.config.base_frame)
-        for topic in self.choice.detections:
+        for topic in self.topics:
             frame = next((f for t, _, f, _ in self.messages if t == topic), "")
             found = find_camera(topic, frame, self.rig, self.infos)
             if found is None:

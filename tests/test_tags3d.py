@@ -241,3 +241,29 @@ def test_tagslam_recordings_match_tagslam(test, tmp_path):
     rotation = np.degrees(rotation_rad)
     # TagSLAM's own result, from the same corners: within a few millimetres and half a degree.
     assert np.median(position) < 0.005 and np.median(rotation) < 0.5
+
+
+def test_a_log_of_images_without_odometry_is_mapped_from_its_tags_or_says_why_not(log, tmp_path):
+    """The rendered paper room with its odometry taken out: the images are detected and mapped
+    in 3-D. The robot turns from one marker to the next and never sees two together, so only
+    the home marker can be placed: the command says so, counts the frames it skipped, and calls
+    the map suspect rather than guessing."""
+    from markergraph.datasets.rewrite import rewrite_log
+
+    without = tmp_path / "room-no-odometry.mcap"
+    rewrite_log(
+        log, without, lambda topic, i, decoded: None if topic in ("/odom", "/tf") else decoded
+    )
+    out = tmp_path / "map"
+    done = subprocess.run(
+        [sys.executable, "-m", "markergraph.cli", "map", str(without), "--out", str(out)],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "a log of images without odometry: mapped in 3-D from the tags alone" in done.stderr
+    assert "verdict slam: suspect" in done.stdout and "could not be placed" in done.stdout
+    report = json.loads((out / "report.json").read_text())
+    assert report["tags_mapped"] == 1 and report["frames_skipped"] > report["frames_placed"]
+    document = json.loads((out / "map.json").read_text())
+    (home,) = document["markers"]
+    assert abs(home["x"]) < 1e-9 and abs(home["y"]) < 1e-9 and abs(home["z"]) < 1e-9
