@@ -36,6 +36,8 @@ FIRST_TOLERANCE = 1e-3
 FIRST_ITERATIONS = 20
 """... and its most iterations."""
 FINAL_TOLERANCE = 1e-7
+MIN_NOISE_DOF = 30
+"""Fewer degrees of freedom than this leave the assumed noise as it is."""
 ROBUST_K = 3.0
 """The first solve's Cauchy kernel width on each view [sigmas]."""
 
@@ -140,6 +142,28 @@ def map_tags(scene: TagScene) -> TagMap3d:
     return _tag_map(scene, problem, values, marginals, errors, dropped, converged, notes)
 
 
+def _noise_scale(
+    problem: TagGraph, errors: NDArray[np.float64], frames: list[int], notes: list[Note]
+) -> float:
+    """The corners' noise as the solution's residuals measure it, over the noise assumed,
+    squared: what the covariances are scaled by, so that they state the map's uncertainty
+    rather than the assumption's (a detector's corners are often ten times better than the
+    pixel a rig's noise model assumes, or worse on a blurred log)."""
+    views = problem.views
+    assumed_px = np.array([float(v.sigma[0] / v.ray_per_px[0]) for v in views])
+    chi2 = float(np.sum(8.0 * (errors / assumed_px) ** 2))
+    unknowns = len(frames) + len({v.tag_id for v in views}) + len(problem.estimated)
+    dof = 8 * len(views) - 6 * unknowns
+    if dof < MIN_NOISE_DOF:
+        return 1.0
+    scale = chi2 / dof
+    measured = float(np.median(assumed_px)) * scale**0.5
+    notes.append(Note("noise.measured", f"the corners' noise, measured from the map's residuals, "
+                      f"is {measured:.2f} px (the model assumed {np.median(assumed_px):.2g} px): "
+                      "covariances follow the measured noise", figure=measured))  # fmt: skip
+    return scale
+
+
 def _tag_map(
     scene: TagScene,
     problem: TagGraph,
@@ -155,12 +179,13 @@ def _tag_map(
     rig_poses = [values.atPose3(rig_key(i)) for i in frames]
     G, up, framing_notes = map_framing(scene, problem.placed, values, frames, problem.home)
     notes += framing_notes
+    scale = _noise_scale(problem, errors, frames, notes)
 
     def covariance(key: int) -> NDArray[np.float64] | None:
         if marginals is None:
             return None
         try:
-            return np.asarray(marginals.marginalCovariance(key))
+            return scale * np.asarray(marginals.marginalCovariance(key))
         except RuntimeError:  # an indeterminate pose: its mean stands, without a covariance
             return None
 

@@ -58,11 +58,15 @@ class Row:
     max_cm: float | None = None
     median_rotation_deg: float | None = None
     error: str | None = None
+    source: str = "--dimensions 2"
+    """What made a 2-D row: the 2-D estimators, or the wall tags of the 3-D map."""
 
     def line(self) -> str:
         """The row as one printed line."""
         head = (
-            f"{self.test:<8} {self.dimensions}-D exit {self.exit_code} {self.seconds:6.1f} s "
+            f"{self.test:<8} {self.dimensions}-D"
+            + (f" ({self.source})" if self.dimensions == 2 else "")
+            + f" exit {self.exit_code} {self.seconds:6.1f} s "
             f"{self.frames:5d} frames; TagSLAM {self.reference_tags:3d} "
             f"{'tags' if self.dimensions == 3 else 'wall tags'}"
         )
@@ -93,7 +97,9 @@ def run_map(folder: Path, bag: Path, out: Path, dimensions: int) -> tuple[int, f
                "--camera-poses", str(folder / "camera_poses.yaml"),
                "--tagslam", str(folder / "tagslam.yaml"),
                "--out", str(out), "--force", "--no-plots", "-q"]  # fmt: skip
-    command += ["--dimensions", "3"] if dimensions == 3 else ["--method", "all"]
+    command += (
+        ["--dimensions", "3"] if dimensions == 3 else ["--dimensions", "2", "--method", "all"]
+    )
     start = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True)
     seconds = time.perf_counter() - start
@@ -162,6 +168,16 @@ def run_test(folder: Path, work: Path, dimensions: int) -> Row:
     return scored_2d(row, out, reference_bag)
 
 
+def walls_of_3d(row_3d: Row, folder: Path, work: Path) -> Row:
+    """The 3-D run's wall tags (map.json's ``markers``, the 2-D map ``markergraph map`` gives
+    by default for a log of detections) scored in 2-D against TagSLAM's wall tags."""
+    row = Row(row_3d.test, 2, row_3d.exit_code, row_3d.seconds, row_3d.frames, 0,
+              source="walls of the 3-D map")  # fmt: skip
+    return scored_2d(
+        row, work / f"map-{folder.name}-3d", tagslam.unpacked(folder, "reference", work)
+    )
+
+
 def chosen(tests: list[str] | None) -> list[Path]:
     """The test folders to run, in number order: all, or those named (``1,2`` or ``test_1``)."""
     wanted = {
@@ -193,6 +209,10 @@ def main() -> None:
                 row = run_test(folder, work, dimensions)
                 print(row.line(), flush=True)
                 rows.append(asdict(row))
+                if dimensions == 3 and folder.name in TESTS_2D and row.error is None:
+                    walls = walls_of_3d(row, folder, work)
+                    print(walls.line(), flush=True)
+                    rows.append(asdict(walls))
     if arguments.json:
         arguments.json.write_text(json.dumps({"tests": rows}, indent=2) + "\n")
 
