@@ -110,7 +110,7 @@ def map_log_3d(
     if len(config.methods) == 1 and config.methods[0] not in (Method.SLAM, Method.ISAM2):
         raise SettingsError(
             f"--method {config.methods[0].value}: a 3-D map is made by slam (the paper's forms, "
-            "the marker graph and the EKF are 2-D)"
+            "the marker graph and the EKF are 2-D; isam2 solves it incrementally)"
         )
     seconds: dict[str, float] = {}
     start = time.perf_counter()
@@ -125,20 +125,21 @@ def map_log_3d(
     read = read_tag_scene(opened, config.frontend, choice, known, ignored, config.home_id, remaps)
     scene = _seeded(read.scene) if config.rig.seed_mounts else read.scene
     seconds["front end"] = time.perf_counter() - start
-    stage("estimating: 3-D tag map")
+    method = Method.ISAM2 if config.methods == (Method.ISAM2,) else Method.SLAM
+    stage(f"estimating: 3-D tag map ({method.value})")
     start = time.perf_counter()
     try:
-        tag_map = map_tags(scene)
+        tag_map = map_tags(scene, incremental=method is Method.ISAM2)
     except EstimationError as error:
         raise EstimationError(f"{log}: {error}") from None
-    seconds["slam"] = time.perf_counter() - start
+    seconds[method.value] = time.perf_counter() - start
     skipped = [
         Note("views.skipped", f"skipped: {count:,} {reason}", figure=count)
         for reason, count in sorted(read.skipped.items())
     ]
     marker_map = MarkerMap.from_tag_map(
         tag_map, log=str(log), dictionary=config.dictionary,
-        marker_size_m=config.marker_sizes.default_m, method=Method.SLAM.value,
+        marker_size_m=config.marker_sizes.default_m, method=method.value,
     )  # fmt: skip
     tags_seen = len({v.tag_id for v in scene.views})
     return Map3dRun(

@@ -170,7 +170,7 @@ def _run_3d(
     for camera in tag_map.cameras.values():
         how = "estimated" if camera.estimated else "given"
         print(f"camera {camera.name} ({camera.topic}): mount {how}, {camera.n_views:,} views")
-    print(f"verdict slam: {run.judgement.verdict.value}", end="")
+    print(f"verdict {run.marker_map.method}: {run.judgement.verdict.value}", end="")
     print("".join(f"\n  - {reason.text}" for reason in run.judgement.reasons))
     if not args.quiet:
         for note in [*run.notes, *tag_map.notes]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import heapq
 import itertools
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import gtsam
@@ -19,7 +20,7 @@ from numpy.typing import NDArray
 from markergraph.estimator.corner_factor import residuals
 from markergraph.estimator.tags3d import TagScene, TagView, tag_corners
 
-__all__ = ["Placed", "agree", "place"]
+__all__ = ["CHI2_CAP", "Consensus", "Placed", "agree", "place"]
 
 ODOMETRY_COST = 0.05
 """A step of odometry's cost (about a view of a tag at 1 m at 1 px per focal length)."""
@@ -112,7 +113,7 @@ def place(scene: TagScene, home_id: int | None, cameras: dict[int, gtsam.Pose3])
     if not scene.known_tags and home_id is not None:
         search.push(0.0, "t", home_id, gtsam.Pose3())
     search.run()
-    consensus = _Consensus(scene, search.placed, set())
+    consensus = Consensus(scene, search.placed, set())
     while True:  # each unknown mount from all it saw of the map so far, then on from it
         mounts = {c: consensus.mount(c) for c in {v.camera for v in scene.views}}
         found = {
@@ -147,7 +148,7 @@ def _matrices(poses: list[gtsam.Pose3]) -> NDArray[np.float64]:
     return np.array([p.matrix() for p in poses])
 
 
-class _Consensus:
+class Consensus:
     """Each pose chosen again among the PnP solutions of all its views (both of each square's
     two), by how well it fits all of them, the others held: a flipped view placed first cannot
     stand against the views that disagree with it."""
@@ -164,8 +165,13 @@ class _Consensus:
         self.corners = {i: tag_corners(s) for i, s in scene.tag_sizes.items()}
         self.fixed_tags = {k.tag_id for k in scene.known_tags}
 
+    allowed: Callable[[TagView], bool] | None = None
+    """Where set, only the views it allows are weighed (iSAM2: those already entered)."""
+
     def usable(self, views: list[TagView]) -> list[TagView]:
         p = self.placed
+        if self.allowed is not None:
+            views = [v for v in views if self.allowed(v)]
         return [
             v for v in views if v.frame in p.frames and v.tag_id in p.tags and v.camera in p.cameras
         ]
@@ -176,8 +182,9 @@ class _Consensus:
         rigs: NDArray[np.float64],
         mounts: NDArray[np.float64],
         tags: NDArray[np.float64],
+        cap: float = CHI2_CAP,
     ) -> NDArray[np.float64]:
-        """Capped mean squared errors (k candidates, n views) for (k, n, 4, 4) poses."""
+        """Mean squared errors (k candidates, n views) for (k, n, 4, 4) poses, capped."""
         k, n = rigs.shape[:2]
         corners = np.broadcast_to(np.array([self.corners[v.tag_id] for v in views]), (k, n, 4, 3))
         rays = np.broadcast_to(np.array([v.rays for v in views]), (k, n, 4, 2))
@@ -189,7 +196,7 @@ class _Consensus:
         )
         sigma = np.array([v.sigma for v in views])  # (n, 8)
         chi2 = np.mean((residual.reshape(k, n, 8) / sigma) ** 2, axis=2)
-        return np.minimum(np.nan_to_num(chi2, nan=CHI2_CAP), CHI2_CAP)
+        return np.minimum(np.nan_to_num(chi2, nan=cap), cap)
 
     def _pick(
         self,
@@ -330,9 +337,9 @@ class _Consensus:
 
 
 def agree(scene: TagScene, placed: Placed, movable_cameras: set[int], rounds: int = 3) -> None:
-    """Choose each placed pose again by consensus (:class:`_Consensus`), ``rounds`` times over:
+    """Choose each placed pose again by consensus (:class:`Consensus`), ``rounds`` times over:
     frames, then tags, then the estimated mounts. The home tag and surveyed tags stay."""
-    consensus = _Consensus(scene, placed, movable_cameras)
+    consensus = Consensus(scene, placed, movable_cameras)
     for _ in range(rounds):
         for frame in list(placed.frames):
             consensus.frame(frame)

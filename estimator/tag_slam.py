@@ -1,6 +1,6 @@
 """The 3-D tag map: rig poses, tag poses and unknown camera mounts in SE(3), in one GTSAM graph
 of corner reprojection factors, odometry (or a weak motion prior where there is none) and the
-surveyed tags' priors, solved in batch (Levenberg-Marquardt).
+surveyed tags' priors, solved in batch (Levenberg-Marquardt) or incrementally (iSAM2).
 
 The gauge: surveyed tags fix the map frame where there are any, else the home tag (the first
 tag seen unless named) sits at the identity; a camera whose mount is given holds the rig's frame,
@@ -22,6 +22,7 @@ from markergraph.common.notes import Note
 from markergraph.estimator.solution import MAX_ITERATIONS, first_line, lm_params, marginals_or_note
 from markergraph.estimator.tag_frames import map_framing
 from markergraph.estimator.tag_graph import TagGraph, camera_key, rig_key, tag_key, view_errors_px
+from markergraph.estimator.tag_incremental import solve_incremental
 from markergraph.estimator.tag_init import agree, place
 from markergraph.estimator.tags3d import Camera3d, Tag3d, TagMap3d, TagScene
 
@@ -104,8 +105,8 @@ def _final_solve(problem: TagGraph, notes: list[Note]) -> tuple[gtsam.Values, bo
     return values, converged, marginals_or_note(graph, values, notes)
 
 
-def map_tags(scene: TagScene) -> TagMap3d:
-    """The 3-D tag map of ``scene``, solved in batch.
+def map_tags(scene: TagScene, incremental: bool = False) -> TagMap3d:
+    """The 3-D tag map of ``scene``, solved in batch or (``incremental``) by iSAM2.
 
     Raises:
         EstimationError: no views, a home tag never seen, or a graph that cannot be solved.
@@ -116,12 +117,15 @@ def map_tags(scene: TagScene) -> TagMap3d:
     mounts, estimated = _mounts(scene, notes)
     home = _home(scene, set(mounts))
     placed = place(scene, home, mounts)
-    agree(scene, placed, estimated)
+    if not incremental:
+        agree(scene, placed, estimated)
     problem = TagGraph(scene, placed, estimated, home)
     if not problem.views:
         raise EstimationError(
             "no tag view could be placed (no chain of views reaches the home tag)"
         )
+    if incremental:
+        return _incremental(scene, problem, notes)
     values = _first_solve(problem)
     errors = view_errors_px(problem, values)
     limit = max(OUTLIER_PX, OUTLIER_SHARE * float(np.median(errors)))
@@ -162,6 +166,18 @@ def _noise_scale(
                       f"is {measured:.2f} px (the model assumed {np.median(assumed_px):.2g} px): "
                       "covariances follow the measured noise", figure=measured))  # fmt: skip
     return scale
+
+
+def _incremental(scene: TagScene, problem: TagGraph, notes: list[Note]) -> TagMap3d:
+    """The map by iSAM2: views that disagree with the poses they join never enter."""
+    placed_views = len(problem.views)
+    values, isam = solve_incremental(problem)
+    dropped = placed_views - len(problem.views)
+    if dropped:
+        notes.append(Note("views.outliers", f"{dropped:,} tag views that disagreed with the map as "
+                          "it stood when they came were left out", figure=dropped))  # fmt: skip
+    errors = view_errors_px(problem, values)
+    return _tag_map(scene, problem, values, isam, errors, dropped, True, notes)
 
 
 def _tag_map(
