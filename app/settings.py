@@ -470,7 +470,11 @@ def _path(value: str | None) -> Path | None:
 
 
 # Settings that name files: relative to the settings file they are written in.
-PATH_KEYS = ("rig.cameras", "rig.camera_poses", "rig.tagslam")
+PATH_KEYS = ("rig.cameras", "rig.camera_poses", "rig.tagslam", "rig.survey")
+MAX_SETTINGS_BYTES = 1_000_000
+"""A settings file is small: anything larger is refused before it is parsed."""
+MAX_SETTINGS_DEPTH = 6
+"""... and flat: sections nest this deep at most (``[camera]``, a table of sizes)."""
 
 
 def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -482,6 +486,42 @@ def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             flat[key] = value
     return flat
+
+
+def _depth(value: Any, limit: int = MAX_SETTINGS_DEPTH + 1) -> int:
+    """How deep tables and lists nest in ``value`` (counted no further than ``limit``)."""
+    if limit <= 0 or not isinstance(value, (Mapping, list)):
+        return 0
+    items = value.values() if isinstance(value, Mapping) else value
+    return 1 + max((_depth(v, limit - 1) for v in items), default=0)
+
+
+def _flat_yaml(text: str) -> Any:
+    """A YAML settings file's document, refusing what no settings file needs and what makes a
+    small file explode or mislead: aliases (a few hundred bytes can expand to gigabytes),
+    nesting beyond :data:`MAX_SETTINGS_DEPTH`, and a key given twice (YAML keeps the last)."""
+    import yaml
+
+    depth = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, yaml.AliasEvent):
+            raise ValueError(f"an alias (*{event.anchor}): a settings file spells its values out")
+        if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            depth += 1
+            if depth > MAX_SETTINGS_DEPTH:
+                raise ValueError(f"nested deeper than {MAX_SETTINGS_DEPTH} levels")
+        elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            depth -= 1
+
+    class _Loader(yaml.SafeLoader):
+        def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
+            keys = [self.construct_object(key, deep=deep) for key, _ in node.value]
+            twice = sorted({str(k) for k in keys if keys.count(k) > 1})
+            if twice:
+                raise ValueError(f"{', '.join(twice)} given twice")
+            return super().construct_mapping(node, deep=deep)
+
+    return yaml.load(text, Loader=_Loader)
 
 
 def read_config_file(path: str | Path) -> dict[str, Any]:
@@ -497,6 +537,9 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
         raise SettingsError(f"{path}: cannot read the configuration ({error.strerror})") from None
     except UnicodeDecodeError:
         raise SettingsError(f"{path}: not UTF-8 text, so not a settings file") from None
+    if len(text) > MAX_SETTINGS_BYTES:
+        raise SettingsError(f"{path}: {len(text):,} characters is not a settings file")
+    text = text.removeprefix("\ufeff")  # a byte-order mark some editors write
     suffix = path.suffix.lower()
     try:
         if suffix == ".toml":
@@ -506,17 +549,19 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
                 import tomli as tomllib
             table: Any = tomllib.loads(text)
         elif suffix in (".yaml", ".yml"):
-            import yaml
-
-            table = yaml.safe_load(text) or {}
+            table = _flat_yaml(text) or {}
         else:
             raise SettingsError("a configuration file ends in .toml, .yaml or .yml")
     except ValueError as error:  # tomllib's and yaml's errors are ValueErrors too
         raise SettingsError(f"{path}: {str(error).splitlines()[0]}") from None
+    except RecursionError:
+        raise SettingsError(f"{path}: nested too deep for a settings file") from None
     except Exception as error:  # yaml.YAMLError
         raise SettingsError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
     if not isinstance(table, Mapping):
         raise SettingsError(f"{path}: expected a table of settings at the top")
+    if _depth(table) > MAX_SETTINGS_DEPTH:
+        raise SettingsError(f"{path}: nested deeper than {MAX_SETTINGS_DEPTH} levels")
     values = {}
     for key, value in _flatten(table).items():
         setting = _BY_KEY.get(key)

@@ -238,3 +238,44 @@ def test_a_rig_files_tag_sizes_survive_a_written_settings_file(tmp_path: Path) -
     config = MapConfig.from_values(read_config_file(written))
     assert config.marker_sizes.default_m == 0.42
     assert config.marker_sizes.of(3) == 0.4
+
+
+EXPLODING = {
+    # A 350-byte billion laughs under a real key: eight levels of nine aliases would build 43
+    # million strings; refused at the first alias, before anything is built.
+    "laughs.yaml": "a: &a [x, x, x, x, x, x, x, x, x]\n"
+    + "".join(
+        f"{c}: &{c} [{', '.join([f'*{p}'] * 9)}]\n"
+        for p, c in zip("abcdefg", "bcdefgh", strict=True)
+    )
+    + "dictionary: *h\n",
+    "recursive.yaml": "&a a: *a\n",
+    "deep.yaml": "dictionary: " + "[" * 5000 + "]" * 5000 + "\n",
+    "deep.toml": "dictionary = " + "[" * 5000 + "]" * 5000 + "\n",
+    "twice.yaml": "dictionary: DICT_4X4_50\nmarker_size: 0.1\ndictionary: DICT_5X5_50\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(EXPLODING))
+def test_settings_files_that_explode_or_mislead_are_refused_in_one_line(
+    tmp_path: Path, name: str
+) -> None:
+    """Aliases, deep nesting and a key given twice are refused by name, as one line and exit 1,
+    in a fraction of a second and without the memory they would take."""
+    path = tmp_path / name
+    path.write_text(EXPLODING[name], encoding="utf-8")
+    run = cli("map", "--config", str(path), "--print-config")
+    assert run.returncode == 1, run.stdout
+    assert name in run.stderr and len(run.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in run.stderr
+
+
+def test_a_byte_order_mark_and_a_survey_path_relative_to_the_file(tmp_path: Path) -> None:
+    """A TOML file an editor saved with a byte-order mark reads as without one, and --survey in
+    a settings file is a path relative to that file, as the rig's files are."""
+    path = tmp_path / "rig" / "robot.toml"
+    path.parent.mkdir()
+    path.write_text('\ufeffdictionary = "DICT_5X5_50"\n[rig]\nsurvey = "tags.csv"\n', "utf-8")
+    values = read_config_file(path)
+    assert values["dictionary"] == "DICT_5X5_50"
+    assert values["rig.survey"] == str(tmp_path / "rig" / "tags.csv")
