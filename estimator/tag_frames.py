@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common.notes import Note
+from markergraph.estimator.tag_graph import rig_key, tag_key
 from markergraph.estimator.tag_init import Placed
 from markergraph.estimator.tags3d import R_TAG_MARKER, TagScene
 
@@ -33,14 +34,6 @@ SPREAD_RAD = math.radians(20.0)
 """Two walls at least this far apart in heading are needed to find up from walls."""
 
 
-def _X(i: int) -> int:
-    return gtsam.symbol("x", i)
-
-
-def _T(i: int) -> int:
-    return gtsam.symbol("t", i)
-
-
 def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
     return v / np.linalg.norm(v)
 
@@ -49,7 +42,7 @@ def _up_from_odometry(
     scene: TagScene, values: gtsam.Values, frames: list[int]
 ) -> NDArray[np.float64] | None:
     pairs = [
-        (values.atPose3(_X(i)).rotation().matrix(), odometry.rotation().matrix())
+        (values.atPose3(rig_key(i)).rotation().matrix(), odometry.rotation().matrix())
         for i in frames
         if scene.odometry and (odometry := scene.odometry[i]) is not None
     ]
@@ -66,7 +59,7 @@ def _cameras_up(
     """The mean of each placed frame's cameras' image up (minus the optical y) in the map."""
     total = np.zeros(3)
     for i in frames:
-        R_map_rig = values.atPose3(_X(i)).rotation().matrix()
+        R_map_rig = values.atPose3(rig_key(i)).rotation().matrix()
         for mount in placed.cameras.values():
             total -= R_map_rig @ mount.rotation().matrix()[:, 1]
     return _unit(total)
@@ -108,7 +101,7 @@ def map_framing(
     up = _up_from_odometry(scene, values, frames)
     source = "the odometry's vertical"
     if up is None:
-        tags = [values.atPose3(_T(i)).rotation().matrix()[:, 2] for i in placed.tags]
+        tags = [values.atPose3(tag_key(i)).rotation().matrix()[:, 2] for i in placed.tags]
         up = _up_from_walls(np.array(tags), _cameras_up(scene, placed, values, frames))
         source = "the tags on walls (level normals), its sign from the cameras' image up"
     if up is None:
