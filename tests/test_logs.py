@@ -37,8 +37,8 @@ def test_one_file_is_read_through_its_summary_read_once(tmp_path: Path) -> None:
     path = tmp_path / "chatter.mcap"
     write_strings(path, 20)
     with (
-        mock.patch.object(mcap, "make_reader", wraps=mcap.make_reader) as opened,
-        mock.patch.object(chunks, "make_reader", wraps=chunks.make_reader) as read,
+        mock.patch.object(mcap, "read_summary", wraps=mcap.read_summary) as opened,
+        mock.patch.object(chunks, "read_summary", wraps=chunks.read_summary) as read,
     ):
         log = open_log(path)
         assert opened.call_count == 1

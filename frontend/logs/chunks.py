@@ -8,17 +8,23 @@ import struct
 from collections import Counter
 from collections.abc import Collection, Iterator
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import IO, Any, BinaryIO, cast
 
-import lz4.frame
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
-from mcap.reader import make_reader
-from mcap.records import Chunk, MessageIndex
+from mcap.records import Channel, Chunk, MessageIndex, Schema
 from mcap.records import Message as McapMessage
+from mcap.stream_reader import StreamReader
 
 from markergraph.frontend.logs.records import DecodeFailures, LogError, why
+from markergraph.frontend.logs.scan import (
+    BoundedFile,
+    chunk_at,
+    decompress,
+    read_summary,
+    records_in,
+)
 
 __all__ = ["DAMAGE", "chunk_messages", "indexed_counts", "raw_messages", "summary_records"]
 
@@ -36,18 +42,19 @@ def raw_messages(
 ) -> Iterator[tuple[Any, Any, Any]]:
     """(schema, channel, message) records of an open MCAP file in log-time order, its summary
     read here (:func:`summary_records` takes one read before)."""
+    bounded = BoundedFile(stream)
     try:
-        summary = make_reader(stream).get_summary()
+        summary = read_summary(bounded)
     except (*DAMAGE, OSError) as error:
         raise LogError(f"{file}: not a complete MCAP file ({why(error)})") from error
-    yield from summary_records(file, stream, summary, topics, start_ns, end_ns, failures)
+    yield from summary_records(file, bounded, summary, topics, start_ns, end_ns, failures)
 
 
 def summary_records(
     file: Path,
-    stream: BinaryIO,
+    stream: BinaryIO | BoundedFile,
     summary: Any,
-    topics: list[str],
+    topics: Collection[str] | None,
     start_ns: int | None,
     end_ns: int | None,
     failures: DecodeFailures | None,
@@ -57,17 +64,14 @@ def summary_records(
     messages. The chunks are merged as mcap's own reader merges them (by log time).
 
     Args:
-        summary: the file's summary (None: it has none, and is read linearly by mcap).
+        summary: the file's summary (None: it has none, and its messages are read linearly).
+        topics: the topics to read (None: all).
     """
-    if summary is None or not summary.chunk_indexes:  # unindexed: mcap reads it linearly
-        try:
-            yield from make_reader(stream).iter_messages(
-                topics=topics, start_time=start_ns, end_time=end_ns, log_time_order=True
-            )
-        except DAMAGE as error:
-            raise LogError(f"{file}: damaged ({why(error)})") from error
+    bounded = stream if isinstance(stream, BoundedFile) else BoundedFile(stream)
+    if summary is None or not summary.chunk_indexes:  # unchunked: read linearly
+        yield from _linear_records(file, bounded, topics, start_ns, end_ns, failures)
         return
-    wanted = {cid for cid, channel in summary.channels.items() if channel.topic in topics}
+    wanted = {cid for cid, c in summary.channels.items() if topics is None or c.topic in topics}
     chunks = sorted(
         (
             c
@@ -87,12 +91,11 @@ def summary_records(
         ):
             index = chunks[next_chunk]
             try:
-                stream.seek(index.chunk_start_offset + 1 + 8)
-                records = chunk_messages(Chunk.read(ReadDataStream(stream)), wanted)
+                records = chunk_messages(chunk_at(bounded, index.chunk_start_offset), wanted)
             except DAMAGE as error:
                 if failures is None:
                     raise LogError(f"{file}: damaged chunk ({why(error)})") from error
-                for topic, n in indexed_counts(stream, summary, index, wanted).items():
+                for topic, n in indexed_counts(bounded, summary, index, wanted).items():
                     failures.add(file, topic, f"a damaged chunk: {why(error)}", n)
                 records = []
             for position, record in enumerate(records):
@@ -107,7 +110,39 @@ def summary_records(
             yield summary.schemas.get(channel.schema_id), channel, record
 
 
-_RECORD = struct.Struct("<BQ")  # opcode, content length
+def _linear_records(
+    file: Path,
+    stream: BoundedFile,
+    topics: Collection[str] | None,
+    start_ns: int | None,
+    end_ns: int | None,
+    failures: DecodeFailures | None,
+) -> Iterator[tuple[Any, Any, Any]]:
+    """(schema, channel, message) records of a file of unchunked messages, in file order; a
+    damaged or cut tail ends the read (counted in ``failures``, else raised)."""
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    stream.seek(0)
+    reader = StreamReader(cast(IO[bytes], stream), record_size_limit=stream.size, emit_chunks=True)
+    try:
+        for record in reader.records:
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, McapMessage) and record.channel_id in channels:
+                channel = channels[record.channel_id]
+                inside = (start_ns is None or record.log_time >= start_ns) and (
+                    end_ns is None or record.log_time < end_ns
+                )
+                if (topics is None or channel.topic in topics) and inside:
+                    yield schemas.get(channel.schema_id), channel, record
+    except DAMAGE as error:
+        if failures is None:
+            raise LogError(f"{file}: damaged ({why(error)})") from error
+        failures.note(file, f"read up to a damaged record at byte {stream.tell()}: {why(error)}")
+
+
 _MESSAGE = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
 _MESSAGE_OPCODE = 0x05
 
@@ -122,37 +157,26 @@ def chunk_messages(chunk: Chunk, wanted: Collection[int]) -> list[McapMessage]:
     (schemas and channels repeated in chunks) are passed over: the summary's are used.
 
     Raises:
-        McapError: a compression this reader lacks, or a record running past the chunk.
+        McapError: a compression this reader lacks, an implausible size, or a record running
+            past the chunk.
         zstandard.ZstdError, RuntimeError (lz4), struct.error: damaged data.
     """
-    if chunk.compression == "zstd":
-        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
-    elif chunk.compression == "lz4":
-        data = lz4.frame.decompress(chunk.data)
-    elif chunk.compression == "":
-        data = chunk.data
-    else:
-        raise McapError(f"unsupported chunk compression {chunk.compression!r}")
-    found, position, size = [], 0, len(data)
-    while position < size:
-        opcode, length = _RECORD.unpack_from(data, position)
-        start, position = position + _RECORD.size, position + _RECORD.size + length
-        if position > size:
-            raise McapError(f"a record of {length} bytes runs past its chunk")
+    data, found = decompress(chunk), []
+    for opcode, start, end in records_in(data):
         if opcode != _MESSAGE_OPCODE:
             continue
-        if length < _MESSAGE.size:
-            raise McapError(f"a message record of {length} bytes")
+        if end - start < _MESSAGE.size:
+            raise McapError(f"a message record of {end - start} bytes")
         channel, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, start)
         if channel in wanted:
             found.append(
-                McapMessage(channel, log_time, data[start + _MESSAGE.size : position],
+                McapMessage(channel, log_time, data[start + _MESSAGE.size : end],
                             publish_time, sequence)
             )  # fmt: skip
     return found
 
 
-def indexed_counts(stream: BinaryIO, summary: Any, index: Any, wanted: set[int]) -> Counter[str]:
+def indexed_counts(stream: BoundedFile, summary: Any, index: Any, wanted: set[int]) -> Counter[str]:
     """How many messages of each wanted topic a chunk held, from its message indexes (which
     lie outside the chunk's compressed data); empty where they cannot be read."""
     counts: Counter[str] = Counter()
@@ -161,7 +185,7 @@ def indexed_counts(stream: BinaryIO, summary: Any, index: Any, wanted: set[int])
             continue
         try:
             stream.seek(offset + 1 + 8)
-            entries = MessageIndex.read(ReadDataStream(stream)).records
+            entries = MessageIndex.read(ReadDataStream(cast(IO[bytes], stream))).records
         except DAMAGE:
             continue
         counts[summary.channels[channel_id].topic] += len(entries)

@@ -50,6 +50,11 @@ class Log:
         """The files that hold it: its MCAP files, or the bag itself."""
         return tuple(f.path for f in self.mcap) if self.mcap else (self.path,)
 
+    @property
+    def notes(self) -> list[str]:
+        """What reading its files had to work around, one line each (an index rebuilt)."""
+        return [f"{f.path}: {f.recovered}" for f in self.mcap if f.recovered]
+
     @cached_property
     def topics(self) -> list[LogTopic]:
         """Every topic with its type and message count over all the files, by name.

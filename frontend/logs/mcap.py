@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 from mcap.exceptions import McapError
-from mcap.reader import make_reader
 from mcap.summary import Summary
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 from mcap_ros2.decoder import DecoderFactory
@@ -18,6 +17,7 @@ from markergraph.frontend.logs.cdr import FAST_DECODERS
 from markergraph.frontend.logs.chunks import DAMAGE, summary_records
 from markergraph.frontend.logs.files import MCAP_MAGIC
 from markergraph.frontend.logs.records import DecodeFailures, LogError, LogTopic, Message, why
+from markergraph.frontend.logs.scan import BoundedFile, read_summary, scan_summary, summary_problem
 
 __all__ = ["McapFile", "mcap_messages", "mcap_time_range", "mcap_topics", "open_mcap_file"]
 
@@ -35,6 +35,8 @@ class McapFile:
     """Its summary section; None when it has none or it could not be read."""
     error: BaseException | None = None
     """Why the summary could not be read (raised, as a :class:`LogError`, where it is needed)."""
+    recovered: str | None = None
+    """Set when the summary was rebuilt from the data section: why, and what was found."""
 
     def complete_summary(self) -> Summary:
         """The summary, with its statistics.
@@ -45,7 +47,7 @@ class McapFile:
         if isinstance(self.error, _INCOMPLETE):
             raise LogError(
                 f"{self.path}: not a complete MCAP file (truncated, or still being written): "
-                f"{self.error}"
+                f"{why(self.error)}"
             ) from self.error
         if self.error is not None:
             raise self.error
@@ -55,20 +57,30 @@ class McapFile:
 
 
 def open_mcap_file(file: Path) -> McapFile:
-    """A file's magic checked and its summary read, in one opening of it.
+    """A file's magic checked and its summary read, in one opening of it; a summary that is
+    missing or damaged is rebuilt from the data section where it holds chunked messages.
 
     Raises:
         LogError: it cannot be read, or it is not an MCAP file.
     """
     try:
-        with open(file, "rb") as stream:
-            if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+        with open(file, "rb") as raw:
+            if raw.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
                 raise LogError(f"{file}: not an MCAP file")
-            stream.seek(0)
+            stream = BoundedFile(raw)
+            summary, error = None, None
             try:
-                return McapFile(file, make_reader(stream).get_summary())
-            except (*DAMAGE, OSError) as error:  # raised where the summary is needed
-                return McapFile(file, None, error)
+                summary = read_summary(stream)
+                problem = summary_problem(summary)
+            except (*DAMAGE, OSError) as raised:
+                error, problem = raised, f"its summary cannot be read ({why(raised)})"
+            if problem is None:
+                return McapFile(file, summary)
+            rebuilt = scan_summary(stream)
+            if rebuilt is None:  # nothing chunked to rebuild from
+                unusable = McapError(problem) if summary is not None else None
+                return McapFile(file, None, error or unusable)
+            return McapFile(file, rebuilt[0], recovered=f"{problem}; {rebuilt[1]}")
     except OSError as error:
         raise LogError(f"{file}: cannot read it ({error.strerror})") from None
 
@@ -128,6 +140,8 @@ def mcap_messages(
             raise LogError(
                 f"{file.path}: not a complete MCAP file ({why(file.error)})"
             ) from file.error
+        if file.recovered and failures is not None:
+            failures.note(file.path, file.recovered)
         with open(file.path, "rb") as stream:
             decoders: dict[int, Callable[[bytes], Any]] = {}
             for schema, channel, message in summary_records(

@@ -52,6 +52,8 @@ class DecodeFailures:
     """(file, topic) -> messages skipped."""
     first_error: dict[tuple[str, str], str] = field(default_factory=dict)
     """(file, topic) -> why the first of them was."""
+    notes: list[str] = field(default_factory=list)
+    """What was lost or recovered of a whole file (a cut tail, an index rebuilt), one line each."""
 
     def add(self, file: Path, topic: str, reason: str, n: int = 1) -> None:
         """Count ``n`` skipped messages of ``topic`` in ``file``, for ``reason``."""
@@ -59,9 +61,16 @@ class DecodeFailures:
         self.counts[key] += n
         self.first_error.setdefault(key, reason)
 
+    def note(self, file: Path, text: str) -> None:
+        """Say once what happened to a whole file."""
+        line = f"{file}: {text}"
+        if line not in self.notes:
+            self.notes.append(line)
+
     def warnings(self) -> list[str]:
-        """One line per (file, topic): how many were skipped, and the first reason."""
-        return [
+        """The files' notes, then one line per (file, topic): how many were skipped, and the
+        first reason."""
+        return self.notes + [
             f"{file}: skipped {n} unreadable message(s) on {topic} "
             f"({self.first_error[(file, topic)]})"
             for (file, topic), n in sorted(self.counts.items())

@@ -4,14 +4,15 @@ can be read, else from its messages read undecoded."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import IO, Any, cast
 
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
-from mcap.reader import make_reader
 from mcap.records import MessageIndex
 
-from markergraph.frontend.logs.records import LogError
+from markergraph.frontend.logs.chunks import summary_records
+from markergraph.frontend.logs.records import DecodeFailures, LogError, why
+from markergraph.frontend.logs.scan import BoundedFile
 
 __all__ = ["mcap_topic_spans"]
 
@@ -33,18 +34,18 @@ def mcap_topic_spans(
         LogError: an incomplete file, or one damaged past its index.
     """
     if isinstance(error, _INCOMPLETE):
-        raise LogError(f"{file}: not a complete MCAP file ({error})") from error
+        raise LogError(f"{file}: not a complete MCAP file ({why(error)})") from error
     if error is not None:
         raise error
-    with open(file, "rb") as stream:
+    with open(file, "rb") as raw:
+        stream = BoundedFile(raw)
         spans = _indexed_spans(stream, summary)
         if spans is None:
-            stream.seek(0)
-            spans = _read_spans(file, stream)
+            spans = _read_spans(file, stream, summary)
     return [(topic, min(times), max(times)) for topic, times in spans.items()]
 
 
-def _indexed_spans(stream: BinaryIO, summary: Any) -> dict[str, list[int]] | None:
+def _indexed_spans(stream: BoundedFile, summary: Any) -> dict[str, list[int]] | None:
     """Topic -> its first and last times, from the message indexes; None where the file has
     none (some chunk unindexed) or they are damaged."""
     indexed = bool(
@@ -59,7 +60,9 @@ def _indexed_spans(stream: BinaryIO, summary: Any) -> dict[str, list[int]] | Non
         for chunk in summary.chunk_indexes:
             for channel_id, offset in chunk.message_index_offsets.items():
                 stream.seek(offset + 1 + 8)  # past the record's opcode and length
-                times = [t for t, _ in MessageIndex.read(ReadDataStream(stream)).records]
+                times = [
+                    t for t, _ in MessageIndex.read(ReadDataStream(cast(IO[bytes], stream))).records
+                ]
                 if times:
                     topic = summary.channels[channel_id].topic
                     spans.setdefault(topic, []).extend((min(times), max(times)))
@@ -68,12 +71,11 @@ def _indexed_spans(stream: BinaryIO, summary: Any) -> dict[str, list[int]] | Non
     return spans
 
 
-def _read_spans(file: Path, stream: BinaryIO) -> dict[str, list[int]]:
-    """Topic -> its messages' times, every message read (undecoded)."""
+def _read_spans(file: Path, stream: BoundedFile, summary: Any) -> dict[str, list[int]]:
+    """Topic -> its messages' times, every message read (undecoded; a damaged chunk passed
+    over, as when the messages are read to be decoded)."""
     spans: dict[str, list[int]] = {}
-    try:
-        for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
-            spans.setdefault(channel.topic, []).append(message.log_time)
-    except (McapError, ValueError, EOFError) as error:
-        raise LogError(f"{file}: damaged ({type(error).__name__}: {error})") from error
+    records = summary_records(file, stream, summary, None, None, None, DecodeFailures())
+    for _, channel, message in records:
+        spans.setdefault(channel.topic, []).append(message.log_time)
     return spans
