@@ -142,6 +142,6 @@ def handled(*, process: bool) -> Iterator[Signals]:
         if process:
             state.phase = Phase.FINISHED
         else:
-            for signum, handler in previous.items():
-                signal.signal(signum, handler)
+            for number, handler in previous.items():
+                signal.signal(number, handler)
             _ours = None
