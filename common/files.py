@@ -306,6 +306,12 @@ def _signals_held() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)  # a held signal's handler runs here
 
 
+def _signal_pending() -> bool:
+    """Whether SIGINT or SIGTERM is held back, waiting (see :func:`_signals_held`): a run
+    asked to stop before its result went in should not put it in."""
+    return hasattr(signal, "sigpending") and bool(set(_HELD) & signal.sigpending())
+
+
 @contextmanager
 def written_whole(path: Path) -> Iterator[Path]:
     """A temporary path beside ``path`` to write one file to; renamed onto ``path`` when the
@@ -316,7 +322,11 @@ def written_whole(path: Path) -> Iterator[Path]:
     try:
         yield partial
         with _signals_held():
-            os.replace(partial, path)
+            stopping = _signal_pending()  # then its handler, run as the block ends, stops us
+            if not stopping:
+                os.replace(partial, path)
+        if stopping:  # a handler that did not raise
+            raise OutputError(f"a signal came before {path} was written; it was not")
     finally:
         with _signals_held():
             _remove(partial)
@@ -345,23 +355,19 @@ def result_folder(out: Path, *, force: bool = False) -> Iterator[Path]:
     try:
         yield partial
         with _signals_held():
-            if os.path.lexists(out):
-                if not force:
+            stopping = _signal_pending()  # then its handler, run as the block ends, stops us
+            if not stopping:
+                aside = _move_aside(out, force=force)
+                try:
+                    _rename_no_replace(partial, out)
+                except FileExistsError:
                     raise OutputError(
                         f"{out} was written by another run meanwhile; this run's result was "
                         "not kept"
-                    )
-                check_output_folder(out, (), force=force)
-                aside = _temporary_name(out, "old")
-                with suppress(FileNotFoundError):  # another run may have moved it meanwhile
-                    os.rename(out, aside)
-            try:
-                _rename_no_replace(partial, out)
-            except FileExistsError:
-                raise OutputError(
-                    f"{out} was written by another run meanwhile; this run's result was not kept"
-                ) from None
-            installed = True
+                    ) from None
+                installed = True
+        if stopping:  # a handler that did not raise
+            raise OutputError(f"a signal came before {out} was written; this run's was not kept")
     finally:
         with _signals_held():
             _remove(partial)
@@ -371,6 +377,27 @@ def result_folder(out: Path, *, force: bool = False) -> Iterator[Path]:
                 else:  # the new result did not go in: put the old one back
                     with suppress(OSError):
                         _rename_no_replace(aside, out)
+
+
+def _move_aside(out: Path, *, force: bool) -> Path | None:
+    """The old result at ``out`` moved to a temporary name, checked again first; None if there
+    is none.
+
+    Raises:
+        OutputError: another run wrote ``out`` meanwhile (without ``force``), or it may no
+            longer be replaced.
+    """
+    if not os.path.lexists(out):
+        return None
+    if not force:
+        raise OutputError(
+            f"{out} was written by another run meanwhile; this run's result was not kept"
+        )
+    check_output_folder(out, (), force=force)
+    aside = _temporary_name(out, "old")
+    with suppress(FileNotFoundError):  # another run may have moved it meanwhile
+        os.rename(out, aside)
+    return aside
 
 
 def _remove_old(aside: Path, out: Path) -> None:
