@@ -1,87 +1,68 @@
 """The ``markergraph`` command: a thin shell that parses arguments and calls library functions.
 
-Exit codes: 0 done, 1 a problem with the input, the settings or the output (one line on stderr
-naming the file, topic or value: every :class:`MarkerGraphError`, and ``OSError``), 2 a bug of
-ours, 130 interrupted (Ctrl-C).
+Exit codes: 0 done, 1 a problem with the input, the settings, the output or the command line
+itself (one line on stderr naming the file, topic, value or flag: every
+:class:`MarkerGraphError`, ``OSError``, and argparse's usage errors), 2 a bug of ours, 130
+interrupted (Ctrl-C), 143 terminated (SIGTERM).
+
+This module imports nothing heavy: :func:`main` installs its signal handlers first and only then
+imports the subcommands (a second of GTSAM and OpenCV), so that Ctrl-C is one line at any moment.
 """
 
 from __future__ import annotations
 
-import argparse
 import os
+import signal
 import sys
 from collections.abc import Sequence
-from importlib.metadata import PackageNotFoundError, version
-from typing import NoReturn
+from typing import TYPE_CHECKING
 
-from markergraph.cli import _frontend, _map, _mapfile, _simulate
-from markergraph.common.errors import MarkerGraphError
+from markergraph.cli import _signals
+
+if TYPE_CHECKING:
+    import argparse
 
 __all__ = ["main"]
 
-EXIT_OK, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED = 0, 1, 2, 130
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse exits with 2 on a usage error; here 2 means an internal error, so use 1."""
-
-    def error(self, message: str) -> NoReturn:
-        self.print_usage(sys.stderr)
-        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message}\n")
-
-
-def _version() -> str:
-    try:
-        return version("markergraph")
-    except PackageNotFoundError:  # running from a source tree that is not installed
-        return "unknown"
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser for every subcommand."""
-    parser = _Parser(
-        prog="markergraph",
-        description="Turn a robot's recorded log into a corrected map of the fiducial markers on "
-        "its walls.",
-    )
-    parser.add_argument("--version", action="version", version=f"markergraph {_version()}")
-    commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    _map.add_parser(commands)
-    _map.add_localize_parser(commands)
-    _simulate.add_parser(commands)
-    _frontend.add_parsers(commands)
-    _mapfile.add_parsers(commands)
-    return parser
+EXIT_OK, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR = 0, 1, 2
+EXIT_INTERRUPTED = _signals.exit_code(signal.SIGINT)  # 130
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the process exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.command is None:
-        parser.print_help()
-        return EXIT_OK
+    """Run the command line; returns the process exit code.
+
+    Args:
+        argv: the arguments; None reads this process's own command line (and then the signal
+            handlers stay in place until the process ends).
+    """
+    with _signals.handled(process=argv is None) as signals:
+        from markergraph.cli._parser import parse_command_line  # the heavy imports, handled
+
+        parser, args = parse_command_line(argv)
+        if args.command is None:
+            parser.print_help()
+            return EXIT_OK
+        signals.running(args.command)
+        return _run(args, signals)
+
+
+def _run(args: argparse.Namespace, signals: _signals.Signals) -> int:
+    """The subcommand, its errors turned into one line and an exit code."""
+    from markergraph.common.errors import MarkerGraphError
+
     try:
-        if args.command == "map":
-            return _map.run(args)
-        if args.command == "localize":
-            return _map.run_localize(args)
-        if args.command == "simulate":
-            return _simulate.run(args)
-        if args.command == "detect":
-            return _frontend.run_detect(args)
-        if args.command == "info":
-            return _frontend.run_info(args)
-        if args.command == "export":
-            return _mapfile.run_export(args)
-        return _mapfile.run_heading(args)
+        return _dispatch(args)
+    except KeyboardInterrupt as stop:  # Ctrl-C, or SIGTERM raised as one (see _signals)
+        signum = stop.signum if isinstance(stop, _signals.Stopped) else signal.SIGINT
+        return _stopped(args.command, signals.received or signum)
     except (MarkerGraphError, OSError) as error:
+        if signals.received is not None:  # the signal cut a read or a write short
+            return _stopped(args.command, signals.received)
         print(f"markergraph {args.command}: {error}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print(f"markergraph {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
     except Exception as error:  # a bug of ours: say so plainly
+        if signals.received is not None:  # a signal a C extension turned into another error
+            return _stopped(args.command, signals.received)
         if os.environ.get("MARKERGRAPH_DEBUG"):
             raise
         print(
@@ -90,3 +71,28 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_INTERNAL_ERROR
+
+
+def _stopped(command: str, signum: int) -> int:
+    """The one line of a run a signal stopped, and its exit code (130 or 143)."""
+    print(_signals.stopped_line(command, signum), file=sys.stderr)
+    return _signals.exit_code(signum)
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    """The subcommand ``args`` name, run."""
+    from markergraph.cli import _frontend, _map, _mapfile, _simulate
+
+    if args.command == "map":
+        return _map.run(args)
+    if args.command == "localize":
+        return _map.run_localize(args)
+    if args.command == "simulate":
+        return _simulate.run(args)
+    if args.command == "detect":
+        return _frontend.run_detect(args)
+    if args.command == "info":
+        return _frontend.run_info(args)
+    if args.command == "export":
+        return _mapfile.run_export(args)
+    return _mapfile.run_heading(args)

@@ -84,15 +84,42 @@ def _export_to_stdout(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_heading(args: argparse.Namespace) -> int:
-    marker_map = MarkerMap.load(args.map)
+# --at's bounds. The largest marker a setting allows (10 m) spans the 20 px a detector needs out
+# to about 500 m with a 1000 px focal length: beyond 1 km no camera saw it. A marker is seen from
+# its front only, |theta| < 90 deg.
+MAX_AT_DISTANCE_M = 1000.0
+MAX_AT_THETA_DEG = 90.0
+
+
+def parse_at(text: str) -> tuple[float, float]:
+    """``--at D,THETA``: the distance [m] and theta [rad] of a centred observation.
+
+    Raises:
+        SettingsError: not two numbers, a distance not above 0 and at most
+            :data:`MAX_AT_DISTANCE_M`, or theta not within +-:data:`MAX_AT_THETA_DEG` deg
+            (NaN and infinities included), naming the value.
+    """
     try:
-        d_text, theta_text = args.at.split(",")
-        d, theta = float(d_text), math.radians(float(theta_text))
+        d_text, theta_text = text.split(",")
+        d, theta_deg = float(d_text), float(theta_text)
     except ValueError:
-        raise SettingsError(f"--at takes D,THETA (metres, degrees), got {args.at!r}") from None
-    if not (math.isfinite(d) and d > 0 and math.isfinite(theta)):
-        raise SettingsError(f"--at takes a positive distance and a finite angle, got {args.at!r}")
+        raise SettingsError(f"--at takes D,THETA (metres, degrees), got {text!r}") from None
+    if not 0 < d <= MAX_AT_DISTANCE_M:  # False for NaN too
+        raise SettingsError(
+            f"--at {text}: the distance must be above 0 and at most {MAX_AT_DISTANCE_M:g} m "
+            f"(no camera sees a marker further), got {d:g}"
+        )
+    if not abs(theta_deg) < MAX_AT_THETA_DEG:
+        raise SettingsError(
+            f"--at {text}: theta must be within +-{MAX_AT_THETA_DEG:g} deg (a marker is seen "
+            f"from its front), got {theta_deg:g}"
+        )
+    return d, math.radians(theta_deg)
+
+
+def run_heading(args: argparse.Namespace) -> int:
+    d, theta = parse_at(args.at)  # before the map: a mistake on the command line first
+    marker_map = MarkerMap.load(args.map)
     try:
         distance, turn = marker_map.heading(args.source, d, theta, args.to)
         printed = marker_map.heading(args.source, d, theta, args.to, Form.PAPER)

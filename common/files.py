@@ -22,6 +22,9 @@ import os
 import re
 import secrets
 import shutil
+import signal
+import sys
+import threading
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
@@ -155,9 +158,37 @@ def _check_place(out: Path, flag: str = "--out") -> None:
 
 
 def _in_rosbag(out: Path) -> Path | None:
-    """The rosbag2 folder ``out`` would land in, if any (a folder with a metadata.yaml)."""
+    """The rosbag2 folder ``out`` would land in, if any: its parent if that holds a
+    ``metadata.yaml``, or a folder further up whose ``metadata.yaml`` is a rosbag2 one (a bag's
+    subfolder is the bag's too; an unrelated ``metadata.yaml`` far up does not forbid a tree)."""
     parent = _absolute(out).parent
-    return parent if (parent / "metadata.yaml").is_file() else None
+    if (parent / "metadata.yaml").is_file():
+        return parent
+    for folder in parent.parents:
+        if _is_rosbag2_metadata(folder / "metadata.yaml"):
+            return folder
+    return None
+
+
+def _is_rosbag2_metadata(path: Path) -> bool:
+    """Whether ``path`` is a rosbag2 ``metadata.yaml`` (its first KB names the bag's key)."""
+    try:
+        with open(path, "rb") as stream:
+            return b"rosbag2_bagfile_information" in stream.read(1024)
+    except OSError:  # absent, a folder, unreadable: not a bag we can tell of
+        return False
+
+
+def _check_not_in_rosbag(out: Path) -> None:
+    """Refuse an output inside a rosbag2 folder, an input or not: the one check every writer
+    of a file or a folder makes (a bag is the user's recording; ``ros2 bag`` owns its folder).
+
+    Raises:
+        OutputError: naming ``out`` and the bag's folder.
+    """
+    bag = _in_rosbag(out)
+    if bag is not None:
+        raise OutputError(f"--out {out} is inside the rosbag2 folder {bag}; choose another place")
 
 
 def _check_inputs(out: Path, inputs: Iterable[Path], relation: str, kind: str) -> None:
@@ -181,6 +212,7 @@ def check_output_folder(out: Path, inputs: Iterable[Path], *, force: bool) -> No
     """
     out = Path(out)
     _check_inputs(out, inputs, "holds the input", "folder")
+    _check_not_in_rosbag(out)
     _check_place(out)
     if not os.path.lexists(out):
         return
@@ -204,6 +236,31 @@ def check_output_folder(out: Path, inputs: Iterable[Path], *, force: bool) -> No
             f"{out} holds what markergraph did not write ({shown}); --force will not delete "
             "it: move it out or choose another --out"
         )
+    protected = _write_protected(out)
+    if protected is not None:
+        raise OutputError(
+            f"{out} cannot be replaced: {protected} is write-protected, and --force will not "
+            "delete a result you protected; make it writable or choose another --out"
+        )
+
+
+def _write_protected(folder: Path) -> Path | None:
+    """The first entry of ``folder`` this process may not delete, or None.
+
+    As ``rm -r`` without ``-f`` asks before deleting one: a folder that is not writable (its
+    entries cannot be unlinked) or a file that is not (``chmod a-w``, or immutable, which even
+    root may not delete). Checked before any work, so that a replacement cannot move the old
+    result aside and then fail to delete it, which left it hidden as ``.NAME.old-...``.
+    """
+    for root, _folders, files in os.walk(folder):
+        here = Path(root)
+        if not os.access(here, os.W_OK | os.X_OK):
+            return here
+        for name in files:
+            path = here / name
+            if not path.is_symlink() and not os.access(path, os.W_OK):
+                return path
+    return None
 
 
 def check_output_file(out: Path, inputs: Iterable[Path], *, force: bool) -> None:
@@ -216,15 +273,43 @@ def check_output_file(out: Path, inputs: Iterable[Path], *, force: bool) -> None
     """
     out = Path(out)
     _check_inputs(out, inputs, "is the input", "file")
-    bag = _in_rosbag(out)
-    if bag is not None:
-        raise OutputError(f"--out {out} is inside the rosbag2 folder {bag}; choose another place")
+    _check_not_in_rosbag(out)
     if out.is_dir():
         raise OutputError(f"--out {out} is a folder; name a file")
     if os.path.lexists(out) and not force:
         raise OutputError(f"{out} exists; pass --force to overwrite it")
     if not out.parent.is_dir():
         raise OutputError(f"cannot write {out}: {out.parent} is not a folder")
+
+
+_HELD = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM held back while the block runs, delivered when it ends.
+
+    Around the renames that install a result and the removal of what is left: a signal's
+    ``KeyboardInterrupt`` raised half-way through them would leave a temporary folder, or the
+    old result moved aside, hidden beside the target. Held only in the main thread, where Python
+    runs its handlers (``pthread_sigmask`` holds them for the calling thread).
+    """
+    if threading.current_thread() is not threading.main_thread() or not hasattr(
+        signal, "pthread_sigmask"
+    ):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)  # a held signal's handler runs here
+
+
+def _signal_pending() -> bool:
+    """Whether SIGINT or SIGTERM is held back, waiting (see :func:`_signals_held`): a run
+    asked to stop before its result went in should not put it in."""
+    return hasattr(signal, "sigpending") and bool(set(_HELD) & signal.sigpending())
 
 
 @contextmanager
@@ -236,9 +321,15 @@ def written_whole(path: Path) -> Iterator[Path]:
     partial = _temporary_name(path, "partial")
     try:
         yield partial
-        os.replace(partial, path)
+        with _signals_held():
+            stopping = _signal_pending()  # then its handler, run as the block ends, stops us
+            if not stopping:
+                os.replace(partial, path)
+        if stopping:  # a handler that did not raise
+            raise OutputError(f"a signal came before {path} was written; it was not")
     finally:
-        _remove(partial)
+        with _signals_held():
+            _remove(partial)
 
 
 @contextmanager
@@ -263,27 +354,73 @@ def result_folder(out: Path, *, force: bool = False) -> Iterator[Path]:
     installed = False
     try:
         yield partial
-        if os.path.lexists(out):
-            if not force:
-                raise OutputError(
-                    f"{out} was written by another run meanwhile; this run's result was not kept"
-                )
-            check_output_folder(out, (), force=force)
-            aside = _temporary_name(out, "old")
-            with suppress(FileNotFoundError):  # another run may have moved it meanwhile
-                os.rename(out, aside)
-        try:
-            _rename_no_replace(partial, out)
-        except FileExistsError:
-            raise OutputError(
-                f"{out} was written by another run meanwhile; this run's result was not kept"
-            ) from None
-        installed = True
+        with _signals_held():
+            stopping = _signal_pending()  # then its handler, run as the block ends, stops us
+            if not stopping:
+                aside = _move_aside(out, force=force)
+                try:
+                    _rename_no_replace(partial, out)
+                except FileExistsError:
+                    raise OutputError(
+                        f"{out} was written by another run meanwhile; this run's result was "
+                        "not kept"
+                    ) from None
+                installed = True
+        if stopping:  # a handler that did not raise
+            raise OutputError(f"a signal came before {out} was written; this run's was not kept")
     finally:
-        _remove(partial)
-        if aside is not None and os.path.lexists(aside):
-            if installed or os.path.lexists(out):
-                _remove(aside)
-            else:  # the new result did not go in: put the old one back
-                with suppress(OSError):
-                    _rename_no_replace(aside, out)
+        with _signals_held():
+            _remove(partial)
+            if aside is not None and os.path.lexists(aside):
+                if installed or os.path.lexists(out):
+                    _remove_old(aside, out)
+                else:  # the new result did not go in: put the old one back
+                    with suppress(OSError):
+                        _rename_no_replace(aside, out)
+
+
+def _move_aside(out: Path, *, force: bool) -> Path | None:
+    """The old result at ``out`` moved to a temporary name, checked again first; None if there
+    is none.
+
+    Raises:
+        OutputError: another run wrote ``out`` meanwhile (without ``force``), or it may no
+            longer be replaced.
+    """
+    if not os.path.lexists(out):
+        return None
+    if not force:
+        raise OutputError(
+            f"{out} was written by another run meanwhile; this run's result was not kept"
+        )
+    check_output_folder(out, (), force=force)
+    aside = _temporary_name(out, "old")
+    with suppress(FileNotFoundError):  # another run may have moved it meanwhile
+        os.rename(out, aside)
+    return aside
+
+
+def _remove_old(aside: Path, out: Path) -> None:
+    """Delete the old result moved aside; if some of it will not go (its protection changed
+    since the check), say where it is rather than leave it hidden without a word.
+
+    Raises:
+        OutputError: naming the hidden folder and what would not go.
+    """
+    if not aside.is_dir() or aside.is_symlink():
+        aside.unlink(missing_ok=True)
+        return
+    failures: list[str] = []
+
+    def failed(_function: object, path: str, error: object) -> None:
+        failures.append(f"{path}: {error[1] if isinstance(error, tuple) else error}")
+
+    if sys.version_info >= (3, 12):
+        shutil.rmtree(aside, onexc=failed)
+    else:  # onerror, given (type, value, traceback), before 3.12
+        shutil.rmtree(aside, onerror=failed)
+    if failures:
+        raise OutputError(
+            f"{out} holds the new result, but the old one, moved aside to {aside}, could not be "
+            f"deleted ({failures[0]}); delete it yourself"
+        )

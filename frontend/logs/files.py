@@ -11,7 +11,7 @@ import yaml
 
 from markergraph.frontend.logs.records import LogError
 
-__all__ = ["MCAP_MAGIC", "ROS1_MAGIC", "LogKind", "log_kind", "mcap_files"]
+__all__ = ["MCAP_MAGIC", "ROS1_MAGIC", "LogKind", "check_not_packed", "log_kind", "mcap_files"]
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
@@ -28,10 +28,60 @@ class LogKind(Enum):
     """A rosbag2 folder stored in SQLite ``.db3`` files (read through ``rosbags``)."""
 
 
+# A log someone compressed or archived whole, by its first bytes: (what, how to undo it).
+# FILE stands for the file's name. (A ROS 1 bag's lz4 or bz2 chunks are inside the bag.)
+_PACKED = (
+    (b"\x1f\x8b", "gzip", "gunzip -k FILE"),
+    (b"BZh", "bzip2", "bunzip2 -k FILE"),
+    (b"\xfd7zXZ\x00", "xz", "unxz -k FILE"),
+    (b"\x28\xb5\x2f\xfd", "zstd", "unzstd FILE"),
+    (b"\x04\x22\x4d\x18", "lz4", "unlz4 FILE"),
+    (b"PK\x03\x04", "a zip archive", "unzip FILE"),
+    (b"7z\xbc\xaf\x27\x1c", "a 7-Zip archive", "7z x FILE"),
+)
+_TAR_MAGIC_OFFSET, _TAR_MAGIC = 257, b"ustar"
+_PACKED_SUFFIXES = {".gz", ".bz2", ".xz", ".zst", ".zstd", ".lz4"}
+
+
+def check_not_packed(file: Path) -> None:
+    """Refuse a log file that is compressed or archived whole (``robot.bag.bz2``, a ``.zip``),
+    saying how to unpack it; the readers would only say it is not a log.
+
+    Raises:
+        LogError: naming the file, the compression and the command that undoes it.
+    """
+    try:
+        with open(file, "rb") as stream:
+            head = stream.read(_TAR_MAGIC_OFFSET + len(_TAR_MAGIC))
+    except OSError:
+        return  # the reader names why it cannot be read
+    for magic, what, undo in _PACKED:
+        if head.startswith(magic):
+            compressed = not what.startswith(("a ", "an "))
+            inside = "the .mcap, .bag or rosbag2 folder inside"
+            if compressed:  # robot.bag.bz2 holds robot.bag
+                inside = file.stem if file.suffix in _PACKED_SUFFIXES else "the log"
+            raise LogError(
+                f"{file}: {'compressed with ' if compressed else ''}{what}, not a log: "
+                f"{'decompress' if compressed else 'unpack'} it first "
+                f"({undo.replace('FILE', str(file))}) and give markergraph {inside}"
+            )
+    if head[_TAR_MAGIC_OFFSET:] == _TAR_MAGIC:
+        raise LogError(
+            f"{file}: a tar archive, not a log: unpack it first (tar -xf {file}) and give "
+            "markergraph the .mcap, .bag or rosbag2 folder inside"
+        )
+
+
 def log_kind(path: Path) -> LogKind:
     """The kind of log at ``path``: a ROS 1 bag by its magic, a SQLite rosbag2 folder by its
-    ``metadata.yaml``, MCAP otherwise (whose reader names what is wrong with a bad one)."""
+    ``metadata.yaml``, MCAP otherwise (whose reader names what is wrong with a bad one).
+
+    Raises:
+        LogError: a file compressed or archived whole (see :func:`check_not_packed`).
+    """
     if path.is_file():
+        check_not_packed(path)
         try:
             with open(path, "rb") as stream:
                 if stream.read(len(ROS1_MAGIC)) == ROS1_MAGIC:
@@ -77,6 +127,8 @@ def mcap_files(path: Path) -> list[Path]:
     missing = [f for f in files if not f.is_file()]
     if missing:
         raise LogError(f"{path}: metadata.yaml lists {missing[0].name}, which is missing")
+    for file in files:  # a bag recorded with file compression holds .mcap.zstd files
+        check_not_packed(file)
     return files
 
 
