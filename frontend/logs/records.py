@@ -52,6 +52,8 @@ class DecodeFailures:
     """(file, topic) -> messages skipped."""
     first_error: dict[tuple[str, str], str] = field(default_factory=dict)
     """(file, topic) -> why the first of them was."""
+    notes: dict[str, str] = field(default_factory=dict)
+    """File -> a loss that cannot be counted (a bag cut short inside a chunk), said once."""
 
     def add(self, file: Path, topic: str, reason: str, n: int = 1) -> None:
         """Count ``n`` skipped messages of ``topic`` in ``file``, for ``reason``."""
@@ -59,13 +61,18 @@ class DecodeFailures:
         self.counts[key] += n
         self.first_error.setdefault(key, reason)
 
+    def note(self, file: Path, text: str) -> None:
+        """Say once that ``file`` lost messages that cannot be counted, and why."""
+        self.notes.setdefault(str(file), text)
+
     def warnings(self) -> list[str]:
-        """One line per (file, topic): how many were skipped, and the first reason."""
+        """One line per (file, topic): how many were skipped, and the first reason; then one
+        per file with a loss that cannot be counted."""
         return [
             f"{file}: skipped {n} unreadable message(s) on {topic} "
             f"({self.first_error[(file, topic)]})"
             for (file, topic), n in sorted(self.counts.items())
-        ]
+        ] + [f"{file}: {text}" for file, text in sorted(self.notes.items())]
 
 
 def why(error: BaseException) -> str:
