@@ -248,15 +248,16 @@ def test_unreadable_bags_are_one_line_with_a_reason(bags, tmp_path) -> None:
     all gone is exit 1 from info and map alike, one line naming the file and the byte."""
 
     def index_data(data: bytearray) -> None:
-        pos = open_ros1(bags["lz4"]).chunks[1].pos
+        pos = open_ros1(bags["lz4"]).chunks[0].pos
         _, _, data_at = chunk_record(bytes(data), pos)
         (data_len,) = struct.unpack_from("<I", data, data_at - 4)
-        after = data_at + data_len  # the first index data record after the chunk
-        data[after : after + 4] = struct.pack("<I", 46)  # rosbags asserted its length is 47
+        after = data_at + data_len  # the first index data record, whose layout rosbags asserted
+        data[after : after + 4] = struct.pack("<I", 46)  # its header's length (47)
 
     readable = damaged_copy(bags["lz4"], tmp_path, "index-data.bag", index_data)
     done = run("info", readable)
     assert done.returncode == 0 and "can map: yes" in done.stdout, done.stderr
+    assert run("map", readable, "--out", tmp_path / "m", "-q").returncode == 0
     gone = damaged_copy(bags["lz4"], tmp_path, "gone.bag", lambda data: data[:5000])
     for command in ("info", "map"):
         arguments = ["--out", tmp_path / "r"] if command == "map" else []
