@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import random
 import re
 import resource
@@ -27,7 +28,8 @@ from markergraph.frontend.logs.ros1 import Ros1Bag, open_ros1
 COLOR = "/camera/camera/color/image_raw/compressed"
 DEPTH = "/camera/camera/aligned_depth_to_color/image_raw"
 MEMORY_LIMIT_KB = 1 << 20  # the bound on a run's peak memory: 1 GB (ru_maxrss is in kB)
-FUZZ_CASES = 6  # seeded damaged bags run through info and map (each about 2 s)
+# Seeded damaged bags run through info and map (each about 2 s); more with the variable.
+FUZZ_CASES = int(os.environ.get("MARKERGRAPH_BAG_FUZZ_CASES", "6"))
 
 
 # --- bags made from a simulated log -------------------------------------------------------
