@@ -281,12 +281,12 @@ def _scanned_chunk(
         data = _chunk_data(stream, pos, size)
         for op, header, start, stop in _records(data, pos):
             if op == _CONNECTION:
-                connection = _connection(header, data[start:stop], pos)
-                connections.setdefault(connection.id, connection)
+                defined = _connection(header, data[start:stop], pos)
+                connections.setdefault(defined.id, defined)
             elif op == _MESSAGE:
-                connection = _u32(header, "conn", pos)
-                read[connection] += 1
-                spans.setdefault(connection, []).append(_time(header, "time", pos))
+                connection_id = _u32(header, "conn", pos)
+                read[connection_id] += 1
+                spans.setdefault(connection_id, []).append(_time(header, "time", pos))
     except DamagedBagError:
         if not counts:
             counts, times = read, {c: (min(t), max(t)) for c, t in spans.items()}
