@@ -5,8 +5,9 @@ SQLite files, a ROS 1 ``.bag``), finds its files and reads each MCAP file's summ
 :class:`Log` it returns gives the topics, the time range, each topic's times and the decoded
 messages. Modules: ``files`` (the kind and the files), ``mcap`` and ``chunks`` (MCAP, chunk by
 chunk), ``scan`` (reads bounded by the file; an index rebuilt where it is lost), ``times``
-(topic times from MCAP indexes), ``bags`` (ROS 1 and SQLite through ``rosbags``), ``cdr`` (fast
-readers of a few ROS 2 types), ``ahead`` (reading in a thread).
+(topic times from MCAP indexes), ``bags`` (ROS 1 and SQLite bags, decoded through ``rosbags``),
+``ros1`` (a ROS 1 bag's records, chunk by chunk), ``cdr`` (fast readers of a few ROS 2 types),
+``ahead`` (reading in a thread).
 """
 
 from markergraph.frontend.logs.ahead import read_ahead

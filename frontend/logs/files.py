@@ -23,7 +23,7 @@ class LogKind(Enum):
     MCAP = "mcap"
     """One ``.mcap`` file, or a rosbag2 folder of them (read here, chunk by chunk)."""
     ROS1 = "ros1"
-    """A ROS 1 ``.bag`` (read through ``rosbags``)."""
+    """A ROS 1 ``.bag`` (read chunk by chunk here, decoded through ``rosbags``)."""
     SQLITE = "sqlite"
     """A rosbag2 folder stored in SQLite ``.db3`` files (read through ``rosbags``)."""
 

@@ -53,7 +53,8 @@ class DecodeFailures:
     first_error: dict[tuple[str, str], str] = field(default_factory=dict)
     """(file, topic) -> why the first of them was."""
     notes: list[str] = field(default_factory=list)
-    """What was lost or recovered of a whole file (a cut tail, an index rebuilt), one line each."""
+    """What was lost or recovered of a whole file (a cut tail, an index rebuilt, a loss that
+    cannot be counted), one line each."""
 
     def add(self, file: Path, topic: str, reason: str, n: int = 1) -> None:
         """Count ``n`` skipped messages of ``topic`` in ``file``, for ``reason``."""
