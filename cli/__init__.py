@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 from typing import NoReturn
 
-from markergraph.cli import _frontend, _map, _mapfile, _simulate
+from markergraph.cli import _compare, _frontend, _map, _mapfile, _simulate
 from markergraph.common.errors import MarkerGraphError
 
 __all__ = ["main"]
@@ -51,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     _simulate.add_parser(commands)
     _frontend.add_parsers(commands)
     _mapfile.add_parsers(commands)
+    _compare.add_parser(commands)
     return parser
 
 
@@ -72,6 +73,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _frontend.run_detect(args)
         if args.command == "info":
             return _frontend.run_info(args)
+        if args.command == "compare":
+            return _compare.run(args)
         if args.command == "export":
             return _mapfile.run_export(args)
         return _mapfile.run_heading(args)
