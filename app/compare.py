@@ -105,6 +105,8 @@ class MapPoint:
         wall: its normal is horizontal (its yaw is defined).
         cov_p_map: (3, 3) its position covariance in the map's axes [m^2] (z row and column 0
             in a 2-D map), or None.
+        cov_p_relative: the same with the map's common rigid motion removed (a 2-D map's
+            ``relative_covariance``), or None: what an aligned error is measured against.
     """
 
     marker_id: int
@@ -112,6 +114,7 @@ class MapPoint:
     R_map_marker: NDArray[np.float64]
     wall: bool
     cov_p_map: NDArray[np.float64] | None
+    cov_p_relative: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -264,14 +267,22 @@ def _map_point(m: MapMarker) -> MapPoint:
             covariance = R @ m.covariance6[3:, 3:] @ R.T
         p = np.asarray(m.T_map_marker3.translation(), dtype=np.float64)
         return MapPoint(m.marker_id, p, R, m.wall, covariance)
-    theta = m.T_map_marker.theta()
-    R = np.asarray(gtsam.Rot3.Rz(theta).matrix())
-    covariance = None
-    if m.covariance is not None:
-        covariance = np.zeros((3, 3))
-        covariance[:2, :2] = R[:2, :2] @ m.covariance[:2, :2] @ R[:2, :2].T
+    R = np.asarray(gtsam.Rot3.Rz(m.T_map_marker.theta()).matrix())
     p = np.array([m.T_map_marker.x(), m.T_map_marker.y(), m.z_m or 0.0])
-    return MapPoint(m.marker_id, p, R, True, covariance)
+    covariance, relative = (_in_map_axes(R, c) for c in (m.covariance, m.relative_covariance))
+    return MapPoint(m.marker_id, p, R, True, covariance, relative)
+
+
+def _in_map_axes(
+    R: NDArray[np.float64], covariance3: NDArray[np.float64] | None
+) -> NDArray[np.float64] | None:
+    """A 2-D marker's position covariance (its own tangent, x and y) in the map's axes, as a
+    3x3 with a nil z."""
+    if covariance3 is None:
+        return None
+    covariance = np.zeros((3, 3))
+    covariance[:2, :2] = R[:2, :2] @ covariance3[:2, :2] @ R[:2, :2].T
+    return covariance
 
 
 def map_points(marker_map: MarkerMap) -> dict[int, MapPoint]:
@@ -342,6 +353,7 @@ def errors(
     alignment: Alignment,
     dimensions: int,
     gauge_id: int | None = None,
+    relative: bool = False,
 ) -> Scored:
     """Each common marker's errors once the map is moved by ``alignment``.
 
@@ -349,7 +361,9 @@ def errors(
     (the map's marker on a wall, the reference's heading known); the rotation error where both
     are 3-D; the NEES over the same axes as the position error, for every marker with a
     covariance but ``gauge_id`` (the map's home marker pinned by a prior: the map frame
-    itself).
+    itself). With ``relative`` the covariances with the map's rigid motion removed are used
+    where the map has them (an aligned error has that motion fitted away), and every marker
+    counts.
     """
     d = dimensions
     R, t, s = alignment.R, alignment.t, alignment.scale
@@ -367,10 +381,13 @@ def errors(
         if d == 3 and ref.rotation_known:
             between = gtsam.Rot3(ref.R_ref_marker.T @ R_aligned)
             rotation[k] = math.degrees(float(np.linalg.norm(gtsam.Rot3.Logmap(between))))
-        if point.cov_p_map is not None:
-            covariances[k] = s * s * R @ point.cov_p_map @ R.T
+        use_relative = relative and point.cov_p_relative is not None
+        covariance = point.cov_p_relative if use_relative else point.cov_p_map
+        if covariance is not None:
+            covariances[k] = s * s * R @ covariance @ R.T
             P = covariances[k][:d, :d]
-            if point.marker_id != gauge_id and np.linalg.eigvalsh(P)[0] > 0.0:
+            pinned = point.marker_id == gauge_id and not use_relative
+            if not pinned and np.linalg.eigvalsh(P)[0] > 0.0:
                 nees[k] = float(error @ np.linalg.solve(P, error))
     have = np.isfinite(nees)
     return Scored(alignment, position, yaw, rotation, nees, aligned, covariances,
@@ -463,7 +480,7 @@ def compare(
         tuple(sorted(set(points) - set(refs))),
         tuple(sorted(set(refs) - set(points))),
         np.array([r.p_ref for r in theirs]),
-        errors(ours, theirs, rigid, dimensions, gauge),
+        errors(ours, theirs, rigid, dimensions, gauge, relative=True),
         errors(ours, theirs, fixed, dimensions, gauge),
         home,
         (note,) if note else (),
@@ -498,16 +515,23 @@ def summary(scored: Scored) -> str:
     return "; ".join(parts)
 
 
-def _coverage_line(scored: Scored, dimensions: int) -> str:
-    if scored.n_nees == 0:
-        return "covariance: the map gives none of the common markers one (home excluded)"
+def _coverage(scored: Scored) -> str:
     share = 100.0 * scored.n_within / scored.n_nees
     mean = float(np.nanmean(scored.nees))
-    return (
-        f"covariance: {scored.n_within} of {scored.n_nees} markers within their 95 % "
-        f"{'ellipse' if dimensions == 2 else 'ellipsoid'} ({share:.0f} %), mean position NEES "
-        f"{mean:.2f} (expected {dimensions}), after the alignment"
-    )
+    return f"{scored.n_within} of {scored.n_nees} ({share:.0f} %), mean NEES {mean:.2f}"
+
+
+def _coverage_line(aligned: Scored, home_fixed: Scored, dimensions: int) -> str:
+    """The map's covariances against the errors, in one line: markers within their 95 %
+    ellipse (ellipsoid in 3-D) and the mean position NEES, after each alignment."""
+    if aligned.n_nees == 0:
+        return "covariance: the map gives none of the common markers one"
+    shape = "ellipse" if dimensions == 2 else "ellipsoid"
+    line = f"covariance: within their 95 % {shape} (NEES expected {dimensions}): aligned "
+    line += _coverage(aligned)
+    if home_fixed.n_nees:
+        line += f"; home-fixed {_coverage(home_fixed)}"
+    return line
 
 
 def comparison_lines(result: Comparison) -> list[str]:
@@ -535,7 +559,7 @@ def comparison_lines(result: Comparison) -> list[str]:
     lines += [
         f"aligned:    {summary(a)}",
         f"home-fixed: {summary(h)}  (marker {result.home_id})",
-        _coverage_line(a, d),
+        _coverage_line(a, h, d),
         *result.notes,
     ]
     return lines

@@ -144,30 +144,40 @@ def test_aligned_rmse_is_the_noise_rms_and_home_fixed_as_predicted(
     assert f"position RMSE {noise_rms:.4f} m" in text and "(marker" in text
 
 
-def test_nees_is_the_noise_whitened_by_the_maps_covariance(
+def test_nees_is_the_error_whitened_by_the_maps_covariance(
     map2d, noisy_csv, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Each marker's NEES is n^T P^-1 n, P its position covariance in the map's axes; the
-    within-95 % count is those at most chi-square(2)'s 95 % quantile; the home marker has none."""
+    """Aligned, each marker's NEES is n^T P^-1 n with P its relative covariance in the map's
+    axes; home-fixed, the predicted error under the plain covariance, the pinned home marker
+    left out; the within-95 % counts are those at most chi-square(2)'s 95 % quantile."""
     map_path, marker_map = map2d
-    csv_path, ids, _, noise, _ = noisy_csv
+    csv_path, ids, p, noise, yaw_noise = noisy_csv
     out = tmp_path / "figures.json"
     assert _compare(str(map_path), str(csv_path), "--json", str(out), capsys=capsys)[0] == 0
     document = json.loads(out.read_text())
-    per_marker = {m["id"]: m["aligned"]["nees"] for m in document["markers"]}
-    expected = {}
+    per_marker = {m["id"]: m for m in document["markers"]}
+    h = ids.index(marker_map.home_id)
+    turn = _rot2(yaw_noise[h])
+    expected: dict[str, dict[int, float]] = {"aligned": {}, "home_fixed": {}}
     for k, i in enumerate(ids):
         m = marker_map.markers[i]
-        if i == marker_map.home_id or m.covariance is None:
-            assert per_marker[i] is None
+        assert m.covariance is not None and m.relative_covariance is not None
+        R = _rot2(m.T_map_marker.theta())
+        P_relative = R @ m.relative_covariance[:2, :2] @ R.T
+        expected["aligned"][i] = float(noise[k] @ np.linalg.solve(P_relative, noise[k]))
+        if i == marker_map.home_id:
+            assert per_marker[i]["home_fixed"]["nees"] is None
             continue
-        c, s = math.cos(m.T_map_marker.theta()), math.sin(m.T_map_marker.theta())
-        R = np.array([[c, -s], [s, c]])
+        # The error in the map's axes: the home-fixed rotation (the offset's, then the home's
+        # yaw noise) undone, as the covariance is carried by it.
+        error = turn.T @ (noise[k] - noise[h] - (turn - np.eye(2)) @ (p[k] - p[h]))
         P = R @ m.covariance[:2, :2] @ R.T
-        expected[i] = float(noise[k] @ np.linalg.solve(P, noise[k]))
-        assert per_marker[i] == pytest.approx(expected[i], rel=1e-6)
-    within = sum(v <= -2.0 * math.log(0.05) for v in expected.values())
-    assert document["aligned"]["covariance"] == {"n": len(expected), "within_95": within}
+        expected["home_fixed"][i] = float(error @ np.linalg.solve(P, error))
+    for name, values in expected.items():
+        for i, value in values.items():
+            assert per_marker[i][name]["nees"] == pytest.approx(value, rel=1e-6)
+        within = sum(v <= -2.0 * math.log(0.05) for v in values.values())
+        assert document[name]["covariance"] == {"n": len(values), "within_95": within}
 
 
 def test_scale_is_fitted_only_when_asked(
