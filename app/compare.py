@@ -354,6 +354,7 @@ def errors(
     dimensions: int,
     gauge_id: int | None = None,
     relative: bool = False,
+    with_nees: bool = True,
 ) -> Scored:
     """Each common marker's errors once the map is moved by ``alignment``.
 
@@ -363,7 +364,7 @@ def errors(
     covariance but ``gauge_id`` (the map's home marker pinned by a prior: the map frame
     itself). With ``relative`` the covariances with the map's rigid motion removed are used
     where the map has them (an aligned error has that motion fitted away), and every marker
-    counts.
+    counts. Without ``with_nees`` no NEES (the covariances are not of this frame).
     """
     d = dimensions
     R, t, s = alignment.R, alignment.t, alignment.scale
@@ -383,7 +384,7 @@ def errors(
             rotation[k] = math.degrees(float(np.linalg.norm(gtsam.Rot3.Logmap(between))))
         use_relative = relative and point.cov_p_relative is not None
         covariance = point.cov_p_relative if use_relative else point.cov_p_map
-        if covariance is not None:
+        if covariance is not None and with_nees:
             covariances[k] = s * s * R @ covariance @ R.T
             P = covariances[k][:d, :d]
             pinned = point.marker_id == gauge_id and not use_relative
@@ -481,7 +482,8 @@ def compare(
         tuple(sorted(set(refs) - set(points))),
         np.array([r.p_ref for r in theirs]),
         errors(ours, theirs, rigid, dimensions, gauge, relative=True),
-        errors(ours, theirs, fixed, dimensions, gauge),
+        # The map's covariances are in its home marker's frame: fixed on another, no NEES.
+        errors(ours, theirs, fixed, dimensions, gauge, with_nees=home == default_home),
         home,
         (note,) if note else (),
     )
