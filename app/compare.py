@@ -536,12 +536,34 @@ def _coverage_line(aligned: Scored, home_fixed: Scored, dimensions: int) -> str:
     return line
 
 
+def _table(result: Comparison) -> list[str]:
+    """One row a marker: its errors aligned and home-fixed, and the aligned NEES; the
+    rotation columns in 3-D alone."""
+    a, h = result.aligned, result.home_fixed
+    columns: list[tuple[str, NDArray[np.float64], int]] = [
+        ("aligned [m]", a.position_m, 4),
+        ("yaw [deg]", a.yaw_deg, 2),
+        ("rot [deg]", a.rotation_deg, 2),
+        ("home [m]", h.position_m, 4),
+        ("yaw [deg]", h.yaw_deg, 2),
+        ("rot [deg]", h.rotation_deg, 2),
+        ("NEES", a.nees, 2),
+    ]
+    if result.dimensions == 2:
+        columns = [c for c in columns if c[0] != "rot [deg]"]
+    lines = [f"{'id':>6}" + "".join(f" {name:>11}" for name, _, _ in columns)]
+    for k, marker_id in enumerate(result.ids):
+        cells = "".join(f" {_cell(values[k], digits):>11}" for _, values, digits in columns)
+        lines.append(f"{int(marker_id):>6}{cells}")
+    return lines
+
+
 def comparison_lines(result: Comparison) -> list[str]:
     """The comparison as text a person reads: common markers, a table, figures."""
     a, h, d = result.aligned, result.home_fixed, result.dimensions
     rotation = a.alignment
     t = rotation.t[:d]
-    lines = [
+    return [
         f"markers in common: {len(result.ids)} ({_ids(tuple(int(i) for i in result.ids))}); "
         f"only in the map: {_ids(result.only_map)}; only in the reference: "
         f"{_ids(result.only_reference)}",
@@ -549,22 +571,12 @@ def comparison_lines(result: Comparison) -> list[str]:
         f"translation ({', '.join(f'{v:.4f}' for v in t)}) m"
         + (f", scale {rotation.scale:.6f}" if rotation.how.startswith("Sim") else ""),
         f"home-fixed on {h.alignment.how}",
-        f"{'id':>6} {'aligned [m]':>12} {'yaw [deg]':>10} {'rot [deg]':>10} "
-        f"{'home [m]':>10} {'yaw [deg]':>10} {'NEES':>8}",
-    ]
-    for k, marker_id in enumerate(result.ids):
-        lines.append(
-            f"{int(marker_id):>6} {_cell(a.position_m[k], 4):>12} {_cell(a.yaw_deg[k], 2):>10} "
-            f"{_cell(a.rotation_deg[k], 2):>10} {_cell(h.position_m[k], 4):>10} "
-            f"{_cell(h.yaw_deg[k], 2):>10} {_cell(a.nees[k], 2):>8}"
-        )
-    lines += [
+        *_table(result),
         f"aligned:    {summary(a)}",
         f"home-fixed: {summary(h)}  (marker {result.home_id})",
         _coverage_line(a, h, d),
         *result.notes,
     ]
-    return lines
 
 
 def _number(value: float) -> float | None:
