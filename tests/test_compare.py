@@ -364,3 +364,50 @@ def test_a_misshapen_aruco_marker_is_refused(
     )
     code, _, err = _compare(str(map2d[0]), str(aruco), capsys=capsys)
     assert code == 1 and "bad.yml" in err and "not a square" in err
+
+
+def test_a_3d_map_against_a_survey_without_heights_is_compared_on_the_floor(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A CSV without z: the 3-D map's tags compared by x, y alone (SE(2)), exact for a
+    reference that is the map turned and moved in the plane; yaw only for wall tags."""
+    marker_map = _tag_map()
+    map_path = tmp_path / "map.json"
+    marker_map.save(map_path)
+    rows = ["id,x,y"]
+    for i, m in marker_map.markers3d.items():
+        assert m.T_map_marker3 is not None
+        x, y = _rot2(THETA0_RAD) @ m.T_map_marker3.translation()[:2] + T0_M[:2]
+        rows.append(f"{i},{float(x)!r},{float(y)!r}")
+    csv_path = tmp_path / "flat.csv"
+    csv_path.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "figures.json"
+    code, text, err = _compare(str(map_path), str(csv_path), "--json", str(out), capsys=capsys)
+    assert code == 0, err
+    document = json.loads(out.read_text())
+    assert document["dimensions"] == 2 and "SE(2)" in text
+    assert document["aligned"]["position_m"]["max"] < EXACT
+    assert document["aligned"]["rotation_deg"]["n"] == 0
+
+
+def test_3d_markers_on_one_line_are_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Three common tags on one line leave the rotation about it free: one line, exit 1."""
+    marker_map = _tag_map()
+    map_path = tmp_path / "map.json"
+    marker_map.save(map_path)
+    lines = ["bodies:", " - survey:", "     is_static: true", "     type: simple", "     tags:"]
+    for i in (1, 2, 3):
+        lines += [
+            f"       - id: {i}",
+            "         pose:",
+            f"           position: {{x: {float(i)}, y: 0.0, z: 1.0}}",
+            "           rotation: {x: 0.0, y: 0.0, z: 0.0}",
+            "           position_noise: 0.01",
+            "           rotation_noise: 0.01",
+        ]
+    survey = tmp_path / "tagslam.yaml"
+    survey.write_text("\n".join(lines) + "\n")
+    code, _, err = _compare(str(map_path), str(survey), capsys=capsys)
+    assert code == 1 and "one line" in err and len(err.strip().splitlines()) == 1
