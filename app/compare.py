@@ -330,7 +330,9 @@ def align(
     return R, mean_ref - scale * R @ mean_map, scale
 
 
-def _embed(R: NDArray[np.float64], t: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+def _embed(
+    R: NDArray[np.float64], t: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """A 2-D rotation and translation as 3-D ones about z."""
     if R.shape == (3, 3):
         return R, t

@@ -67,9 +67,11 @@ def plot_comparison(result: Comparison, path: Path, title: str) -> None:
         axes.annotate(str(int(result.ids[k])), theirs[k], textcoords="offset points",
                       xytext=(5, 5), fontsize=8)  # fmt: skip
     times = "" if factor == 1.0 else f" x{factor:g}"
-    axes.scatter(*theirs.T, s=60, facecolors="none", edgecolors="black", label="reference",
-                 zorder=3)  # fmt: skip
-    axes.scatter(*ours.T, s=22, color="tab:blue", label="map (aligned)", zorder=4)
+    axes.scatter(
+        theirs[:, 0], theirs[:, 1], s=60, facecolors="none", edgecolors="black",
+        label="reference", zorder=3,
+    )  # fmt: skip
+    axes.scatter(ours[:, 0], ours[:, 1], s=22, color="tab:blue", label="map (aligned)", zorder=4)
     axes.plot([], [], color="tab:red", label=f"error{times}")
     axes.plot([], [], color="tab:blue", linewidth=0.8, label=f"map's 95 % ellipse{times}")
     axes.set_aspect("equal", adjustable="datalim")
