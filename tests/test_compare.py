@@ -411,3 +411,14 @@ def test_3d_markers_on_one_line_are_one_line(
     survey.write_text("\n".join(lines) + "\n")
     code, _, err = _compare(str(map_path), str(survey), capsys=capsys)
     assert code == 1 and "one line" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_plot_exaggerates_errors_by_a_round_factor() -> None:
+    """Centimetre errors in a 15 m room are drawn x20 (2 % of the view at least); errors that
+    already show are drawn as they are."""
+    from markergraph.compare_plot import SHOWN_ERROR, exaggeration
+
+    assert exaggeration(np.array([0.024, 0.01]), 15.0) == 20.0
+    assert exaggeration(np.array([0.024]), 15.0) * 0.024 >= SHOWN_ERROR * 15.0
+    assert exaggeration(np.array([1.0]), 15.0) == 1.0
+    assert exaggeration(np.zeros(3), 15.0) == 1.0
