@@ -6,13 +6,8 @@ import argparse
 from pathlib import Path
 
 from markergraph.common.files import check_output_file
-from markergraph.compare import (
-    compare,
-    comparison_document,
-    comparison_lines,
-    map_points,
-    read_reference,
-)
+from markergraph.compare import compare, map_points, read_reference
+from markergraph.compare_text import comparison_document, comparison_lines
 from markergraph.markermap import MarkerMap, write_json
 
 COMPARE = "score a map.json against a reference map or survey"
