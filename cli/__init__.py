@@ -81,8 +81,10 @@ def _stopped(command: str, signum: int) -> int:
 
 def _dispatch(args: argparse.Namespace) -> int:
     """The subcommand ``args`` name, run."""
-    from markergraph.cli import _frontend, _map, _mapfile, _simulate
+    from markergraph.cli import _compare, _frontend, _map, _mapfile, _simulate
 
+    if args.command == "compare":
+        return _compare.run(args)
     if args.command == "map":
         return _map.run(args)
     if args.command == "localize":

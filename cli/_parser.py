@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 from typing import NoReturn
 
-from markergraph.cli import _frontend, _map, _mapfile, _simulate
+from markergraph.cli import _compare, _frontend, _map, _mapfile, _simulate
 
 __all__ = ["EXIT_USAGE", "build_parser", "parse_command_line"]
 
@@ -53,6 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     _simulate.add_parser(commands)
     _frontend.add_parsers(commands)
     _mapfile.add_parsers(commands)
+    _compare.add_parser(commands)
     return parser
 
 

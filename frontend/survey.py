@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from markergraph.common.errors import SettingsError
 from markergraph.common.notes import Note
 from markergraph.estimator.tags3d import R_TAG_MARKER, KnownTag
+from markergraph.frontend.aruco_map import is_aruco_map, read_aruco_tags
 from markergraph.frontend.rig import Pose3, load_yaml, tagslam_pose
 
 __all__ = [
@@ -71,6 +72,7 @@ class SurveyKind(Enum):
     TAGSLAM = "tagslam.yaml"
     CSV = "csv"
     MAP_JSON = "map.json"
+    ARUCO = "aruco"
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,7 +123,8 @@ def read_known_tags(path: Path) -> list[KnownTag]:
 
 
 def read_survey(path: Path) -> Survey:
-    """A survey file read by its suffix: ``.yaml``/``.yml`` TagSLAM's ``tagslam.yaml``,
+    """A survey file read by its suffix: ``.yaml``/``.yml`` TagSLAM's ``tagslam.yaml`` (or an
+    ArUco MarkerMap, by its ``%YAML:1.0`` header: :mod:`~markergraph.frontend.aruco_map`),
     ``.csv`` a CSV survey (see :func:`_csv_survey`), ``.json`` markergraph's ``map.json``.
 
     Raises:
@@ -131,6 +134,9 @@ def read_survey(path: Path) -> Survey:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in (".yaml", ".yml"):
+        if is_aruco_map(path):
+            tags = read_aruco_tags(path, SIGMA_ROT_RAD, SIGMA_XYZ_M)
+            return Survey(SurveyKind.ARUCO, _sorted_unique(tags, str(path)))
         return _tagslam_survey(path)
     if suffix == ".csv":
         return _csv_survey(path)
