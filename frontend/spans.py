@@ -269,8 +269,8 @@ class SpanReader:
             if message.schema.endswith("TFMessage"):
                 if inside:
                     samples = odometry_from_tf(decoded, self.config.base_frame)
-                    self.part.odometry += samples
-                    self.part.odometry_log_ns += [message.log_time_ns] * len(samples)
+                    self.part.odometry.extend(samples)
+                    self.part.odometry_log_ns.extend([message.log_time_ns] * len(samples))
                 return
             if inside:
                 self.part.odometry.append(odometry_sample(message))

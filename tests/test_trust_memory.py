@@ -10,6 +10,7 @@ import struct
 import subprocess
 import sys
 import zlib
+from array import array
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -182,3 +183,113 @@ def test_png_bomb_in_a_log_costs_one_frame_not_the_machine(bomb_log: Path, tmp_p
     else:
         assert len(err.strip().splitlines()) == 1 and named, err
         assert not out.exists()
+
+
+# --- odometry --------------------------------------------------------------------------------
+
+TRACK_BYTES_PER_SAMPLE = 40  # four 8-byte columns, plus array.array's growth margin
+
+
+def test_odometry_track_takes_about_32_bytes_a_sample() -> None:
+    """200,000 samples appended one by one take under 40 bytes each (a list of
+    OdometrySample objects takes about 200)."""
+    import tracemalloc
+
+    from markergraph.estimator.types import OdometrySample, OdometryTrack
+
+    n = 200_000
+    rng = np.random.default_rng(7)
+    values = rng.normal(size=(3, 1000)).tolist()
+    tracemalloc.start()
+    try:
+        track = OdometryTrack()
+        for i in range(n):
+            k = i % 1000
+            track.append(OdometrySample(i, values[0][k], values[1][k], values[2][k]))
+        held, _ = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert len(track) == n and track[-1].t_ns == n - 1
+    assert held / n < TRACK_BYTES_PER_SAMPLE, held / n
+
+
+def clean_path_as_lists(samples: list[Any], log_ns: list[int]) -> tuple[Any, int]:
+    """The list form cleaning had before odometry went into columns (kept here as the
+    reference): (the path, samples dropped)."""
+    import math
+
+    from markergraph.estimator.trajectory import Trajectory
+    from markergraph.frontend.cleaning import MAX_COORDINATE_M, MAX_SPEED_MPS
+    from markergraph.frontend.inputs import odd_stamps
+
+    finite, finite_log_ns = [], []
+    for sample, logged in zip(samples, log_ns, strict=True):
+        values = (sample.x, sample.y, sample.yaw)
+        if all(math.isfinite(v) for v in values) and max(abs(sample.x), abs(sample.y)) <= (
+            MAX_COORDINATE_M
+        ):
+            finite.append(sample)
+            finite_log_ns.append(logged)
+    judged = odd_stamps(
+        np.array([s.t_ns for s in finite], dtype=np.int64),
+        np.array(finite_log_ns, dtype=np.int64),
+    )
+    in_order = [s for s, kept in zip(finite, judged.kept, strict=True) if kept]
+
+    def speed(a: Any, b: Any) -> float:
+        return math.hypot(b.x - a.x, b.y - a.y) / ((b.t_ns - a.t_ns) * 1e-9)
+
+    kept = [
+        s
+        for i, s in enumerate(in_order)
+        if not (
+            0 < i < len(in_order) - 1
+            and speed(in_order[i - 1], s) > MAX_SPEED_MPS
+            and speed(s, in_order[i + 1]) > MAX_SPEED_MPS
+            and speed(in_order[i - 1], in_order[i + 1]) <= MAX_SPEED_MPS
+        )
+    ]
+    return Trajectory.from_samples(kept, "odom"), len(samples) - len(kept)
+
+
+def test_odometry_in_columns_cleans_as_the_lists_did(log: Path) -> None:
+    """The simulated log's odometry with bad samples put in (NaN, absurd, a spike, a late
+    stamp, a repeat): cleaning its columns gives the very path and counts the lists gave,
+    and the front end's whole result on the log is unchanged."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from markergraph.estimator.types import OdometrySample, OdometryTrack
+    from markergraph.frontend.cleaning import clean_path
+    from markergraph.frontend.decode import odometry_sample
+
+    samples, log_ns = [], []
+    with open(log, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for schema, channel, message, decoded in reader.iter_decoded_messages(topics=["/odom"]):
+            record = Message(
+                channel.topic, schema.name if schema else "", message.log_time, decoded
+            )
+            samples.append(odometry_sample(record))
+            log_ns.append(message.log_time)
+    assert len(samples) > 500
+    rng = np.random.default_rng(11)
+    bad = rng.choice(np.arange(2, len(samples) - 2), size=5, replace=False)
+    s = samples
+    s[bad[0]] = OdometrySample(s[bad[0]].t_ns, float("nan"), s[bad[0]].y, s[bad[0]].yaw)
+    s[bad[1]] = OdometrySample(s[bad[1]].t_ns, 2e7, s[bad[1]].y, s[bad[1]].yaw)
+    s[bad[2]] = OdometrySample(s[bad[2]].t_ns, s[bad[2]].x + 40.0, s[bad[2]].y, s[bad[2]].yaw)
+    s[bad[3]] = OdometrySample(s[bad[3]].t_ns + 10**12, s[bad[3]].x, s[bad[3]].y, s[bad[3]].yaw)
+    s[bad[4]] = s[bad[4] - 1]
+    expected_path, expected_dropped = clean_path_as_lists(samples, log_ns)
+    track = OdometryTrack(samples)
+    assert len(track) == len(samples)
+    assert [repr(a) for a in track] == [repr(b) for b in samples]  # NaN != NaN: compare text
+    cleaned = clean_path(track, array("q", log_ns), "/odom", "odometry", "odom")
+    assert cleaned.path == expected_path
+    assert cleaned.dropped == expected_dropped == 5
+    assert {n.kind for n in cleaned.notes} == {
+        "odometry.dropped_absurd",
+        "odometry.dropped_by_stamp",
+        "odometry.dropped_spikes",
+    }
