@@ -4,9 +4,11 @@ come out (the :class:`~markergraph.estimator.estimate.Estimate` holding them is 
 from __future__ import annotations
 
 import math
+from array import array
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any
+from typing import Any, overload
 
 import gtsam
 import numpy as np
@@ -23,6 +25,7 @@ __all__ = [
     "Observation",
     "OdometryNoise",
     "OdometrySample",
+    "OdometryTrack",
     "Placement",
 ]
 
@@ -119,6 +122,95 @@ class OdometrySample:
 
     def pose(self) -> gtsam.Pose2:
         return gtsam.Pose2(self.x, self.y, self.yaw)
+
+
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
+
+
+class OdometryTrack(Sequence[OdometrySample]):
+    """Odometry samples kept in columns, as a log is read: 32 bytes a sample where a list of
+    :class:`OdometrySample` objects takes about 200, so a log's millions of samples do not
+    take its reader's memory. It reads as a sequence of samples; :meth:`columns` gives the
+    arrays the hot paths want.
+
+    Columns (each ``array.array``, one entry a sample, in the order appended):
+        t_ns: int64 stamps [ns]; x, y: float64 position in the odometry frame [m]; yaw:
+        float64 heading [rad].
+    """
+
+    __slots__ = ("_t_ns", "_x", "_y", "_yaw")
+
+    def __init__(self, samples: Iterable[OdometrySample] = ()) -> None:
+        self._t_ns = array("q")
+        self._x, self._y, self._yaw = array("d"), array("d"), array("d")
+        self.extend(samples)
+
+    @classmethod
+    def joined(cls, tracks: Iterable[OdometryTrack]) -> OdometryTrack:
+        """The tracks one after another."""
+        joined = cls()
+        for track in tracks:
+            joined._t_ns += track._t_ns
+            joined._x += track._x
+            joined._y += track._y
+            joined._yaw += track._yaw
+        return joined
+
+    def append(self, sample: OdometrySample) -> None:
+        """One sample at the end. A stamp beyond int64 nanoseconds (after 2262) is kept as a
+        sample with NaN values at stamp 0, which cleaning drops as absurd, with a note."""
+        if not _INT64_MIN <= sample.t_ns <= _INT64_MAX:
+            sample = OdometrySample(0, math.nan, math.nan, math.nan)
+        self._t_ns.append(sample.t_ns)
+        self._x.append(sample.x)
+        self._y.append(sample.y)
+        self._yaw.append(sample.yaw)
+
+    def extend(self, samples: Iterable[OdometrySample]) -> None:
+        """Samples at the end, in their order."""
+        for sample in samples:
+            self.append(sample)
+
+    def columns(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """(t_ns, poses): (N,) int64 stamps [ns] and (N, 3) float64 rows (x, y, yaw), new
+        arrays in the order appended."""
+        t_ns = np.array(self._t_ns, dtype=np.int64)
+        poses = np.empty((len(self), 3), dtype=np.float64)
+        for k, column in enumerate((self._x, self._y, self._yaw)):
+            poses[:, k] = np.frombuffer(column, dtype=np.float64)
+        return t_ns, poses
+
+    def __len__(self) -> int:
+        return len(self._t_ns)
+
+    @overload
+    def __getitem__(self, index: int) -> OdometrySample: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> OdometryTrack: ...
+
+    def __getitem__(self, index: int | slice) -> OdometrySample | OdometryTrack:
+        if isinstance(index, slice):
+            part = OdometryTrack()
+            part._t_ns, part._x = self._t_ns[index], self._x[index]
+            part._y, part._yaw = self._y[index], self._yaw[index]
+            return part
+        return OdometrySample(self._t_ns[index], self._x[index], self._y[index], self._yaw[index])
+
+    def __iter__(self) -> Iterator[OdometrySample]:
+        for t_ns, x, y, yaw in zip(self._t_ns, self._x, self._y, self._yaw, strict=True):
+            yield OdometrySample(t_ns, x, y, yaw)
+
+    def __eq__(self, other: object) -> bool:
+        """Equal to another track or sequence holding the same samples in the same order."""
+        if not isinstance(other, Sequence) or isinstance(other, str | bytes):
+            return NotImplemented
+        return len(self) == len(other) and all(a == b for a, b in zip(self, other, strict=True))
+
+    __hash__ = None  # type: ignore[assignment]  # it grows: not hashable
+
+    def __repr__(self) -> str:
+        return f"OdometryTrack({len(self)} samples)"
 
 
 @dataclass(frozen=True, slots=True)

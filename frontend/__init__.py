@@ -8,6 +8,8 @@ gave), ``cleaning`` (bad samples and stamps dropped), ``depth_scale`` (depth's s
 markers' size), ``config`` (how to read a log), ``preflight`` (can a log be mapped).
 """
 
+# First: OpenCV reads its pixel bound when cv2 loads (see markergraph.frontend._opencv).
+from markergraph.frontend import _opencv  # noqa: F401  # isort: skip
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_depth, decode_image, odometry_sample, stamp_ns

@@ -3,14 +3,15 @@ their corrupted samples, and colour frames whose stamps their neighbours contrad
 
 from __future__ import annotations
 
-import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 
 from markergraph.common.notes import Note
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import OdometrySample
+from markergraph.estimator.types import OdometrySample, OdometryTrack
 from markergraph.frontend.extraction import Part
 from markergraph.frontend.inputs import odd_stamps
 
@@ -38,8 +39,8 @@ class CleanPath:
 
 
 def clean_path(
-    samples: list[OdometrySample],
-    log_ns: list[int],
+    samples: Sequence[OdometrySample],
+    log_ns: Sequence[int],
     topic: str | None,
     what: str,
     frame: str,
@@ -49,37 +50,33 @@ def clean_path(
     quaternion), coordinates beyond 10,000 km, stamps their neighbours contradict (out of the
     order the others rise in, a repeat, or off the others' lead over their log times:
     :func:`odd_stamps`, which keeps the majority rather than the first), and single samples
-    that jump away and back faster than 50 m/s.
+    that jump away and back faster than 50 m/s. Judged in arrays: a log may hold millions.
 
     Args:
-        samples: in log order; log_ns: each one's log time [ns].
+        samples: in log order (an :class:`OdometryTrack` is read in its columns);
+            log_ns: each one's log time [ns].
         topic: where they were read, named in the notes.
         what: what they are (``odometry``, ``ground-truth``), in the notes' text and kind.
         frame: the path's frame.
     """
-    finite: list[OdometrySample] = []
-    finite_log_ns: list[int] = []
-    absurd = 0
-    for sample, logged in zip(samples, log_ns, strict=True):
-        values = (sample.x, sample.y, sample.yaw)
-        if not all(math.isfinite(v) for v in values) or max(abs(sample.x), abs(sample.y)) > (
-            MAX_COORDINATE_M
-        ):
-            absurd += 1
-        else:
-            finite.append(sample)
-            finite_log_ns.append(logged)
-    judged = odd_stamps(
-        np.array([s.t_ns for s in finite], dtype=np.int64),
-        np.array(finite_log_ns, dtype=np.int64),
-    )
-    in_order = [s for s, kept in zip(finite, judged.kept, strict=True) if kept]
-    kept = [
-        sample
-        for i, sample in enumerate(in_order)
-        if not (0 < i < len(in_order) - 1 and _is_spike(in_order[i - 1], sample, in_order[i + 1]))
-    ]
-    spikes = len(in_order) - len(kept)
+    track = samples if isinstance(samples, OdometryTrack) else OdometryTrack(samples)
+    t_ns, poses = track.columns()
+    logged = np.array(log_ns, dtype=np.int64)
+    if len(logged) != len(t_ns):
+        raise ValueError(f"{len(t_ns)} {what} samples for {len(logged)} log times")
+    finite = np.asarray(np.isfinite(poses).all(axis=1), dtype=bool)
+    finite[finite] = np.abs(poses[finite, :2]).max(axis=1, initial=0.0) <= MAX_COORDINATE_M
+    absurd = len(t_ns) - int(np.count_nonzero(finite))
+    if absurd:  # copies only when something is dropped: the columns are the bulk of a run
+        t_ns, poses, logged = t_ns[finite], poses[finite], logged[finite]
+    judged = odd_stamps(t_ns, logged)
+    del logged
+    if judged.dropped:
+        t_ns, poses = t_ns[judged.kept], poses[judged.kept]
+    spike = _spikes(t_ns, poses)
+    spikes = int(np.count_nonzero(spike))
+    if spikes:
+        t_ns, poses = t_ns[~spike], poses[~spike]
     kind = what.replace("-", "_")
     notes = [
         Note(f"{kind}.{reason}", f"dropped {n} {what} sample(s) on {topic} {why}", topic, n)
@@ -100,7 +97,10 @@ def clean_path(
         if n
     ]
     dropped = absurd + judged.dropped + spikes
-    path = Trajectory.from_samples(kept, frame)
+    order = np.argsort(t_ns, kind="stable")  # sorted by stamp, as Trajectory.from_samples
+    if np.any(order != np.arange(len(order))):
+        t_ns, poses = t_ns[order], poses[order]
+    path = Trajectory(t_ns, poses, frame)
     return CleanPath(path, dropped, judged.worst_offset_s, notes)
 
 
@@ -131,12 +131,21 @@ def drop_frames_by_stamp(part: Part, topic: str | None) -> None:
     result.notes.append(Note("frames.dropped_by_stamp", text, topic, judged.dropped))
 
 
-def _is_spike(before: OdometrySample, sample: OdometrySample, after: OdometrySample) -> bool:
-    def speed(a: OdometrySample, b: OdometrySample) -> float:
-        return math.hypot(b.x - a.x, b.y - a.y) / ((b.t_ns - a.t_ns) * 1e-9)
+def _spikes(t_ns: NDArray[np.int64], poses: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """(N,) bool: the samples that jump away from both neighbours and back faster than
+    :data:`MAX_SPEED_MPS`, each judged against its neighbours as given (stamps rise)."""
+    spike = np.zeros(len(t_ns), dtype=bool)
+    if len(t_ns) < 3:
+        return spike
 
-    return (
-        speed(before, sample) > MAX_SPEED_MPS
-        and speed(sample, after) > MAX_SPEED_MPS
-        and speed(before, after) <= MAX_SPEED_MPS
+    def speed(a: slice, b: slice) -> NDArray[np.float64]:
+        step = np.hypot(poses[b, 0] - poses[a, 0], poses[b, 1] - poses[a, 1])
+        return np.asarray(step / ((t_ns[b] - t_ns[a]) * 1e-9), dtype=np.float64)
+
+    before, sample, after = slice(0, -2), slice(1, -1), slice(2, None)
+    spike[1:-1] = (
+        (speed(before, sample) > MAX_SPEED_MPS)
+        & (speed(sample, after) > MAX_SPEED_MPS)
+        & (speed(before, after) <= MAX_SPEED_MPS)
     )
+    return spike

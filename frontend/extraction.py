@@ -7,6 +7,7 @@ report.json's ``inputs`` shows it: a new field is added in one place.
 
 from __future__ import annotations
 
+from array import array
 from collections import Counter
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from enum import Enum
@@ -16,7 +17,7 @@ import gtsam
 
 from markergraph.common.notes import Note
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.estimator.types import Observation, OdometrySample
+from markergraph.estimator.types import Observation, OdometryTrack
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.odometry_kind import OdometryEvidence
 from markergraph.frontend.posed import LevelledFrame, MarkerDetections
@@ -177,13 +178,13 @@ class Part:
 
     extraction: Extraction
     """The stretch's observations and counts."""
-    odometry: list[OdometrySample] = field(default_factory=list)
-    """Odometry samples, in log order."""
-    odometry_log_ns: list[int] = field(default_factory=list)
+    odometry: OdometryTrack = field(default_factory=OdometryTrack)
+    """Odometry samples, in log order (in columns: a log may hold millions)."""
+    odometry_log_ns: array[int] = field(default_factory=lambda: array("q"))
     """Each odometry sample's log time [ns]."""
-    true_poses: list[OdometrySample] = field(default_factory=list)
+    true_poses: OdometryTrack = field(default_factory=OdometryTrack)
     """Ground-truth base poses, in log order."""
-    true_pose_log_ns: list[int] = field(default_factory=list)
+    true_pose_log_ns: array[int] = field(default_factory=lambda: array("q"))
     """Each true pose's log time [ns]."""
     frame_stamps: list[tuple[int, int]] = field(default_factory=list)
     """Each colour frame's (stamp, log time) [ns]."""
@@ -215,5 +216,11 @@ def merge_parts(parts: list[Part]) -> Part:
                 joined[f.name] += [item for item in value if item not in joined[f.name]]
     merged = Part(Extraction(**joined))
     for name in (f.name for f in fields(Part) if f.name != "extraction"):
-        setattr(merged, name, [item for p in parts for item in getattr(p, name)])
+        values = [getattr(p, name) for p in parts]
+        if name in ("odometry", "true_poses"):
+            setattr(merged, name, OdometryTrack.joined(values))
+        elif name.endswith("_log_ns"):
+            setattr(merged, name, array("q", b"".join(v.tobytes() for v in values)))
+        else:
+            setattr(merged, name, [item for value in values for item in value])
     return merged

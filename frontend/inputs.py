@@ -99,6 +99,10 @@ class OddStamps:
         return int(np.count_nonzero(~self.kept))
 
 
+# Stamps beyond this many fit the lead over log time on an evenly spaced sample of them.
+MAX_STAMP_FIT_ROWS = 100_000
+
+
 def odd_stamps(stamps_ns: NDArray[np.int64], log_ns: NDArray[np.int64]) -> OddStamps:
     """The stamps of one topic that disagree with their neighbours, judged two ways, each by
     the majority:
@@ -124,9 +128,15 @@ def odd_stamps(stamps_ns: NDArray[np.int64], log_ns: NDArray[np.int64]) -> OddSt
         # The lead over log time as a line in log time: a camera's own clock drifts against
         # the recorder's by up to a few seconds an hour, which a constant would read as odd.
         offset_s = (stamps_ns - log_ns).astype(np.float64) * 1e-9
-        A = np.column_stack([np.ones(n), (log_ns - log_ns[0]).astype(np.float64) * 1e-9])
-        line, _, sigma = robust_least_squares(A[kept], offset_s[kept], passes=3)
-        residual = np.abs(offset_s - A @ line)
+        log_s = (log_ns - log_ns[0]).astype(np.float64) * 1e-9
+        rows = np.flatnonzero(kept)
+        # A line needs no millions of rows: evenly spaced ones fit it as well, in memory that
+        # does not grow with the log.
+        rows = rows[:: -(-len(rows) // MAX_STAMP_FIT_ROWS)]
+        A = np.column_stack([np.ones(len(rows)), log_s[rows]])
+        line, _, sigma = robust_least_squares(A, offset_s[rows], passes=3)
+        del A, rows
+        residual = np.abs(offset_s - (line[0] + line[1] * log_s))
         kept &= residual <= max(MIN_STAMP_OFFSET_S, STAMP_OFFSET_SIGMAS * sigma)
     worst = 0.0
     if n and not kept.all() and kept.any():
@@ -137,21 +147,29 @@ def odd_stamps(stamps_ns: NDArray[np.int64], log_ns: NDArray[np.int64]) -> OddSt
     return OddStamps(kept, worst)
 
 
-def _longest_rising(values: NDArray[np.int64]) -> list[int]:
-    """Indices of a longest strictly rising subsequence (patience sorting, O(n log n))."""
+def _longest_rising(values: NDArray[np.int64]) -> NDArray[np.intp]:
+    """Indices of a longest strictly rising subsequence (patience sorting, O(n log n)). In
+    arrays and read in blocks: a topic may hold millions of stamps, which as Python lists of
+    ints took some 130 bytes each."""
+    n = len(values)
+    if n < 2 or bool(np.all(values[1:] > values[:-1])):
+        return np.arange(n)  # the usual case: already rising, nothing to search
     tails: list[int] = []  # tails[k]: the smallest last value of a rising run of length k + 1
     tail_index: list[int] = []
-    previous = [-1] * len(values)
-    for i, value in enumerate(values.tolist()):
-        k = bisect.bisect_left(tails, value)
-        if k == len(tails):
-            tails.append(value)
-            tail_index.append(i)
-        else:
-            tails[k], tail_index[k] = value, i
-        previous[i] = tail_index[k - 1] if k else -1
-    run, i = [], tail_index[-1] if tail_index else -1
-    while i >= 0:
-        run.append(i)
-        i = previous[i]
-    return run[::-1]
+    previous = np.full(n, -1, dtype=np.intp)
+    block = 1 << 16
+    for start in range(0, n, block):
+        for i, value in enumerate(values[start : start + block].tolist(), start):
+            k = bisect.bisect_left(tails, value)
+            if k == len(tails):
+                tails.append(value)
+                tail_index.append(i)
+            else:
+                tails[k], tail_index[k] = value, i
+            previous[i] = tail_index[k - 1] if k else -1
+    run = np.empty(len(tails), dtype=np.intp)
+    i = tail_index[-1]
+    for k in range(len(run) - 1, -1, -1):
+        run[k] = i
+        i = int(previous[i])
+    return run

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from array import array
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -287,7 +288,7 @@ def _from_detections(log: DetectionLog, choice: TopicChoice) -> Part:
         marker_detections=log.marker_detections,
     )
     # A detection log's odometry carries no log times: its stamps are judged by order alone.
-    return Part(extraction, log.odometry, [0] * len(log.odometry))
+    return Part(extraction, log.odometry, array("q", bytes(8 * len(log.odometry))))
 
 
 def _judged_camera(log: Log, choice: TopicChoice, counts: dict[str, int]) -> CameraJudgement:

@@ -134,7 +134,10 @@ class Span:
 
 
 def _with_images(
-    stream: Iterator[Message], color: str | None, span: Span
+    stream: Iterator[Message],
+    color: str | None,
+    span: Span,
+    camera_size: tuple[int, int] | None = None,
 ) -> Iterator[Message | ColourFrame]:
     """The stream, its colour messages inside ``span`` as frames with their images decoded.
     Run in the reading thread (:func:`read_ahead`), so decoding JPEG (0.6 ms a 640x480 frame,
@@ -145,7 +148,7 @@ def _with_images(
         for message in stream:
             if message.topic == color and span.holds(message.log_time_ns):
                 try:
-                    yield ColourFrame(message, decode_image(message))
+                    yield ColourFrame(message, decode_image(message, camera_size))
                 except LogError as error:
                     yield ColourFrame(message, error)
             else:
@@ -194,7 +197,8 @@ class SpanReader:
         start = None if span.start_ns is None else span.start_ns - margin
         end = None if span.end_ns is None else span.end_ns + margin
         stream = self.log.messages(streamed, self.read_failures, start, end)
-        for item in read_ahead(_with_images(stream, color, span)):
+        stream_with_images = _with_images(stream, color, span, self._camera_size())
+        for item in read_ahead(stream_with_images):
             if isinstance(item, ColourFrame):
                 done += 1
                 if progress is not None and done % 10 == 0:
@@ -209,6 +213,11 @@ class SpanReader:
         result.warnings = self.read_failures.warnings() + self.failures.warnings()
         result.ids_left_out = self.detector.left_out - left_out_before
         return self.part
+
+    def _camera_size(self) -> tuple[int, int] | None:
+        """The camera's (width, height), which no frame's declared size may far exceed."""
+        camera = self.config.camera
+        return None if camera is None else (camera.width, camera.height)
 
     def _read_once_topics(self) -> None:
         """Topics published once at the start: static transforms and true marker poses."""
@@ -249,7 +258,9 @@ class SpanReader:
         topic = message.topic
         if topic == choice.depth:
             try:
-                self.pairing.depth.append((stamp_ns(decoded), decode_depth(message)))
+                self.pairing.depth.append(
+                    (stamp_ns(decoded), decode_depth(message, self._camera_size()))
+                )
             except LogError as error:  # the frame waiting for it goes on without depth
                 result.unusable_depth += 1
                 self.failures.add(self.path, topic, str(error))
@@ -258,8 +269,8 @@ class SpanReader:
             if message.schema.endswith("TFMessage"):
                 if inside:
                     samples = odometry_from_tf(decoded, self.config.base_frame)
-                    self.part.odometry += samples
-                    self.part.odometry_log_ns += [message.log_time_ns] * len(samples)
+                    self.part.odometry.extend(samples)
+                    self.part.odometry_log_ns.extend([message.log_time_ns] * len(samples))
                 return
             if inside:
                 self.part.odometry.append(odometry_sample(message))

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common.notes import Note
-from markergraph.estimator.types import Observation, OdometrySample
+from markergraph.estimator.types import Observation, OdometrySample, OdometryTrack
 from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import frame_id, stamp_ns
@@ -200,7 +200,7 @@ class DetectionLog:
 
     observations: list[Observation] = field(default_factory=list)
     """Observations from the markers' full poses, in the level frame."""
-    odometry: list[OdometrySample] = field(default_factory=list)
+    odometry: OdometryTrack = field(default_factory=OdometryTrack)
     """2-D odometry, heading along the first camera's optical axis on the floor."""
     camera: Camera | None = None
     """The first detection topic's camera that has a mount."""

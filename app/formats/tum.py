@@ -26,16 +26,25 @@ def write_tum(path: Path, trajectory: Trajectory) -> None:
     """
     if not np.all(np.isfinite(trajectory.poses)):
         raise MarkerGraphError(f"{path}: refusing to write a trajectory with non-finite poses")
-    lines = []
-    for t, (x, y, yaw) in zip(trajectory.t_ns, trajectory.poses, strict=True):
-        seconds = f"{int(t) // 1_000_000_000}.{int(t) % 1_000_000_000:09d}"
-        half = float(yaw) / 2.0
-        lines.append(
-            f"{seconds} {float(x)!r} {float(y)!r} 0.0 0.0 0.0 "
-            f"{math.sin(half)!r} {math.cos(half)!r}\n"
-        )
-    with written_whole(path) as partial:
-        partial.write_text("".join(lines), encoding="utf-8")
+    # Written a block of poses at a time, not joined first: odometry may hold millions of
+    # poses, whose text as one string took some 250 bytes a pose.
+    block = 1 << 16
+    with written_whole(path) as partial, open(partial, "w", encoding="utf-8") as out:
+        for start in range(0, len(trajectory), block):
+            stamps = trajectory.t_ns[start : start + block].tolist()
+            poses = trajectory.poses[start : start + block].tolist()
+            out.write(
+                "".join(
+                    _tum_line(t, x, y, yaw) for t, (x, y, yaw) in zip(stamps, poses, strict=True)
+                )
+            )
+
+
+def _tum_line(t_ns: int, x: float, y: float, yaw: float) -> str:
+    """One planar pose as a TUM line, its stamp in exact decimal seconds."""
+    half = yaw / 2.0
+    seconds = f"{t_ns // 1_000_000_000}.{t_ns % 1_000_000_000:09d}"
+    return f"{seconds} {x!r} {y!r} 0.0 0.0 0.0 {math.sin(half)!r} {math.cos(half)!r}\n"
 
 
 def _seconds(t_ns: int) -> str:
