@@ -60,13 +60,11 @@ def read_text(path: Path, max_bytes: int = MAX_DOCUMENT_BYTES) -> str:
     path = Path(path)
     size = path.stat().st_size
     if size > max_bytes:
-        raise DocumentError(
-            f"{size:,} bytes is more than such a file holds ({max_bytes:,} at most)"
-        )
+        raise DocumentError(f"{size:,} bytes, more than such a file holds ({max_bytes:,} at most)")
     with path.open("rb") as stream:
         data = stream.read(max_bytes + 1)
     if len(data) > max_bytes:
-        raise DocumentError(f"more than {max_bytes:,} bytes is more than such a file holds")
+        raise DocumentError(f"over {max_bytes:,} bytes, more than such a file holds")
     return data.decode("utf-8").removeprefix("\ufeff")
 
 
