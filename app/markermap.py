@@ -660,9 +660,7 @@ def _read_markers(
     for i, entry in enumerate(entries):
         where = f"markers[{i}]"
         # Every later error about this entry names the marker by its id too.
-        named = replace(
-            read, source=f"{read.source}: marker {read.marker_id(f'{where}.id', entry.get('id'))}"
-        )
+        named = replace(read, marker=read.marker_id(f"{where}.id", entry.get("id")))
         if dimensions == 3:
             marker = _read_marker3(named, where, entry, size, up)
         else:
@@ -755,18 +753,21 @@ class _Reader:
         max_id: the largest marker id allowed.
         max_markers: the most markers allowed.
         bound: what sets those bounds, in words (the dictionary's name).
+        marker: the id of the marker whose fields are read, named in every error; or None.
     """
 
     source: str
     max_id: int = MAX_MARKER_ID
     max_markers: int = MAX_MARKERS
     bound: str = "a map"
+    marker: int | None = None
 
     def fail(self, where: str, what: str, value: Any) -> MarkerMapError:
         """The error naming the source, the field, what it must be and what it holds."""
         text = repr(value)
         shown = text if len(text) <= 40 else f"{text[:20]}... ({len(text)} characters)"
-        return MarkerMapError(f"{self.source}: {where} must be {what}, got {shown}")
+        of = "" if self.marker is None else f" (marker {self.marker})"
+        return MarkerMapError(f"{self.source}: {where} must be {what}, got {shown}{of}")
 
     def number(
         self, where: str, value: Any, *, positive: bool = False, limit: float = MAX_VALUE
