@@ -19,14 +19,22 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import cv2
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.documents import (
+    MAX_MARKER_ID,
+    MAX_MARKERS,
+    DocumentError,
+    json_document,
+    read_text,
+)
 from markergraph.common.errors import MarkerGraphError
 from markergraph.common.files import written_whole
 from markergraph.estimator.estimate import Estimate
@@ -336,7 +344,11 @@ class MarkerMap:
 
     @classmethod
     def from_document(cls, document: Any, source: str = "the map") -> MarkerMap:
-        """A map from a ``markergraph.map/2`` (or ``/1``) document, every field checked.
+        """A map from a ``markergraph.map/2`` (or ``/1``) document, every field checked: ids
+        within the dictionary's range (a predefined one's; else up to 2^31 - 1), no more
+        markers than it holds, covariances symmetric and positive semi-definite (rounding's
+        small negative eigenvalues clipped), every key and value of ``unplaced``, the home and
+        each link's markers in the map.
 
         Raises:
             MarkerMapError: one line naming ``source`` and the first bad field.
@@ -344,40 +356,20 @@ class MarkerMap:
         if not isinstance(document, dict) or document.get("schema") not in MAP_SCHEMAS_READ:
             found = document.get("schema") if isinstance(document, dict) else document
             raise MarkerMapError(f"{source}: not a {MAP_SCHEMA} document (schema {found!r})")
-        read = _Reader(source)
         dimensions = document.get("dimensions", 2)
         if dimensions not in (2, 3) or isinstance(dimensions, bool):
-            raise read.fail("dimensions", "2 or 3", dimensions)
-        size = read.number("marker_size_m", document.get("marker_size_m"), positive=True)
-        up = dimensions == 3 and read.boolean("up", document.get("up"))
-        markers: dict[int, MapMarker] = {}
-        for i, entry in enumerate(read.items("markers", document.get("markers"))):
-            where = f"markers[{i}]"
-            if dimensions == 3:
-                marker = _read_marker3(read, where, entry, size, up)
-            else:
-                marker = _read_marker2(read, where, entry, size)
-            if marker.marker_id in markers:
-                raise MarkerMapError(f"{source}: {where}.id {marker.marker_id} appears twice")
-            markers[marker.marker_id] = marker
-        links = []
-        for i, entry in enumerate(read.items("links", document.get("links", []))):
-            where = f"links[{i}]"
-            edge = Edge(*(read.number(f"{where}.{k}", entry.get(k)) for k in _EDGE_KEYS))
-            links.append(
-                MapLink(
-                    read.whole(f"{where}.a", entry.get("a")),
-                    read.whole(f"{where}.b", entry.get("b")),
-                    read.whole(f"{where}.n_measurements", entry.get("n_measurements")),
-                    edge,
-                    read.covariance(f"{where}.covariance", entry.get("covariance")),
-                )
-            )
-        home = document.get("home_id", min(markers, default=0))
+            raise _Reader(source).fail("dimensions", "2 or 3", dimensions)
         dictionary = document.get("dictionary")
         if not isinstance(dictionary, str) or not dictionary.isprintable() or not dictionary:
             raise MarkerMapError(f"{source}: dictionary must be a name, got {dictionary!r}")
-        unplaced = document.get("unplaced") or {}
+        read = _Reader(source, *_id_bounds(dictionary, dimensions))
+        size = read.number("marker_size_m", document.get("marker_size_m"), positive=True)
+        up = dimensions == 3 and read.boolean("up", document.get("up"))
+        markers = _read_markers(read, document.get("markers"), dimensions, size, up)
+        links = _read_links(read, document.get("links", []), markers)
+        home = read.marker_id("home_id", document.get("home_id", min(markers, default=0)))
+        if markers and home not in markers:
+            raise read.fail("home_id", "a marker of the map", home)
         cameras: tuple[Camera3d, ...] = ()
         if dimensions == 3:
             cameras = tuple(
@@ -386,19 +378,19 @@ class MarkerMap:
             )
         return cls(
             {i: m for i, m in markers.items() if m.wall},
-            tuple(links),
-            read.whole("home_id", home),
+            links,
+            home,
             dictionary,
             size,
-            str(document.get("method", "")),
-            str(document.get("log", "")),
-            bool(document.get("converged", True)),
-            {int(k): str(v) for k, v in unplaced.items()} if isinstance(unplaced, dict) else {},
+            read.text("method", document.get("method", "")),
+            read.text("log", document.get("log", "")),
+            read.boolean("converged", document.get("converged", True)),
+            _read_unplaced(read, document.get("unplaced")),
             dimensions=dimensions,
             up=up,
             cameras=cameras,
             markers3d=markers if dimensions == 3 else {},
-            frame=str(document.get("frame", "")) if dimensions == 3 else "",
+            frame=read.text("frame", document.get("frame", "")) if dimensions == 3 else "",
         )
 
     def save(self, path: Path) -> None:
@@ -414,12 +406,14 @@ class MarkerMap:
                 file and the field.
         """
         path = Path(path)
-        try:
-            document = json.loads(path.read_text(encoding="utf-8"), parse_constant=_refuse)
+        try:  # the size checked before reading, the nesting before parsing
+            document = json_document(read_text(path))
         except OSError as error:
             raise MarkerMapError(f"{path}: cannot read it ({error.strerror})") from None
         except UnicodeDecodeError:
             raise MarkerMapError(f"{path}: not UTF-8 text, so not a map.json") from None
+        except DocumentError as error:
+            raise MarkerMapError(f"{path}: {error}") from None
         except ValueError as error:
             raise MarkerMapError(f"{path}: not a JSON document ({error})") from None
         return cls.from_document(document, str(path))
@@ -450,7 +444,7 @@ def _read_marker2(read: _Reader, where: str, entry: dict[str, Any], size: float)
     """A 2-D map's marker from map.json."""
     pose = [read.number(f"{where}.{k}", entry.get(k)) for k in ("x", "y", "yaw")]
     return MapMarker(
-        read.whole(f"{where}.id", entry.get("id")),
+        read.marker_id(f"{where}.id", entry.get("id")),
         gtsam.Pose2(*pose),
         read.covariance(f"{where}.covariance", entry.get("covariance")),
         read.whole(f"{where}.n_observations", entry.get("n_observations")),
@@ -614,7 +608,7 @@ def _read_marker3(
         why = "the map's z is not up" if not up else "its normal is vertical"
         raise read.fail(f"{where}.wall", f"false ({why})", wall)
     return _marker_of(
-        read.whole(f"{where}.id", entry.get("id")),
+        read.marker_id(f"{where}.id", entry.get("id")),
         T,
         read.covariance6(f"{where}.covariance_6x6", entry.get("covariance_6x6")),
         read.whole(f"{where}.n_observations", entry.get("n_observations")),
@@ -640,6 +634,86 @@ def _read_camera(read: _Reader, where: str, entry: dict[str, Any]) -> Camera3d:
     )
 
 
+def _id_bounds(dictionary: str, dimensions: int) -> tuple[int, int, str]:
+    """(largest id, most markers, what bounds them) a map may hold: a predefined dictionary's
+    own range for a 2-D map; else (a custom dictionary, whose file the map only names, or a
+    3-D map, whose TagSLAM remaps may name ids of their own) :data:`MAX_MARKER_ID` and
+    :data:`MAX_MARKERS`."""
+    if dimensions == 2 and dictionary.startswith("DICT_") and hasattr(cv2.aruco, dictionary):
+        held = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
+        n = int(held.bytesList.shape[0])
+        return n - 1, n, dictionary
+    return MAX_MARKER_ID, MAX_MARKERS, "a map"
+
+
+def _read_markers(
+    read: _Reader, value: Any, dimensions: int, size: float, up: bool
+) -> dict[int, MapMarker]:
+    """The map's markers by id, their number checked before any is read."""
+    entries = read.items("markers", value)
+    if len(entries) > read.max_markers:
+        raise MarkerMapError(
+            f"{read.source}: {len(entries):,} markers, more than {read.bound} holds "
+            f"({read.max_markers:,})"
+        )
+    markers: dict[int, MapMarker] = {}
+    for i, entry in enumerate(entries):
+        where = f"markers[{i}]"
+        # Every later error about this entry names the marker by its id too.
+        named = replace(read, marker=read.marker_id(f"{where}.id", entry.get("id")))
+        if dimensions == 3:
+            marker = _read_marker3(named, where, entry, size, up)
+        else:
+            marker = _read_marker2(named, where, entry, size)
+        if marker.marker_id in markers:
+            raise MarkerMapError(f"{read.source}: {where}.id {marker.marker_id} appears twice")
+        markers[marker.marker_id] = marker
+    return markers
+
+
+def _read_links(read: _Reader, value: Any, markers: Mapping[int, MapMarker]) -> tuple[MapLink, ...]:
+    """The links between the map's markers (each end a marker of the map)."""
+    entries = read.items("links", value)
+    pairs = len(markers) * (len(markers) - 1)
+    if len(entries) > pairs:  # each link joins two of the map's markers, once each way at most
+        raise read.fail("links", f"at most {pairs:,} links", f"{len(entries):,} of them")
+    links = []
+    for i, entry in enumerate(entries):
+        where = f"links[{i}]"
+        ends = [read.marker_id(f"{where}.{k}", entry.get(k)) for k in ("a", "b")]
+        for key, end in zip(("a", "b"), ends, strict=True):
+            if end not in markers:
+                raise read.fail(f"{where}.{key}", "a marker of the map", end)
+        edge = Edge(*(read.number(f"{where}.{k}", entry.get(k)) for k in _EDGE_KEYS))
+        links.append(
+            MapLink(
+                ends[0],
+                ends[1],
+                read.whole(f"{where}.n_measurements", entry.get("n_measurements")),
+                edge,
+                read.covariance(f"{where}.covariance", entry.get("covariance")),
+            )
+        )
+    return tuple(links)
+
+
+def _read_unplaced(read: _Reader, value: Any) -> dict[int, str]:
+    """``unplaced``: marker ids (as JSON keys: decimal text) -> why, every key and value
+    checked."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise read.fail("unplaced", "an object of marker id -> reason", value)
+    unplaced = {}
+    for key, why in value.items():
+        where = f"unplaced[{key!r}]" if len(key) <= 20 else "unplaced"
+        # Short of int(): a key of 5,000 digits is a ValueError there, not a marker id.
+        if not (key.isascii() and key.isdigit() and len(key) <= len(str(MAX_MARKER_ID))):
+            raise read.fail(where, "keyed by a marker id", key)
+        unplaced[read.marker_id(where, int(key))] = read.text(where, why)
+    return dict(sorted(unplaced.items()))
+
+
 _EDGE_KEYS = ("phi", "theta_ab", "theta_ba", "d")
 # Bounds on what a map may hold: any coordinate beyond 10,000 km, or a variance whose square
 # root squared would overflow in a peer format, is a corrupted file, not a map.
@@ -650,14 +724,13 @@ QUATERNION_TOLERANCE = 1e-6
 # Asymmetry, and a negative eigenvalue, allowed in a 6x6 covariance relative to its largest
 # entry: what rounding in an optimiser's marginals leaves, and no more.
 SYMMETRY_TOLERANCE = 1e-9
+# A count (observations, views, measurements) beyond this is no count but a corrupted file: it
+# would overflow the int64 arrays it goes into.
+MAX_COUNT = 2**63 - 1
 
 
 def _matrix(matrix: NDArray[np.float64] | None) -> list[list[float]] | None:
     return None if matrix is None else [[float(v) for v in row] for row in matrix]
-
-
-def _refuse(name: str) -> None:
-    raise ValueError(f"{name} is not a number JSON allows")
 
 
 def write_json(path: Path, document: Mapping[str, Any]) -> None:
@@ -673,14 +746,28 @@ def write_json(path: Path, document: Mapping[str, Any]) -> None:
 
 @dataclass(frozen=True)
 class _Reader:
-    """Checks a document's fields, naming the source and the field in every error."""
+    """Checks a document's fields, naming the source and the field in every error.
+
+    Attributes:
+        source: the file (or what the document came from).
+        max_id: the largest marker id allowed.
+        max_markers: the most markers allowed.
+        bound: what sets those bounds, in words (the dictionary's name).
+        marker: the id of the marker whose fields are read, named in every error; or None.
+    """
 
     source: str
+    max_id: int = MAX_MARKER_ID
+    max_markers: int = MAX_MARKERS
+    bound: str = "a map"
+    marker: int | None = None
 
     def fail(self, where: str, what: str, value: Any) -> MarkerMapError:
+        """The error naming the source, the field, what it must be and what it holds."""
         text = repr(value)
         shown = text if len(text) <= 40 else f"{text[:20]}... ({len(text)} characters)"
-        return MarkerMapError(f"{self.source}: {where} must be {what}, got {shown}")
+        of = "" if self.marker is None else f" (marker {self.marker})"
+        return MarkerMapError(f"{self.source}: {where} must be {what}, got {shown}{of}")
 
     def number(
         self, where: str, value: Any, *, positive: bool = False, limit: float = MAX_VALUE
@@ -696,9 +783,25 @@ class _Reader:
             raise self.fail(where, f"{what} of magnitude at most {limit:g}", value)
         return number
 
-    def whole(self, where: str, value: Any) -> int:
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise self.fail(where, "a whole number >= 0", value)
+    def whole(self, where: str, value: Any, limit: int = MAX_COUNT) -> int:
+        """A whole number from 0 to ``limit``."""
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= limit:
+            raise self.fail(where, f"a whole number from 0 to {limit:,}", value)
+        return value
+
+    def marker_id(self, where: str, value: Any) -> int:
+        """A marker id: a whole number within the dictionary's range (GTSAM's ``L()`` takes
+        no more, and a map holds only the dictionary's markers)."""
+        limit = self.max_id
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= limit:
+            within = f"in {self.bound}" if self.bound != "a map" else "allowed"
+            raise self.fail(where, f"a marker id from 0 to {limit:,} (the ids {within})", value)
+        return value
+
+    def text(self, where: str, value: Any) -> str:
+        """A string (a name, a path, a reason)."""
+        if not isinstance(value, str):
+            raise self.fail(where, "a string", value)
         return value
 
     def items(self, where: str, value: Any) -> list[dict[str, Any]]:
@@ -738,11 +841,23 @@ class _Reader:
         ):
             raise self.fail(where, "a 6x6 matrix or null", value)
         P = np.array([[self.number(where, v, limit=MAX_VARIANCE) for v in row] for row in value])
+        return self.semi_definite(where, P, value)
+
+    def semi_definite(self, where: str, P: NDArray[np.float64], value: Any) -> NDArray[np.float64]:
+        """``P`` made exactly symmetric with rounding's negative eigenvalues clipped to 0;
+        refused where it is not symmetric, or has a negative eigenvalue beyond
+        :data:`SYMMETRY_TOLERANCE` of its largest entry (a negative variance is no
+        covariance: GTSAM refuses it, or takes its square root as NaN)."""
         scale = max(float(np.max(np.abs(P))), 1e-300)
         if not np.all(np.abs(P - P.T) <= SYMMETRY_TOLERANCE * scale):
             raise self.fail(where, "a symmetric matrix", value)
-        if float(np.linalg.eigvalsh(P)[0]) < -SYMMETRY_TOLERANCE * scale:
+        P = 0.5 * (P + P.T)
+        values, vectors = np.linalg.eigh(P)
+        if float(values[0]) < -SYMMETRY_TOLERANCE * scale:
             raise self.fail(where, "positive semi-definite (a covariance)", value)
+        if float(values[0]) < 0.0:
+            P = (vectors * np.maximum(values, 0.0)) @ vectors.T
+            P = 0.5 * (P + P.T)
         return P
 
     def covariance(self, where: str, value: Any) -> NDArray[np.float64] | None:
@@ -754,4 +869,5 @@ class _Reader:
             or not all(isinstance(row, list) and len(row) == 3 for row in value)
         ):
             raise self.fail(where, "a 3x3 matrix or null", value)
-        return np.array([[self.number(where, v, limit=MAX_VARIANCE) for v in row] for row in value])
+        P = np.array([[self.number(where, v, limit=MAX_VARIANCE) for v in row] for row in value])
+        return self.semi_definite(where, P, value)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
+from numpy.typing import NDArray
 
 from markergraph.common import Note
 from markergraph.estimator import Estimate, Frames, Method
@@ -43,9 +44,23 @@ def priors_of(saved: MarkerMap) -> tuple[dict[int, MapPrior], list[Note]]:
     priors = {}
     for m in saved.markers.values():
         covariance = m.relative_covariance if m.relative_covariance is not None else m.covariance
-        held = default if covariance is None else covariance
+        held = default if covariance is None else _floored(covariance)
         priors[m.marker_id] = MapPrior(m.T_map_marker, held)
     return priors, notes
+
+
+MIN_PRIOR_VARIANCE = 1e-12
+"""The least variance a prior is held at, (1 um)^2 or (1 urad)^2: a map may hold a singular
+covariance (semi-definite is a covariance), which GTSAM would take as an infinite weight."""
+
+
+def _floored(covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``covariance`` with no eigenvalue below :data:`MIN_PRIOR_VARIANCE`."""
+    values, vectors = np.linalg.eigh(covariance)
+    if float(values[0]) >= MIN_PRIOR_VARIANCE:
+        return covariance
+    floored = (vectors * np.maximum(values, MIN_PRIOR_VARIANCE)) @ vectors.T
+    return 0.5 * (floored + floored.T)
 
 
 def as_estimate(solved: SessionsEstimate, method: Method, home_id: int) -> Estimate:

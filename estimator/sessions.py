@@ -175,8 +175,9 @@ def solve_sessions(
         o.marker_id for s in placed for f in sessions[s].frames for o in f.observations
     )
     markers = marker_estimates(
-        values, [i for i in sorted(known) if values.exists(L(i))], counts, marginals
-    )
+        values, [i for i in sorted(known) if values.exists(L(i))], counts, marginals,
+        builder.graph,
+    )  # fmt: skip
     trajectories: list[Trajectory | None] = [None] * len(sessions)
     covariances: list[NDArray[np.float64] | None] = [None] * len(sessions)
     for s in placed:

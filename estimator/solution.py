@@ -9,13 +9,15 @@ from collections import Counter
 from functools import partial
 
 import gtsam
+import numpy as np
 from gtsam.symbol_shorthand import L
+from numpy.typing import NDArray
 
 from markergraph.common.errors import EstimationError
 from markergraph.common.notes import Note
 from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.frames import Frames
-from markergraph.estimator.gauge import relative_covariances
+from markergraph.estimator.gauge import relative_covariances_of_groups
 from markergraph.estimator.graph import GraphBuilder, read_residuals
 from markergraph.estimator.links import describe_disconnected
 from markergraph.estimator.trajectory import Trajectory
@@ -73,20 +75,63 @@ def marker_estimates(
     marker_ids: list[int],
     counts: Counter[int],
     marginals: gtsam.Marginals | None,
+    graph: gtsam.NonlinearFactorGraph | None = None,
 ) -> dict[int, MarkerEstimate]:
+    """Each marker's pose, marginal covariance and relative covariance
+    (:func:`~markergraph.estimator.gauge.relative_covariances`).
+
+    With ``graph``, markers that no chain of factors joins are independent, so the joint
+    covariance is asked only within each connected group: a saved map's 20,000 markers that a
+    log never sees are 20,000 3x3 marginals, not one dense 60,000 x 60,000 matrix (29 GB, and
+    minutes of GTSAM's time)."""
     poses = [values.atPose2(L(i)) for i in marker_ids]
     if marginals is None:
         return {
             i: MarkerEstimate(i, T, None, counts[i]) for i, T in zip(marker_ids, poses, strict=True)
         }
-    keys = gtsam.KeyVector([L(i) for i in marker_ids])
-    joint = marginals.jointMarginalCovariance(keys).fullMatrix()
-    relative = relative_covariances(poses, joint)
+    groups = _connected(graph, marker_ids) if graph is not None else [list(range(len(poses)))]
+    blocks = []
+    for group in groups:
+        keys = [L(marker_ids[k]) for k in group]
+        if len(keys) == 1:
+            blocks.append((group, marginals.marginalCovariance(keys[0])))
+        else:
+            joint = marginals.jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
+            blocks.append((group, joint))
+    relative = relative_covariances_of_groups(poses, blocks)
+    own: dict[int, NDArray[np.float64]] = {}
+    for group, joint in blocks:
+        for j, k in enumerate(group):
+            own[k] = joint[3 * j : 3 * j + 3, 3 * j : 3 * j + 3].copy()
     return {
-        i: MarkerEstimate(i, T, joint[3 * k : 3 * k + 3, 3 * k : 3 * k + 3].copy(), counts[i],
-                          relative[k])
+        i: MarkerEstimate(i, T, own[k], counts[i], relative[k])
         for k, (i, T) in enumerate(zip(marker_ids, poses, strict=True))
-    }  # fmt: skip
+    }
+
+
+def _connected(graph: gtsam.NonlinearFactorGraph, marker_ids: list[int]) -> list[list[int]]:
+    """The markers (as indices into ``marker_ids``) in groups that factors join, through
+    robot poses or directly (union-find over every factor's keys); in order of first index."""
+    parent: dict[int, int] = {}
+
+    def root(key: int) -> int:
+        parent.setdefault(key, key)
+        while parent[key] != key:
+            parent[key] = parent[parent[key]]  # path halving
+            key = parent[key]
+        return key
+
+    for n in range(graph.size()):
+        factor = graph.at(n)
+        if factor is None:
+            continue
+        keys = list(factor.keys())
+        for key in keys[1:]:
+            parent[root(key)] = root(keys[0])
+    groups: dict[int, list[int]] = {}
+    for k, marker_id in enumerate(marker_ids):
+        groups.setdefault(root(L(marker_id)), []).append(k)
+    return list(groups.values())
 
 
 def observation_counts(frames: Frames) -> Counter[int]:
@@ -134,7 +179,7 @@ def solved_estimate(
     estimate = Estimate(
         method=method,
         home_id=frames.home_id,
-        markers=marker_estimates(result, marker_ids, observation_counts(frames), marginals),
+        markers=marker_estimates(result, marker_ids, observation_counts(frames), marginals, graph),
         trajectory=trajectory,
         residuals=read_residuals(graph, result, builder.kinds),
         links=links,

@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from markergraph.common.documents import MAX_YAML_BYTES, DocumentError, read_text, yaml_document
 from markergraph.common.errors import SettingsError
 from markergraph.frontend.camera import Camera
 
@@ -62,9 +63,11 @@ class RigCamera:
 
 
 def _load(path: Path, what: str) -> Any:
+    # Bounded: the size checked before reading, aliases and deep nesting before building (a
+    # 327-byte billion-laughs expands to gigabytes).
     try:
-        return yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
+        return yaml_document(read_text(path, MAX_YAML_BYTES))
+    except (OSError, UnicodeDecodeError, DocumentError, yaml.YAMLError) as error:
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise SettingsError(f"{path}: not a readable {what} ({reason})") from None
 

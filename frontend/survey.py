@@ -11,7 +11,6 @@ and only the diagonal kept (``KnownTag`` holds no correlations).
 from __future__ import annotations
 
 import csv
-import json
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -23,6 +22,13 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.documents import (
+    MAX_MARKER_ID,
+    MAX_MARKERS,
+    DocumentError,
+    json_document,
+    read_text,
+)
 from markergraph.common.errors import SettingsError
 from markergraph.common.notes import Note
 from markergraph.estimator.tags3d import R_TAG_MARKER, KnownTag
@@ -63,6 +69,7 @@ cannot take."""
 CSV_COLUMNS = ("id", "x", "y", "z", "yaw", "sigma_xyz", "sigma_rot")
 """The columns a CSV survey may have (``id``, ``x``, ``y`` required)."""
 _MAP_SCHEMAS = ("markergraph.map/1", "markergraph.map/2")
+SYMMETRY_TOLERANCE = 1e-9  # a covariance's asymmetry and negative eigenvalue rounding leaves
 _BOARD_TYPES = ("board", "staggered_board")
 
 
@@ -166,12 +173,37 @@ def _number(value: Any, where: str, positive: bool = False) -> float:
 
 
 def _whole(value: Any, where: str) -> int:
+    """A tag id: a whole number from 0 to :data:`MAX_MARKER_ID` (GTSAM's keys and OpenCV's
+    ids take no more), as a number or as decimal text."""
     if isinstance(value, bool) or not isinstance(value, (int, str)):
         raise SettingsError(f"{where}: not a tag id ({value!r})")
+    text = value.strip() if isinstance(value, str) else None
+    if text is not None and not (text.isascii() and text.isdigit() and len(text) <= 10):
+        raise SettingsError(f"{where}: not a tag id ({_short(value)})")
+    number = int(value)
+    if not 0 <= number <= MAX_MARKER_ID:
+        raise SettingsError(f"{where}: tag id {_short(number)} is not from 0 to {MAX_MARKER_ID:,}")
+    return number
+
+
+def _short(value: Any) -> str:
+    """``repr(value)``, cut to 40 characters (a tampered file's 5,000-digit id)."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:20]}... ({len(text)} characters)"
+
+
+def _at_most(count: int, where: str) -> None:
+    """A survey holds no more tags than :data:`MAX_MARKERS`."""
+    if count > MAX_MARKERS:
+        raise SettingsError(f"{where}: {count:,} surveyed tags, more than {MAX_MARKERS:,}")
+
+
+def _read(path: Path, what: str) -> str:
+    """A survey file's text, its size checked before it is read."""
     try:
-        return int(value)
-    except ValueError:
-        raise SettingsError(f"{where}: not a tag id ({value!r})") from None
+        return read_text(path)
+    except (OSError, UnicodeDecodeError, DocumentError) as error:
+        raise SettingsError(f"{path}: not a readable {what} ({error})") from None
 
 
 def _local_sigmas(
@@ -329,6 +361,7 @@ def _tagslam_survey(path: Path) -> Survey:
             body_tags, body_notes = _body_tags(str(name), body, defaults, where)
             tags += body_tags
             notes += body_notes
+    _at_most(len(tags), str(path))
     left_out = sorted(t.tag_id for t in tags if t.tag_id in ignored)
     if left_out:
         text = f"{path}: surveyed tag(s) {left_out} are in ignore_tags: left out"
@@ -367,10 +400,8 @@ def _csv_survey(path: Path) -> Survey:
     with a :data:`SIGMA_UNKNOWN_M` sigma in height; without yaw its rotation is free
     (:data:`SIGMA_UNKNOWN_RAD`); sigmas default to :data:`SIGMA_XYZ_M` and
     :data:`SIGMA_ROT_RAD`."""
-    try:
-        lines = Path(path).read_text(encoding="utf-8-sig").splitlines()
-    except (OSError, UnicodeDecodeError) as error:
-        raise SettingsError(f"{path}: not a readable CSV survey ({error})") from None
+    lines = _read(path, "CSV survey").splitlines()
+    _at_most(sum(1 for line in lines if line.strip() and not line.startswith("#")) - 1, str(path))
     reader = csv.DictReader(line for line in lines if line.strip() and not line.startswith("#"))
     columns = [c.strip() for c in reader.fieldnames or []]
     reader.fieldnames = columns
@@ -408,7 +439,17 @@ def _matrix(value: Any, n: int, where: str) -> NDArray[np.float64] | None:
         raise SettingsError(f"{where}: not a {n}x{n} matrix") from None
     if matrix.shape != (n, n) or not np.all(np.isfinite(matrix)):
         raise SettingsError(f"{where}: not a finite {n}x{n} matrix")
-    return matrix
+    # A covariance: symmetric, no negative eigenvalue beyond rounding's (clipped to 0); a
+    # negative variance would otherwise be held at MIN_SIGMA, the tightest of all.
+    scale = max(float(np.max(np.abs(matrix))), 1e-300)
+    if not np.all(np.abs(matrix - matrix.T) <= SYMMETRY_TOLERANCE * scale):
+        raise SettingsError(f"{where}: not a symmetric matrix (a covariance)")
+    values, vectors = np.linalg.eigh(0.5 * (matrix + matrix.T))
+    if float(values[0]) < -SYMMETRY_TOLERANCE * scale:
+        raise SettingsError(
+            f"{where}: not positive semi-definite (a negative variance, {float(values[0]):.3g})"
+        )
+    return np.asarray((vectors * np.maximum(values, 0.0)) @ vectors.T, dtype=np.float64)
 
 
 def _map_marker_sigmas(entry: Mapping[str, Any], where: str) -> NDArray[np.float64]:
@@ -462,9 +503,9 @@ def _map_entry(entry: Any, where: str) -> KnownTag:
 
 def _map_survey(path: Path) -> Survey:
     """markergraph's own ``map.json`` (``markergraph.map/1`` or ``/2``): every marker."""
-    try:
-        document = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+    try:  # its nesting checked before it is parsed; strict: NaN refused
+        document = json_document(_read(path, "map.json"))
+    except ValueError as error:
         raise SettingsError(f"{path}: not a readable map.json ({error})") from None
     schema = document.get("schema") if isinstance(document, dict) else None
     if schema not in _MAP_SCHEMAS:
@@ -472,5 +513,6 @@ def _map_survey(path: Path) -> Survey:
     markers = document.get("markers")
     if not isinstance(markers, list):
         raise SettingsError(f"{path}: markers is not a list")
+    _at_most(len(markers), str(path))
     tags = [_map_entry(entry, f"{path}: markers[{i}]") for i, entry in enumerate(markers)]
     return Survey(SurveyKind.MAP_JSON, _sorted_unique(tags, str(path)))
