@@ -19,6 +19,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any, cast
 
+from markergraph.common.documents import yaml_document
 from markergraph.common.errors import SettingsError
 from markergraph.estimator import ODOMETRY_NOISE, Method, OdometryNoise, Robust
 from markergraph.frontend.camera import CameraMount
@@ -496,34 +497,6 @@ def _depth(value: Any, limit: int = MAX_SETTINGS_DEPTH + 1) -> int:
     return 1 + max((_depth(v, limit - 1) for v in items), default=0)
 
 
-def _flat_yaml(text: str) -> Any:
-    """A YAML settings file's document, refusing what no settings file needs and what makes a
-    small file explode or mislead: aliases (a few hundred bytes can expand to gigabytes),
-    nesting beyond :data:`MAX_SETTINGS_DEPTH`, and a key given twice (YAML keeps the last)."""
-    import yaml
-
-    depth = 0
-    for event in yaml.parse(text, Loader=yaml.SafeLoader):
-        if isinstance(event, yaml.AliasEvent):
-            raise ValueError(f"an alias (*{event.anchor}): a settings file spells its values out")
-        if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
-            depth += 1
-            if depth > MAX_SETTINGS_DEPTH:
-                raise ValueError(f"nested deeper than {MAX_SETTINGS_DEPTH} levels")
-        elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
-            depth -= 1
-
-    class _Loader(yaml.SafeLoader):
-        def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
-            keys = [self.construct_object(key, deep=deep) for key, _ in node.value]
-            twice = sorted({str(k) for k in keys if keys.count(k) > 1})
-            if twice:
-                raise ValueError(f"{', '.join(twice)} given twice")
-            return super().construct_mapping(node, deep=deep)
-
-    return yaml.load(text, Loader=_Loader)
-
-
 def read_config_file(path: str | Path) -> dict[str, Any]:
     """The settings a TOML (``.toml``) or YAML (``.yaml``, ``.yml``) file gives, checked.
 
@@ -549,7 +522,7 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
                 import tomli as tomllib
             table: Any = tomllib.loads(text)
         elif suffix in (".yaml", ".yml"):
-            table = _flat_yaml(text) or {}
+            table = yaml_document(text, MAX_SETTINGS_DEPTH, unique_keys=True) or {}
         else:
             raise SettingsError("a configuration file ends in .toml, .yaml or .yml")
     except ValueError as error:  # tomllib's and yaml's errors are ValueErrors too

@@ -116,13 +116,16 @@ def json_document(text: str, max_depth: int = MAX_DOCUMENT_DEPTH) -> Any:
     return json.loads(text, parse_constant=_refuse_constant)
 
 
-def yaml_document(text: str, max_depth: int = MAX_DOCUMENT_DEPTH) -> Any:
+def yaml_document(text: str, max_depth: int = MAX_DOCUMENT_DEPTH, unique_keys: bool = False) -> Any:
     """A YAML document read safely, refusing what makes a small file explode: aliases (a few
     hundred bytes of them expand to gigabytes, or loop) and nesting beyond ``max_depth``;
     both found in the parser's events, before anything is built.
 
+    Args:
+        unique_keys: refuse a key given twice in one mapping (YAML silently keeps the last).
+
     Raises:
-        DocumentError: an alias, or nested deeper than ``max_depth``.
+        DocumentError: an alias, nested deeper than ``max_depth``, or a key given twice.
         yaml.YAMLError: not YAML.
     """
     import yaml
@@ -137,4 +140,15 @@ def yaml_document(text: str, max_depth: int = MAX_DOCUMENT_DEPTH) -> Any:
                 raise DocumentError(f"nested deeper than {max_depth} levels, which no such file is")
         elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
             depth -= 1
-    return yaml.safe_load(text)
+    if not unique_keys:
+        return yaml.safe_load(text)
+
+    class _UniqueKeys(yaml.SafeLoader):
+        def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
+            keys = [self.construct_object(key, deep=deep) for key, _ in node.value]
+            twice = sorted({str(k) for k in keys if keys.count(k) > 1})
+            if twice:
+                raise DocumentError(f"{', '.join(twice)} given twice")
+            return super().construct_mapping(node, deep=deep)
+
+    return yaml.load(text, Loader=_UniqueKeys)
