@@ -69,6 +69,25 @@ class BoundedFile:
         return self._stream.tell()
 
 
+class _Bytes:
+    """A record's bytes read as a stream whose reads never ask past their end: a field of
+    2^63 inside it gets what is left (``io.BytesIO.read`` raises OverflowError on it)."""
+
+    def __init__(self, data: bytes) -> None:
+        self._data, self._position = data, 0
+
+    def read(self, size: int = -1) -> bytes:
+        end = len(self._data) if size < 0 else self._position + size
+        data = self._data[self._position : end]
+        self._position += len(data)
+        return data
+
+
+def _within(data: bytes) -> ReadDataStream:
+    """A record's fields read from its own bytes, within them."""
+    return ReadDataStream(cast(IO[bytes], _Bytes(data)))
+
+
 def read_summary(stream: BoundedFile) -> Summary | None:
     """The file's own summary section (None: it has none), no record in it larger than the
     file.
@@ -97,7 +116,7 @@ def chunk_at(stream: BoundedFile, offset: int) -> Chunk:
         raise McapError(f"no chunk at byte {offset} (a record of type {opcode:#04x})")
     if length > stream.size - offset - _HEADER.size:
         raise McapError(f"the chunk at byte {offset} claims {length} bytes, past the file's end")
-    return Chunk.read(ReadDataStream(io.BytesIO(stream.read(length))))
+    return Chunk.read(_within(stream.read(length)))
 
 
 def decompress(chunk: Chunk) -> bytes:
@@ -161,15 +180,15 @@ class _Recovered:
     def record(self, opcode: int, content: bytes) -> None:
         """Keep a schema or channel record (messages are counted by :meth:`chunk`)."""
         if opcode == Opcode.SCHEMA:
-            schema = Schema.read(ReadDataStream(io.BytesIO(content)))
+            schema = Schema.read(_within(content))
             self.schemas[schema.id] = schema
         elif opcode == Opcode.CHANNEL:
-            channel = Channel.read(ReadDataStream(io.BytesIO(content)))
+            channel = Channel.read(_within(content))
             self.channels[channel.id] = channel
 
     def chunk(self, offset: int, length: int, content: bytes) -> None:
         """Index a chunk and keep the schemas, channels and message counts inside it."""
-        chunk = Chunk.read(ReadDataStream(io.BytesIO(content)))
+        chunk = Chunk.read(_within(content))
         data = decompress(chunk)
         counts: Counter[int] = Counter()
         first, last = None, None
