@@ -144,3 +144,38 @@ def test_cli_version_and_help() -> None:
     ).stdout
     for command in ("map", "detect", "simulate", "info", "export", "heading"):
         assert command in help_text
+
+
+TEST_ONLY = ("pytest", "hypothesis", "mypy", "ruff", "jupytext", "nbclient", "nbformat", "evo",
+             "ipykernel", "foxglove_schemas_protobuf", "types_tqdm")  # fmt: skip
+BLOCKED_RUN = """
+import importlib.abc, sys
+class TestOnly(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in BLOCKED:
+            raise ImportError(f"{name} is a test-only package")
+sys.meta_path.insert(0, TestOnly())
+from markergraph.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_the_main_job_needs_no_test_package(tmp_path: Path) -> None:
+    """README's main job installs without the test extra: simulate, info and map run with every
+    package of that extra made unimportable."""
+    readme = (REPO_ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    installs = [line for line in readme if "pip install" in line and "pytest" not in line]
+    assert installs and not [line for line in installs if "[test" in line]
+    script = f"BLOCKED = {TEST_ONLY!r}\n" + BLOCKED_RUN
+    log, out = tmp_path / "room.mcap", tmp_path / "map"
+    for arguments in (
+        ["simulate", "--scenario", "paper-room", "--duration", "8", "--frame-rate", "3",
+         "--out", log],
+        ["info", log],
+        ["map", log, "--out", out, "--workers", "1"],
+    ):  # fmt: skip
+        run = subprocess.run(
+            [sys.executable, "-c", script, *map(str, arguments)], capture_output=True, text=True
+        )
+        assert run.returncode == 0, run.stderr[-2000:]
+    assert (out / "map.json").is_file() and (out / "map.png").is_file()

@@ -9,7 +9,6 @@ import hashlib
 import json
 import os
 import random
-import re
 import resource
 import shutil
 import struct
@@ -20,8 +19,8 @@ from typing import Any
 
 import pytest
 from mcap.reader import make_reader
+from trust_helpers import cli, one_line_error
 
-from markergraph.cli import main
 from markergraph.datasets import scenario, write_log
 from markergraph.frontend.logs.ros1 import Ros1Bag, open_ros1
 
@@ -99,30 +98,12 @@ def bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 # --- helpers -------------------------------------------------------------------------------
 
 
-def cli(capsys: pytest.CaptureFixture[str], *arguments: Any) -> tuple[int, str, str]:
-    """The ``markergraph`` command in this process: (exit code, stdout, stderr)."""
-    code = main([str(a) for a in arguments])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
 def run(*arguments: Any) -> subprocess.CompletedProcess[str]:
     """The ``markergraph`` command in a process of its own, within a minute."""
     return subprocess.run(
         [sys.executable, "-m", "markergraph.cli", *(str(a) for a in arguments)],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
-
-
-def one_line_error(err: str, *names: str) -> str:
-    """The single stderr line of a refused command, checked to name each of ``names`` and to
-    give a reason (never the empty one of a bare ``AssertionError``)."""
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    for name in names:
-        assert name in lines[0], (name, lines[0])
-    assert not re.search(r"\w+Error: ?\)|\(\)", lines[0]), lines[0]
-    return lines[0]
 
 
 def digest(path: Path) -> str:

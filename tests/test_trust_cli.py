@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import bz2
 import gzip
-import hashlib
 import lzma
 import os
 import shutil
@@ -21,6 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from trust_helpers import cli, one_line_error, snapshot
 
 from markergraph.cli import main
 
@@ -30,36 +30,7 @@ POLL_S = 0.005
 CLI = [sys.executable, "-m", "markergraph.cli"]
 
 
-# --- helpers (as tests/test_trust.py's) -----------------------------------------------------
-
-
-def snapshot(folder: Path) -> dict[str, str]:
-    """Every file under ``folder`` (hidden ones included) -> the hash of its bytes."""
-    return {
-        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file()
-    }
-
-
-def cli(capsys: pytest.CaptureFixture[str], *arguments: object) -> tuple[int, str, str]:
-    """The ``markergraph`` command in this process: (exit code, stdout, stderr); a usage
-    mistake's ``SystemExit`` gives its code."""
-    try:
-        code = main([str(a) for a in arguments])
-    except SystemExit as stop:
-        code = int(stop.code or 0)
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
-def one_line_error(err: str, *names: str) -> str:
-    """The single stderr line of a refused command, checked to name each of ``names``."""
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    for name in names:
-        assert name in lines[0], (name, lines[0])
-    return lines[0]
+# --- helpers ---------------------------------------------------------------------------------
 
 
 def hidden(folder: Path) -> list[str]:

@@ -6,7 +6,6 @@ dictionary holds localises within bounded memory."""
 from __future__ import annotations
 
 import copy
-import hashlib
 import json
 import resource
 import subprocess
@@ -17,6 +16,7 @@ from typing import Any
 import gtsam
 import numpy as np
 import pytest
+from trust_helpers import cli, one_line_error, snapshot
 
 from markergraph.cli import main
 from markergraph.estimator.gauge import relative_covariances, relative_covariances_of_groups
@@ -25,33 +25,7 @@ EXACT = 1e-12  # exact algebra, reordered
 PEAK_RSS_BYTES = 1 << 30  # the issue's bound on any run's peak memory
 
 
-# --- helpers (as tests/test_trust.py's) -------------------------------------------------------
-
-
-def snapshot(folder: Path) -> dict[str, str]:
-    """Every file under ``folder`` (hidden ones included) -> the hash of its bytes."""
-    return {
-        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file()
-    }
-
-
-def cli(capsys: pytest.CaptureFixture[str], *arguments: Any) -> tuple[int, str, str]:
-    """The ``markergraph`` command in this process: (exit code, stdout, stderr)."""
-    code = main([str(a) for a in arguments])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
-def one_line_error(err: str, *names: str) -> str:
-    """The single stderr line of a refused command, checked to name each of ``names``."""
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    for name in names:
-        assert name in lines[0], (name, lines[0])
-    assert "internal error" not in lines[0] and "Traceback" not in err
-    return lines[0]
+# --- fixtures --------------------------------------------------------------------------------
 
 
 @pytest.fixture(scope="module")

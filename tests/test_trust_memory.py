@@ -4,7 +4,6 @@ declares a gigapixel is refused before it is decoded, and odometry is kept in co
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
 import struct
 import subprocess
@@ -18,6 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+from trust_helpers import snapshot
 
 from markergraph.datasets.rewrite import rewrite_log
 from markergraph.frontend.logs import Message
@@ -28,15 +28,6 @@ BOMB_SIDE_PX = 30_000  # the issue's PNG: 875 KB declaring 30,000 x 30,000 grey 
 
 
 # --- helpers ---------------------------------------------------------------------------------
-
-
-def snapshot(folder: Path) -> dict[str, str]:
-    """Every file under ``folder`` (hidden ones included) -> the hash of its bytes."""
-    return {
-        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file()
-    }
 
 
 def png_chunk(kind: bytes, body: bytes) -> bytes:
