@@ -3,6 +3,7 @@ log, and the Foxglove layout beside overlay.mcap names the overlay's own topics.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +17,7 @@ from markergraph.datasets.sensors import D435I_ON_DIFF_DRIVE
 
 PRESET = D435I_ON_DIFF_DRIVE
 COLOR = "/camera/camera/color/image_raw/compressed"
+COLOR_INFO = "/camera/camera/color/camera_info"
 DEPTH = "/camera/camera/aligned_depth_to_color/image_raw"
 FRAMES = 50  # 10 s at 5 Hz: the preset's 17 renders a frame make longer logs slow here
 CENTRE_PX = 10  # half the side of the image-centre patch, where the lens distortion is ~0
@@ -94,9 +96,8 @@ def test_sensors_d435i_depth_scale_distortion_and_tf_tree(logs) -> None:
             ratios.append(np.median(y[seen] / x[seen]))
     assert len(ratios) > FRAMES // 2
     assert np.median(ratios) == pytest.approx(PRESET.depth_scale, abs=DEPTH_SCALE_TOLERANCE)
-    info_topic = "/camera/camera/color/camera_info"
-    assert tuple(_messages(real_log, info_topic)[0].d) == pytest.approx(PRESET.distortion)
-    assert tuple(_messages(ideal_log, info_topic)[0].d) == (0.0,) * 5
+    assert tuple(_messages(real_log, COLOR_INFO)[0].d) == pytest.approx(PRESET.distortion)
+    assert tuple(_messages(ideal_log, COLOR_INFO)[0].d) == (0.0,) * 5
 
     def frames(log: Path) -> set[str]:
         (message,) = _messages(log, "/tf_static")
@@ -108,3 +109,60 @@ def test_sensors_d435i_depth_scale_distortion_and_tf_tree(logs) -> None:
         [_stamp_ns(m) for m in _messages(ideal_log, "/odom")]
     )
     assert np.std(off_grid) == pytest.approx(PRESET.odometry_jitter_s * 1e9, rel=0.3)
+
+
+def _refuse(constant: str) -> None:
+    raise ValueError(f"non-standard JSON constant {constant}")
+
+
+def _topics(log: Path) -> set[str]:
+    with open(log, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    return {channel.topic for channel in summary.channels.values()}
+
+
+def _named_topics(config: dict[str, Any]) -> set[str]:
+    """Every topic a panel's config names: its ``topics`` keys and its image mode's topics."""
+    mode = config.get("imageMode", {})
+    return set(config.get("topics", {})) | {mode[k] for k in mode if k.endswith("Topic")}
+
+
+@pytest.fixture(scope="module")
+def mapped(logs, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``markergraph map`` of the ideal log, with a renamed map frame."""
+    folder = tmp_path_factory.mktemp("mapped")
+    out = folder / "result"
+    arguments = ["map", str(logs[0]), "--out", str(out), "--marker-size", "0.2", "--no-plots"]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MARKERGRAPH_CACHE", str(folder / "cache"))
+        assert main([*arguments, "--map-frame", "markergraph_map"]) == 0
+    return out
+
+
+def test_foxglove_layout_beside_the_overlay(mapped, logs) -> None:
+    """overlay.layout.json is strict JSON listed in report.json; its 3D panel follows the
+    overlay's map frame and shows the overlay's markers and path; its Image panel is on the log's
+    colour topic and camera_info with the overlay's markers over it; no other topic is named."""
+    layout = json.loads((mapped / "overlay.layout.json").read_text(), parse_constant=_refuse)
+    report = json.loads((mapped / "report.json").read_text(), parse_constant=_refuse)
+    assert "overlay.layout.json" in report["files"]
+    panels = layout["configById"]
+    (three_d,) = [name for name in panels if name.startswith("3D!")]
+    (image,) = [name for name in panels if name.startswith("Image!")]
+    assert {layout["layout"]["first"], layout["layout"]["second"]} == {three_d, image}
+    overlay_topics = _topics(mapped / "overlay.mcap")
+    assert {"/markergraph/markers", "/markergraph/path"} <= _named_topics(panels[three_d])
+    assert _named_topics(panels[three_d]) <= overlay_topics
+    assert set(panels[image]["topics"]) == {"/markergraph/markers"}
+    mode = panels[image]["imageMode"]
+    assert (mode["imageTopic"], mode["calibrationTopic"]) == (COLOR, COLOR_INFO)
+    assert {COLOR, COLOR_INFO} <= _topics(logs[0]) and not {COLOR, COLOR_INFO} & overlay_topics
+    with open(mapped / "overlay.mcap", "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        parents = {
+            transform.header.frame_id
+            for *_, message in reader.iter_decoded_messages(topics=["/tf_static"])
+            for transform in message.transforms
+        }
+    assert parents == {"markergraph_map"} and panels[three_d]["followTf"] == "markergraph_map"
