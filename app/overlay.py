@@ -206,6 +206,15 @@ def _check_frame(name: str, value: str) -> None:
         )
 
 
+def _write_layout(
+    path: Path, map_frame: str, image_topic: str | None, calibration_topic: str | None
+) -> None:
+    """The overlay's Foxglove layout beside it."""
+    scene = [MARKER_TOPIC, PATH_TOPIC, POSE_TOPIC]  # the markers first: also drawn on the image
+    layout = overlay_layout(map_frame, scene, image_topic, calibration_topic)
+    write_layout(layout_path(path), layout)
+
+
 def write_overlay(
     path: Path,
     marker_map: MarkerMap,
@@ -284,8 +293,4 @@ def write_overlay(
                 schemas[schema] = writer.register_msgdef(schema, MESSAGE_DEFINITIONS[schema])
             writer.write_message(topic, schemas[schema], message, log_time=t_ns, publish_time=t_ns)
         writer.finish()
-    scene = [MARKER_TOPIC, PATH_TOPIC, POSE_TOPIC]  # the markers first: also drawn on the image
-    write_layout(
-        layout_path(Path(path)),
-        overlay_layout(map_frame, scene, image_topic, calibration_topic),
-    )
+    _write_layout(Path(path), map_frame, image_topic, calibration_topic)
