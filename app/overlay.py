@@ -16,7 +16,8 @@ Topics (frame names are :func:`write_overlay`'s ``map_frame`` and ``odom_frame``
 - ``/tf`` (``tf2_msgs/msg/TFMessage``): the map frame to the odom frame at each estimated pose
   the odometry reaches, so the log's own odom frame lands on the map.
 
-Play it beside the original log.
+Play it beside the original log. ``overlay.layout.json`` beside it is a Foxglove layout of these
+topics and the log's camera (:mod:`markergraph.foxglove_layout`).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from mcap_ros2.writer import Writer
 
 from markergraph.common.files import written_whole
 from markergraph.estimator.trajectory import Trajectory
+from markergraph.foxglove_layout import layout_path, overlay_layout, write_layout
 from markergraph.frontend.ros2 import (
     MESSAGE_DEFINITIONS,
     header,
@@ -204,6 +206,15 @@ def _check_frame(name: str, value: str) -> None:
         )
 
 
+def _write_layout(
+    path: Path, map_frame: str, image_topic: str | None, calibration_topic: str | None
+) -> None:
+    """The overlay's Foxglove layout beside it."""
+    scene = [MARKER_TOPIC, PATH_TOPIC, POSE_TOPIC]  # the markers first: also drawn on the image
+    layout = overlay_layout(map_frame, scene, image_topic, calibration_topic)
+    write_layout(layout_path(path), layout)
+
+
 def write_overlay(
     path: Path,
     marker_map: MarkerMap,
@@ -215,8 +226,11 @@ def write_overlay(
     marker_frame_prefix: str = "marker_",
     path_period_ns: int = PATH_PERIOD_NS,
     max_path_poses: int = MAX_PATH_POSES,
+    image_topic: str | None = None,
+    calibration_topic: str | None = None,
 ) -> None:
-    """Write the overlay MCAP, whole or not at all (topics: the module's docstring).
+    """Write the overlay MCAP, whole or not at all (topics: the module's docstring), and its
+    Foxglove layout beside it (``overlay.mcap`` -> ``overlay.layout.json``).
 
     The map (``/markergraph/markers`` and the marker frames on ``/tf_static``) is stamped at the
     earliest stamp of ``trajectory`` and ``odometry``, so it shows from the start of the log.
@@ -237,6 +251,8 @@ def write_overlay(
             grows the path more smoothly and makes the file bigger.
         max_path_poses: poses at most in each path message but the last (which holds every
             pose); the file grows with ``max_path_poses`` times the number of messages.
+        image_topic: the log's colour topic, for the layout's Image panel (None: left empty).
+        calibration_topic: its camera_info topic, which projects the markers onto the image.
 
     Raises:
         ValueError: an empty or ``/``-prefixed frame name, the map and odom frames the same,
@@ -277,3 +293,4 @@ def write_overlay(
                 schemas[schema] = writer.register_msgdef(schema, MESSAGE_DEFINITIONS[schema])
             writer.write_message(topic, schemas[schema], message, log_time=t_ns, publish_time=t_ns)
         writer.finish()
+    _write_layout(Path(path), map_frame, image_topic, calibration_topic)

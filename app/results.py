@@ -126,7 +126,8 @@ def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = 
 
     Files: ``map.json``, ``map.g2o`` (graph methods), ``map.png`` and ``map.svg`` for the first
     method, and ``overlay.mcap`` (its map and trajectory as ROS 2 messages, to show over the
-    log); ``methods/<method>/`` with the same for every method when there are several, and
+    log) with ``overlay.layout.json`` (a Foxglove layout for it); ``methods/<method>/`` with
+    the same for every method when there are several, and
     ``comparison.png``; TUM trajectories (estimated per method, odometry, ground truth);
     ``report.json`` and ``report.html`` (the same report as one self-contained page).
 
@@ -184,6 +185,8 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
         folder / "overlay.mcap", first.marker_map, first.estimate.trajectory, odometry,
         map_frame=run.config.overlay.map_frame,
         odom_frame=run.config.overlay.odom_frame,
+        image_topic=run.extraction.topics.color,
+        calibration_topic=run.extraction.topics.camera_info,
     )  # fmt: skip
     write_tum(folder / "odometry.tum", odometry)
     for n, session in enumerate(run.sessions, start=1):
@@ -217,7 +220,8 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
 def write_localization(run: LocalizationRun, out: Path, *, force: bool = False) -> list[Path]:
     """A localisation's result folder, whole or not at all: ``trajectory.tum`` (the map
     frame), ``localization.json`` (every pose with its covariance, moved and new markers),
-    ``overlay.mcap`` (the saved map, the path and map -> odom), ``ground_truth.tum`` when the
+    ``overlay.mcap`` (the saved map, the path and map -> odom) with ``overlay.layout.json``
+    (its Foxglove layout), ``ground_truth.tum`` when the
     log carries it, and ``report.json``."""
     with result_folder(Path(out), force=force) as folder:
         loc = run.localization
@@ -229,6 +233,8 @@ def write_localization(run: LocalizationRun, out: Path, *, force: bool = False) 
         write_overlay(
             folder / "overlay.mcap", run.saved, loc.trajectory, run.extraction.odometry,
             map_frame=overlay.map_frame, odom_frame=overlay.odom_frame,
+            image_topic=run.extraction.topics.color,
+            calibration_topic=run.extraction.topics.camera_info,
         )  # fmt: skip
         files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
         write_json(folder / "report.json", {

@@ -10,6 +10,7 @@ from markergraph.common.errors import SettingsError
 from markergraph.common.files import check_output_file
 from markergraph.common.progress import ProgressBar
 from markergraph.datasets.scenarios import SCENARIOS, scenario
+from markergraph.datasets.sensors import D435I_ON_DIFF_DRIVE, SENSOR_PRESETS
 from markergraph.datasets.write import write_log
 
 MAX_FRAME_RATE_HZ = 240.0  # faster than any camera the simulator models
@@ -50,7 +51,27 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         metavar="HZ",
         help="camera frame rate (default 15)",
     )
+    parser.add_argument(
+        "--sensors",
+        choices=sorted(SENSOR_PRESETS),
+        default="ideal",
+        help=_sensors_help(),
+    )
     parser.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+
+
+def _sensors_help() -> str:
+    """The --sensors help, with the preset's figures taken from the preset itself."""
+    d = D435I_ON_DIFF_DRIVE
+    return (
+        "the camera and base: 'ideal' (default; exact stamps, global shutter, true depth) or "
+        f"'d435i', a RealSense D435i on a diff-drive base: colour and depth stamps "
+        f"{d.camera_latency_s * 1e3:g} ms late with {d.stamp_jitter_s * 1e3:g} ms jitter, "
+        f"a {d.rolling_shutter_s * 1e3:g} ms rolling shutter, {d.exposure_s * 1e3:g} ms "
+        f"exposure blur, depth reading {(d.depth_scale - 1) * 100:g} %% long and none on black "
+        f"ink, lens distortion, {d.dropped_frames * 100:g} %% of frames dropped, odometry "
+        f"stamps jittered by {d.odometry_jitter_s * 1e3:g} ms, and realsense-ros's TF tree"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -73,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
             duration_s=args.duration,
             compressed=args.compressed,
             frame_hz=args.frame_rate,
+            sensors=SENSOR_PRESETS[args.sensors],
             progress=bar,
         )
     print(

@@ -4,6 +4,7 @@ odometry stamps and the TF tree realsense-ros and a diff-drive base publish.
 
 Each is an option of :class:`SensorEffects` (all off by default: the ideal sensors), and
 :data:`D435I_ON_DIFF_DRIVE` sets them all at the values of a RealSense D435i on a diff-drive base.
+:data:`SENSOR_PRESETS` names both for ``markergraph simulate --sensors``.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from numpy.typing import NDArray
 __all__ = [
     "D435I_ON_DIFF_DRIVE",
     "D435_DISTORTION",
+    "SENSOR_PRESETS",
     "SensorEffects",
     "black_cells_without_depth",
     "motion_smear",
@@ -77,6 +79,13 @@ D435I_ON_DIFF_DRIVE = SensorEffects(
     odometry_jitter_s=0.002,
     realsense_tf_tree=True,
 )
+
+SENSOR_PRESETS: dict[str, SensorEffects] = {
+    "ideal": SensorEffects(),
+    "d435i": D435I_ON_DIFF_DRIVE,
+}
+"""The sensors ``markergraph simulate --sensors NAME`` puts in its log: ``ideal`` (no effect, the
+default) or ``d435i`` (:data:`D435I_ON_DIFF_DRIVE`)."""
 
 
 def shutter_offsets(readout_s: float) -> NDArray[np.float64]:

@@ -135,12 +135,16 @@ for (stamp, image, depth_image, detections), top, bottom in zip(shown, *axes, st
             (u, v + 60), color="yellow", fontsize=9, ha="center", va="top",
         )  # fmt: skip
     top.set_title(f"{(stamp - min(colour)) / 1e9:.1f} s into the log")
-    bottom.imshow(
+    depth_shown = bottom.imshow(
         np.where(depth_image > 0, depth_image / 1000.0, np.nan), cmap="viridis", vmin=0, vmax=6
     )
-    bottom.set_title("aligned depth [m]")
+    bottom.set_title("aligned depth (white: no depth)")
 for ax in axes.flat:
     ax.axis("off")
+# One bar for the depth row (the panels share the 0-6 m scale), taken from all six axes so the
+# two rows keep the same width; anchored low and half high, it stands beside the depth row.
+fig.colorbar(depth_shown, ax=list(axes.flat), label="aligned depth [m]", shrink=0.45,
+             anchor=(0.0, 0.0), pad=0.01)  # fmt: skip
 figures.show(fig, "frames-and-detections")
 
 # %% [markdown]
