@@ -12,10 +12,14 @@ from markergraph.common.errors import SettingsError
 from markergraph.common.files import check_output_file
 from markergraph.estimator.paper import Form
 from markergraph.formats import ExportFormat, export_map
+from markergraph.heading_sigma import HeadingSigma, heading_sigma
 from markergraph.markermap import MarkerMap, MarkerMapError
 
 EXPORT = "write a map.json in another tool's format"
-HEADING = "the paper's target heading from a localisation on one marker to another"
+HEADING = (
+    "the paper's target heading from a localisation on one marker to another, with its 1-sigma "
+    "from the map's covariances: a straight line that knows nothing of walls or obstacles"
+)
 
 
 def add_parsers(commands: argparse._SubParsersAction) -> None:
@@ -123,15 +127,42 @@ def run_heading(args: argparse.Namespace) -> int:
     try:
         distance, turn = marker_map.heading(args.source, d, theta, args.to)
         printed = marker_map.heading(args.source, d, theta, args.to, Form.PAPER)
+        sigma = _sigma_or_none(marker_map, args.source, d, theta, args.to)
     except MarkerMapError as error:
         raise MarkerMapError(f"{args.map}: {error}") from None
     side = "counter-clockwise" if turn >= 0 else "clockwise"
+    turn_text = f"{abs(math.degrees(turn)):.1f} deg"
+    distance_text = f"{distance:.3f} m"
+    if sigma is not None:
+        turn_text += f" +- {math.degrees(sigma.turn_rad):.1f}"
+        distance_text += f" +- {sigma.distance_m:.3f}"
     print(
-        f"turn {abs(math.degrees(turn)):.1f} deg {side} from facing marker {args.source}, "
-        f"then drive {distance:.3f} m to marker {args.to}"
+        f"turn {turn_text} {side} from facing marker {args.source}, "
+        f"then drive {distance_text} to marker {args.to}"
     )
+    print(
+        "a straight line from the robot to the marker: it ignores walls and obstacles, so plan "
+        "the path itself with a map of the free space"
+    )
+    if sigma is None:
+        print("(no 1-sigma: the map has no covariances)")
+    else:
+        print(
+            "(+- is 1 sigma from the two markers' covariances in the map, first-order; the "
+            "robot's own distance and angle are taken as exact)"
+        )
     print(
         f"(the paper's printed formula says turn {math.degrees(printed[1]):.1f} deg, "
         f"drive {printed[0]:.3f} m)"
     )
     return 0
+
+
+def _sigma_or_none(
+    marker_map: MarkerMap, source: int, d: float, theta: float, target: int
+) -> HeadingSigma | None:
+    """The heading's 1-sigma, or None for a map written without covariances."""
+    markers = marker_map.markers
+    if markers[source].covariance is None or markers[target].covariance is None:
+        return None
+    return heading_sigma(marker_map, source, d, theta, target)
