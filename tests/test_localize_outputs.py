@@ -287,3 +287,19 @@ def _map_of(merged) -> MarkerMap:
         for i, m in sorted(merged.markers.items())
     }
     return MarkerMap(markers, (), 0, "DICT_4X4_50", 0.2, "slam", "a.mcap")
+
+
+def test_an_ate_far_beyond_the_sigmas_gets_a_note_and_one_within_does_not() -> None:
+    """ate_note fires above 3x the RMS sigma (naming the ratio and the map's own error), not at
+    or below it, and not without truth."""
+    from markergraph.localize_accuracy import TOO_FAR_RATIO, LocalizeAccuracy, ate_note
+
+    rms = 0.025
+    far = ate_note(LocalizeAccuracy(0.02, rms, 0.199, 0.03))
+    assert far is not None and far.kind == "localization.ate_beyond_sigma"
+    assert far.figure == pytest.approx(0.199 / rms)
+    assert "8.0x the RMS position sigma 2.5 cm" in far.text
+    assert "map's own error" in far.text and "wrong map" in far.text
+    assert ate_note(LocalizeAccuracy(0.02, rms, TOO_FAR_RATIO * rms, None)) is None
+    assert ate_note(LocalizeAccuracy(0.02, rms, 0.05, 0.01)) is None
+    assert ate_note(LocalizeAccuracy(0.02, rms, None, None)) is None
