@@ -131,26 +131,22 @@ def run_heading(args: argparse.Namespace) -> int:
     except MarkerMapError as error:
         raise MarkerMapError(f"{args.map}: {error}") from None
     side = "counter-clockwise" if turn >= 0 else "clockwise"
-    turn_text = f"{abs(math.degrees(turn)):.1f} deg"
-    distance_text = f"{distance:.3f} m"
-    if sigma is not None:
-        turn_text += f" +- {math.degrees(sigma.turn_rad):.1f}"
-        distance_text += f" +- {sigma.distance_m:.3f}"
     print(
-        f"turn {turn_text} {side} from facing marker {args.source}, "
-        f"then drive {distance_text} to marker {args.to}"
+        f"turn {abs(math.degrees(turn)):.1f} deg {side} from facing marker {args.source}, "
+        f"then drive {distance:.3f} m to marker {args.to}"
     )
+    if sigma is None:
+        print("1 sigma: none (the map has no covariances)")
+    else:
+        print(
+            f"1 sigma: turn +- {math.degrees(sigma.turn_rad):.1f} deg, drive +- "
+            f"{sigma.distance_m:.3f} m (first order from the two markers' covariances in the map; "
+            "the robot's own distance and angle taken as exact)"
+        )
     print(
         "a straight line from the robot to the marker: it ignores walls and obstacles, so plan "
         "the path itself with a map of the free space"
     )
-    if sigma is None:
-        print("(no 1-sigma: the map has no covariances)")
-    else:
-        print(
-            "(+- is 1 sigma from the two markers' covariances in the map, first-order; the "
-            "robot's own distance and angle are taken as exact)"
-        )
     print(
         f"(the paper's printed formula says turn {math.degrees(printed[1]):.1f} deg, "
         f"drive {printed[0]:.3f} m)"

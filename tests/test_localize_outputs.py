@@ -89,7 +89,7 @@ def test_heading_prints_its_sigma_and_says_it_is_a_straight_line(tmp_path: Path)
                   "--to", "5")  # fmt: skip
     assert run.returncode == 0, run.stderr
     turn_sigma, distance_sigma = map(
-        float, re.findall(r"deg \+- ([\d.]+) .* m \+- ([\d.]+) to", run.stdout)[0]
+        float, re.findall(r"1 sigma: turn \+- ([\d.]+) deg, drive \+- ([\d.]+) m", run.stdout)[0]
     )
     sigma = heading_sigma(saved, 0, 1.2, math.radians(20.0), 5)
     assert turn_sigma == pytest.approx(math.degrees(sigma.turn_rad), abs=0.06)
