@@ -15,7 +15,7 @@ from markergraph.estimator import Observation
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.markermap import MarkerMap
 
-__all__ = ["plot_comparison", "plot_diagnostics", "plot_map"]
+__all__ = ["draw_marker_map", "plot_comparison", "plot_diagnostics", "plot_map"]
 
 MARGIN = 0.1  # of the view's larger side, around what is drawn
 CIRCLE = np.stack([np.cos(np.linspace(0, math.tau, 60)), np.sin(np.linspace(0, math.tau, 60))])
@@ -226,3 +226,13 @@ def plot_diagnostics(
     right.set_title("detections per marker", fontsize=9)
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
+
+
+def draw_marker_map(
+    ax: Any, marker_map: MarkerMap, title: str, points: Sequence[NDArray[np.float64]]
+) -> None:
+    """The map as map.png draws it (links, markers with normals, 2-sigma ellipses), without
+    truth, on ``ax`` in a view around its markers and ``points`` ((N, 2) arrays [m]): for
+    figures of other commands (localize's map.png) drawn over the same map."""
+    view = _extent(_map_points(marker_map, {}, []) + [p for p in points if len(p)])
+    _draw_map(ax, marker_map, {}, title, view)

@@ -142,9 +142,11 @@ class LocalizationRun:
         config: the settings.
         extraction: the front end's output.
         localization: trajectory, pose covariances, moved and new markers.
-        ate_m: the trajectory's RMS error against the logged truth, if any [m].
+        ate_m: the trajectory's RMS error against the logged truth, if any, home-fixed (the
+            truth carried into the map frame by the home marker's true pose) [m].
         true_path: the logged truth at the trajectory's stamps, in the map frame.
         notes: what a person should read.
+        ate_aligned_m: the same error after a rigid 2-D alignment, if any [m].
     """
 
     log: Path
@@ -156,6 +158,7 @@ class LocalizationRun:
     ate_m: float | None
     true_path: Trajectory | None
     notes: list[Note]
+    ate_aligned_m: float | None = None
 
     def document(self) -> dict[str, Any]:
         """``localization.json``: every pose with its covariance, the moved and new markers,
@@ -191,6 +194,7 @@ class LocalizationRun:
             "new": [{"id": i, **_pose(m.T_map_marker)} for i, m in sorted(loc.new.items())],
             "pulled_sigmas": {str(i): v for i, v in sorted(loc.checked.items())},
             "ate_m": self.ate_m,
+            "ate_aligned_m": self.ate_aligned_m,
             "notes": [note.text for note in self.notes],
         }
 

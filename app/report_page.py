@@ -39,6 +39,12 @@ _CAPTIONS_3D = {
     "surveyed tags in red, the rig's path and, when known, the true tags (grey) after a rigid "
     "alignment.",
 }
+_CAPTIONS_LOCALIZE = {
+    "map.png": "The saved map (markers with their normals and 2-sigma ellipses), the path "
+    "localised in it (green), the logged truth when there is one (dashed) and each marker that "
+    "moved since the map was made as a red arrow from the map's place to where this log saw it, "
+    "in the map's home-marker frame.",
+}
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_ROWS = 200  # a generic table longer than this is cut, saying how much is left in report.json
 MAX_ITEMS = 50  # the same for a list of plain values
@@ -204,14 +210,15 @@ def render_report_page(report: Mapping[str, Any], figures: Mapping[str, bytes]) 
         One HTML document that needs nothing but itself.
     """
     log = str(report.get("log", ""))
-    title = f"markergraph map: {Path(log).name}" if log else "markergraph map"
+    command = "localize" if report.get("command") == "localize" else "map"
+    title = f"markergraph {command}: {Path(log).name}" if log else f"markergraph {command}"
     body = [
         f"<h1>{_esc(title)}</h1>",
         f'<p class="lead">{_esc(_lead(report))}</p>',
         _verdict_section(report),
         _methods_section(report),
         _notes_section(report),
-        _figures_section(figures, _CAPTIONS_3D if report.get("dimensions") == 3 else _CAPTIONS),
+        _figures_section(figures, _captions(report)),
         *_method_sections(report),
         *_generic_sections(report),
         _log_section(report),
@@ -231,13 +238,20 @@ def render_report_page(report: Mapping[str, Any], figures: Mapping[str, bytes]) 
     )
 
 
+def _captions(report: Mapping[str, Any]) -> Mapping[str, str]:
+    """The figures' captions for the command and kind of map that wrote the report."""
+    if report.get("command") == "localize":
+        return _CAPTIONS_LOCALIZE
+    return _CAPTIONS_3D if report.get("dimensions") == 3 else _CAPTIONS
+
+
 # --- sections -------------------------------------------------------------------------------
 
 
 def _lead(report: Mapping[str, Any]) -> str:
     parts = [
         f"{_plain(report[key])} {key}"
-        for key in ("frames", "observations", "views")
+        for key in ("frames", "observations", "views", "poses")
         if _is_number(report.get(key))
     ]
     if _is_number(report.get("markers_seen")):

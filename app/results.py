@@ -11,14 +11,22 @@ from typing import Any
 from markergraph.common.files import MANIFEST_KEY, REPORT_SCHEMA_PREFIX, result_folder
 from markergraph.diagnostics import diagnostics
 from markergraph.formats import write_g2o, write_tum
+from markergraph.localize_accuracy import accuracy_entry, accuracy_of
 from markergraph.markermap import write_json
 from markergraph.overlay import write_overlay
 from markergraph.records import LocalizationRun, MapRun, MethodResult
 from markergraph.report_page import REPORT_PAGE, write_report_page
 
-__all__ = ["DIAGNOSTICS_FIGURE", "REPORT_SCHEMA", "write_localization", "write_results"]
+__all__ = [
+    "DIAGNOSTICS_FIGURE",
+    "LOCALIZE_FIGURE",
+    "REPORT_SCHEMA",
+    "write_localization",
+    "write_results",
+]
 
 DIAGNOSTICS_FIGURE = "diagnostics.png"
+LOCALIZE_FIGURE = "map.png"  # localize's: the saved map, the localised path, moved markers
 REPORT_SCHEMA = f"{REPORT_SCHEMA_PREFIX}1"  # report.json's layout; bump on a breaking change
 
 
@@ -217,12 +225,16 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
     write_report_page(folder / REPORT_PAGE, report, folder)  # the same figures, one page
 
 
-def write_localization(run: LocalizationRun, out: Path, *, force: bool = False) -> list[Path]:
+def write_localization(
+    run: LocalizationRun, out: Path, *, force: bool = False, plots: bool = True
+) -> list[Path]:
     """A localisation's result folder, whole or not at all: ``trajectory.tum`` (the map
     frame), ``localization.json`` (every pose with its covariance, moved and new markers),
-    ``overlay.mcap`` (the saved map, the path and map -> odom) with ``overlay.layout.json``
-    (its Foxglove layout), ``ground_truth.tum`` when the
-    log carries it, and ``report.json``."""
+    ``overlay.mcap`` (the saved map, the path and map -> odom) with ``overlay.layout.json`` (its
+    Foxglove layout), ``ground_truth.tum`` when the log carries it, ``map.png`` (the map, the
+    path, moved markers as arrows; unless not
+    ``plots``), ``report.json`` and ``report.html`` (the same report as one self-contained
+    page)."""
     with result_folder(Path(out), force=force) as folder:
         loc = run.localization
         write_tum(folder / "trajectory.tum", loc.trajectory)
@@ -236,13 +248,47 @@ def write_localization(run: LocalizationRun, out: Path, *, force: bool = False) 
             image_topic=run.extraction.topics.color,
             calibration_topic=run.extraction.topics.camera_info,
         )  # fmt: skip
+        accuracy = accuracy_of(loc, run.ate_m, run.ate_aligned_m)
+        if plots:
+            from markergraph.plots_localize import plot_localization
+
+            plot_localization(run.saved, loc, folder / LOCALIZE_FIGURE,
+                              truth_path=run.true_path, title=_localize_title(run))  # fmt: skip
         files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
-        write_json(folder / "report.json", {
-            "schema": REPORT_SCHEMA, MANIFEST_KEY: sorted([*files, "report.json"]),
-            "log": str(run.log), "map": str(run.map_path), "poses": len(loc.trajectory),
-            "moved": [m.marker_id for m in loc.moved], "new": sorted(loc.new),
-            "ate_m": run.ate_m, "notes": [note.text for note in run.notes],
-            "settings": dict(run.config.values),
-        })  # fmt: skip
+        report = _localize_report(run, sorted([*files, "report.json", REPORT_PAGE]))
+        report["accuracy"] = accuracy_entry(accuracy)
+        write_json(folder / "report.json", report)
+        write_report_page(folder / REPORT_PAGE, report, folder)
         written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
     return written
+
+
+def _localize_title(run: LocalizationRun) -> str:
+    """localize's map.png title: what the map is, and the ATE with its alignment."""
+    home = run.saved.home_id
+    title = f"{Path(run.log).name} localised in {run.map_path} (frame of marker {home})"
+    if run.ate_m is not None:
+        title += f"\nATE {100 * run.ate_m:.1f} cm home-fixed"
+        if run.ate_aligned_m is not None:
+            title += f", {100 * run.ate_aligned_m:.1f} cm aligned"
+    return title
+
+
+def _localize_report(run: LocalizationRun, files: list[str]) -> dict[str, Any]:
+    """localize's report.json (schema as map's): what was read, the path, the moved and new
+    markers (before and now) and the notes."""
+    loc = run.localization
+    return {
+        "schema": REPORT_SCHEMA, MANIFEST_KEY: files, "command": "localize",
+        "log": str(run.log), "map": str(run.map_path), "poses": len(loc.trajectory),
+        "moved": [m.marker_id for m in loc.moved], "new": sorted(loc.new),
+        "moved_markers": [
+            {"id": m.marker_id, "displacement_m": m.displacement_m,
+             "before_x_m": m.T_map_before.x(), "before_y_m": m.T_map_before.y(),
+             "now_x_m": m.T_map_now.x(), "now_y_m": m.T_map_now.y()}
+            for m in loc.moved
+        ],
+        "ate_m": run.ate_m, "ate_aligned_m": run.ate_aligned_m,
+        "notes": [note.text for note in run.notes],
+        "settings": dict(run.config.values),
+    }  # fmt: skip

@@ -20,6 +20,7 @@ from markergraph.estimator.localization import localize
 from markergraph.estimator.sessions import solve_sessions
 from markergraph.executors import extract_logs
 from markergraph.frontend import Extraction
+from markergraph.localize_accuracy import accuracy_of, ate_note
 from markergraph.markermap import MarkerMap
 from markergraph.prepare import Prepared, prepare
 from markergraph.records import LocalizationRun, MapRun, MethodResult, Session, marker_map_of
@@ -303,7 +304,9 @@ def localize_log(
     _, path = truth_in_home_frame(extraction, saved.home_id)
     error, true_path = path_error(localization.trajectory, path)
     ate_m = error.ate_rmse_m if error is not None else None
+    ate_aligned_m = error.ate_aligned_rmse_m if error is not None else None
+    far = ate_note(accuracy_of(localization, ate_m, ate_aligned_m))
     return LocalizationRun(
         Path(log), Path(map_path), saved, config, extraction, localization, ate_m, true_path,
-        notes,
+        [*notes, *([far] if far is not None else [])], ate_aligned_m,
     )  # fmt: skip

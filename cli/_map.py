@@ -6,14 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from markergraph.cli._settings import add_settings, add_verbosity, settings_from
 from markergraph.common import Note, SettingsError
 from markergraph.common.files import check_output_folder
 from markergraph.common.progress import ProgressBar, Stages
+from markergraph.localize_accuracy import accuracy_lines, accuracy_of
 from markergraph.markermap import MarkerMap
 from markergraph.records import MapRun
+from markergraph.report_page import REPORT_PAGE
 from markergraph.results import write_localization, write_results
 from markergraph.results3d import write_results_3d
 from markergraph.run import localize_log, map_logs
@@ -60,15 +60,25 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 LOCALIZE = "the robot's path in a saved map, and which of its markers moved"
+LOCALIZE_FILES = (
+    "writes into --out: trajectory.tum (the path, map frame), localization.json (every pose with "
+    "its covariance, moved and new markers), overlay.mcap (the map and path for Foxglove), "
+    "map.png (the map with its ellipses, the path, moved markers as arrows from their old to "
+    "their new place), report.json and report.html (one page that opens offline), and "
+    "ground_truth.tum when the log carries truth"
+)
 
 
 def add_localize_parser(commands: argparse._SubParsersAction) -> None:
-    parser = commands.add_parser("localize", help=LOCALIZE, description=LOCALIZE)
+    parser = commands.add_parser(
+        "localize", help=LOCALIZE, description=f"{LOCALIZE}; {LOCALIZE_FILES}"
+    )
     parser.add_argument("log", type=Path, help="an .mcap file, a rosbag2 folder or a ROS 1 .bag")
     parser.add_argument("--map", type=Path, required=True, metavar="MAP.json",
                         help="the saved map (markergraph map's map.json)")  # fmt: skip
     parser.add_argument("--out", type=Path, required=True, help="result folder")
     parser.add_argument("--force", action="store_true", help="replace an existing result folder")
+    parser.add_argument("--no-plots", action="store_true", help="skip map.png")
     add_verbosity(parser)
     add_settings(parser, "localize")
 
@@ -81,19 +91,12 @@ def run_localize(args: argparse.Namespace) -> int:
     with ProgressBar(f"reading {Path(args.log).name}", quiet=args.quiet) as bar:
         run = localize_log(args.log, saved, args.map, config, progress=bar, stage=stages)
     stages(f"writing {args.out}/")
-    written = write_localization(run, args.out, force=args.force)
+    written = write_localization(run, args.out, force=args.force, plots=not args.no_plots)
     stages.close()
     loc = run.localization
-    sigmas = np.sqrt(loc.pose_covariances[:, 0, 0] + loc.pose_covariances[:, 1, 1])
-    print(
-        f"{len(loc.trajectory)} poses in the map of {args.map}; median position sigma "
-        f"{100 * float(np.median(sigmas)):.1f} cm"
-        + (
-            f"; ATE {100 * run.ate_m:.1f} cm against the logged truth"
-            if run.ate_m is not None
-            else ""
-        )
-    )
+    print(f"{len(loc.trajectory)} poses in the map of {args.map}")
+    for line in accuracy_lines(accuracy_of(loc, run.ate_m, run.ate_aligned_m)):
+        print(line)
     for m in loc.moved:
         print(f"moved: marker {m.marker_id} by {100 * m.displacement_m:.1f} cm")
     for i in sorted(loc.new):
@@ -101,7 +104,7 @@ def run_localize(args: argparse.Namespace) -> int:
     if not args.quiet:
         for note in run.notes:
             print(f"note: {note}", file=sys.stderr)
-    print(f"wrote {len(written)} files to {args.out}/")
+    print(f"wrote {len(written)} files to {args.out}/ (open {Path(args.out) / REPORT_PAGE})")
     return 0
 
 

@@ -12,10 +12,14 @@ from markergraph.common.errors import SettingsError
 from markergraph.common.files import check_output_file
 from markergraph.estimator.paper import Form
 from markergraph.formats import ExportFormat, export_map
+from markergraph.heading_sigma import HeadingSigma, heading_sigma
 from markergraph.markermap import MarkerMap, MarkerMapError
 
 EXPORT = "write a map.json in another tool's format"
-HEADING = "the paper's target heading from a localisation on one marker to another"
+HEADING = (
+    "the paper's target heading from a localisation on one marker to another, with its 1-sigma "
+    "from the map's covariances: a straight line that knows nothing of walls or obstacles"
+)
 
 
 def add_parsers(commands: argparse._SubParsersAction) -> None:
@@ -123,6 +127,7 @@ def run_heading(args: argparse.Namespace) -> int:
     try:
         distance, turn = marker_map.heading(args.source, d, theta, args.to)
         printed = marker_map.heading(args.source, d, theta, args.to, Form.PAPER)
+        sigma = _sigma_or_none(marker_map, args.source, d, theta, args.to)
     except MarkerMapError as error:
         raise MarkerMapError(f"{args.map}: {error}") from None
     side = "counter-clockwise" if turn >= 0 else "clockwise"
@@ -130,8 +135,30 @@ def run_heading(args: argparse.Namespace) -> int:
         f"turn {abs(math.degrees(turn)):.1f} deg {side} from facing marker {args.source}, "
         f"then drive {distance:.3f} m to marker {args.to}"
     )
+    if sigma is None:
+        print("1 sigma: none (the map has no covariances)")
+    else:
+        print(
+            f"1 sigma: turn +- {math.degrees(sigma.turn_rad):.1f} deg, drive +- "
+            f"{sigma.distance_m:.3f} m (first order from the two markers' covariances in the map; "
+            "the robot's own distance and angle taken as exact)"
+        )
+    print(
+        "a straight line from the robot to the marker: it ignores walls and obstacles, so plan "
+        "the path itself with a map of the free space"
+    )
     print(
         f"(the paper's printed formula says turn {math.degrees(printed[1]):.1f} deg, "
         f"drive {printed[0]:.3f} m)"
     )
     return 0
+
+
+def _sigma_or_none(
+    marker_map: MarkerMap, source: int, d: float, theta: float, target: int
+) -> HeadingSigma | None:
+    """The heading's 1-sigma, or None for a map written without covariances."""
+    markers = marker_map.markers
+    if markers[source].covariance is None or markers[target].covariance is None:
+        return None
+    return heading_sigma(marker_map, source, d, theta, target)
