@@ -19,6 +19,7 @@ from markergraph.estimator import Form, Method, estimate_frames, marker_heights
 from markergraph.estimator.localization import localize
 from markergraph.estimator.sessions import solve_sessions
 from markergraph.executors import extract_logs
+from markergraph.formats.observations import extraction_of_file, is_observation_file
 from markergraph.frontend import Extraction
 from markergraph.markermap import MarkerMap
 from markergraph.obs_cache import (
@@ -91,11 +92,14 @@ def _read(
     cache = cache and cache_enabled()
     keys = [entry_key(Path(log), config.frontend) if cache else "" for log in logs]
     entries = [load_entry(key) if cache else None for key in keys]
+    for i, log in enumerate(logs):  # detect's output: read here, no image in it
+        if entries[i] is None and is_observation_file(Path(log)):
+            entries[i] = CacheEntry(CACHE_VERSION, keys[i], extraction_of_file(Path(log)))
     missing = [i for i, entry in enumerate(entries) if entry is None]
     start = time.perf_counter()
     if missing:
-        stage(f"reading {Path(logs[0]).name}" if len(logs) == 1 else f"reading {len(missing)} "
-              f"logs ({executor})")  # fmt: skip
+        stage(f"reading {Path(logs[missing[0]]).name}" if len(missing) == 1 else
+              f"reading {len(missing)} logs ({executor})")  # fmt: skip
         extractions = extract_logs(
             [logs[i] for i in missing], config.frontend, executor=executor, address=address,
             workers=config.workers, progress=progress,

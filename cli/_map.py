@@ -12,6 +12,7 @@ from markergraph.cli._settings import add_settings, add_verbosity, settings_from
 from markergraph.common import Note, SettingsError
 from markergraph.common.files import check_output_folder
 from markergraph.common.progress import ProgressBar, Stages
+from markergraph.formats.observations import is_observation_file
 from markergraph.markermap import MarkerMap
 from markergraph.records import MapRun
 from markergraph.results import write_localization, write_results
@@ -33,8 +34,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         type=Path,
         nargs="*",
         metavar="LOG",
-        help="an .mcap file, a rosbag2 folder or a ROS 1 .bag; several logs of one place make "
-        f"one map (default: the bundled {DEFAULT_SAMPLE} sample, rendered once into the cache)",
+        help="an .mcap file, a rosbag2 folder, a ROS 1 .bag or markergraph detect's .jsonl "
+        "output; several logs of one place make one map (default: the bundled "
+        f"{DEFAULT_SAMPLE} sample, rendered once into the cache)",
     )
     parser.add_argument(
         "--prior", type=Path, metavar="MAP.json",
@@ -144,7 +146,10 @@ def run(args: argparse.Namespace) -> int:
     if not args.logs:
         logs = [sample_log(DEFAULT_SAMPLE)]
         print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({logs[0]})")
-    three_d, why = wants_3d(logs[0], config) if args.logs else (config.dimensions == "3", None)
+    if args.logs and not is_observation_file(logs[0]):
+        three_d, why = wants_3d(logs[0], config)
+    else:  # the sample, or detect's output (2-D observations)
+        three_d, why = config.dimensions == "3", None
     if three_d:
         if len(logs) > 1 or prior is not None:
             raise SettingsError("a 3-D map is made from one log (several logs and --prior are 2-D)")

@@ -203,3 +203,36 @@ def test_progress_on_a_terminal_ends_at_100_and_each_stage_has_its_line(
     assert "frame/s" not in after and "%|" not in after
     for line in ("choosing the odometry's scale", "estimating: slam", "writing "):
         assert re.search(rf"(^|\n){re.escape(line)}", after), line
+
+
+def test_detect_output_maps_to_the_same_markers_as_the_log(
+    log: Path, tmp_path: Path, decoded: list[int]
+) -> None:
+    """``map obs.jsonl`` (detect's output: observations, mount, odometry) reads no image and
+    places the same markers where ``map`` of the log does."""
+    obs = tmp_path / "obs.jsonl"
+    assert main(["detect", str(log), "--out", str(obs), "--quiet"]) == 0
+    from_log = _map(log, tmp_path / "log", "--no-cache")
+    n = len(decoded)
+    from_file = _map(obs, tmp_path / "file")
+    assert len(decoded) == n
+    a, b = _positions(from_log), _positions(from_file)
+    assert a.keys() == b.keys() and len(a) == 3
+    for i in a:
+        np.testing.assert_allclose(b[i], a[i], atol=SAME_MAP_M)
+
+
+def test_detect_output_without_odometry_fails_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Observations without any odometry: exit 1, one line naming the file and what is
+    missing."""
+    monkeypatch.setenv("MARKERGRAPH_CACHE", str(tmp_path / "cache"))
+    row = {"t_ns": 1, "marker_id": 0, "bearing": 0.0, "theta": 0.0, "range_m": 1.0,
+           "sigma_bearing": 0.01, "sigma_theta": 0.01, "sigma_range": 0.01,
+           "odom": None}  # fmt: skip
+    obs = tmp_path / "obs.jsonl"
+    obs.write_text(json.dumps(row) + "\n")
+    assert main(["map", str(obs), "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(obs) in err[0] and "no odometry" in err[0], err
