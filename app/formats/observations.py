@@ -8,9 +8,10 @@ null) and ``odom`` ({"x", "y", "yaw"}: ``T_odom_base`` interpolated at
 
 ``markergraph detect`` also writes what ``markergraph map`` needs to map from the file: a first
 line ``{"header": {"format": "markergraph.observations", "version": 2, "mount": {x_m, y_m,
-height_m, yaw_rad, pitch_rad, roll_rad}, "odom_topic": ...}}`` (the camera's mount the
-observations were made with) and, after the observations, one line per odometry sample
-``{"odometry": {"t_ns", "x", "y", "yaw"}}`` (``T_odom_base`` at the odometry's own rate).
+height_m, yaw_rad, pitch_rad, roll_rad}, "odom_topic": ..., "odometry_evidence": {...}}}``
+(the camera's mount the observations were made with, and what the odometry's first messages
+showed of its kind, which chooses its noise model) and, after the observations, one line per
+odometry sample ``{"odometry": {"t_ns", "x", "y", "yaw"}}`` (``T_odom_base`` at its own rate).
 Readers of observations skip both.
 """
 
@@ -29,6 +30,7 @@ from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Observation, OdometrySample
 from markergraph.frontend.camera import CameraMount
 from markergraph.frontend.extraction import Extraction
+from markergraph.frontend.odometry_kind import OdometryEvidence
 from markergraph.frontend.topics import TopicChoice
 
 __all__ = [
@@ -56,6 +58,8 @@ class ObservationFile:
         odometry_at_observations: the poses the observations carry (one per distinct stamp).
         mount: the camera's mount the observations were made with (None: not written).
         odom_topic: the odometry's topic in the log, if written.
+        odometry_evidence: what the odometry's messages showed of its kind (it chooses the
+            odometry's noise model), if written.
     """
 
     observations: list[Observation]
@@ -64,6 +68,7 @@ class ObservationFile:
     odometry_at_observations: Trajectory
     mount: CameraMount | None
     odom_topic: str | None
+    odometry_evidence: OdometryEvidence | None = None
 
 
 def write_observations(
@@ -72,6 +77,7 @@ def write_observations(
     odometry: Trajectory,
     mount: CameraMount | None = None,
     odom_topic: str | None = None,
+    odometry_evidence: OdometryEvidence | None = None,
 ) -> int:
     """Write observations as JSON lines, whole or not at all; with a ``mount``, also the header
     and the odometry lines that ``markergraph map`` maps from.
@@ -83,8 +89,9 @@ def write_observations(
     poses = [odometry.at(o.t_ns) for o in observations]
     with written_whole(path) as partial, open(partial, "w", encoding="utf-8") as stream:
         if mount is not None:
+            evidence = asdict(odometry_evidence) if odometry_evidence is not None else None
             header = {"format": FORMAT, "version": VERSION, "mount": asdict(mount),
-                      "odom_topic": odom_topic}  # fmt: skip
+                      "odom_topic": odom_topic, "odometry_evidence": evidence}  # fmt: skip
             stream.write(json.dumps({"header": header}, allow_nan=False) + "\n")
         for obs, pose in zip(observations, poses, strict=True):
             stream.write(
@@ -163,6 +170,9 @@ def read_observation_file(path: Path) -> ObservationFile:
         at_stamps,
         CameraMount(**{k: float(v) for k, v in mount.items()}) if mount else None,
         header.get("odom_topic"),
+        OdometryEvidence(**header["odometry_evidence"])
+        if header.get("odometry_evidence")
+        else None,
     )
 
 
@@ -233,4 +243,5 @@ def extraction_of_file(path: Path) -> Extraction:
         topics=TopicChoice(None, None, None, read.odom_topic, None),
         frames=len(stamps),
         notes=notes,
+        odometry_evidence=read.odometry_evidence,
     )
