@@ -54,7 +54,7 @@ def run_detect(args: argparse.Namespace) -> int:
         result = extract(args.log, config.frontend, progress=bar, workers=config.workers)
     written = write_observations(
         out, result.observations, result.odometry, result.mount, result.topics.odom,
-        result.odometry_evidence,
+        result.odometry_evidence, result.frames,
     )  # fmt: skip
     markers = sorted({o.marker_id for o in result.observations})
     print(

@@ -7,12 +7,12 @@ null) and ``odom`` ({"x", "y", "yaw"}: ``T_odom_base`` interpolated at
 ``t_ns``, or null where odometry does not reach).
 
 ``markergraph detect`` also writes what ``markergraph map`` needs to map from the file: a first
-line ``{"header": {"format": "markergraph.observations", "version": 2, "mount": {x_m, y_m,
-height_m, yaw_rad, pitch_rad, roll_rad}, "odom_topic": ..., "odometry_evidence": {...}}}``
-(the camera's mount the observations were made with, and what the odometry's first messages
-showed of its kind, which chooses its noise model) and, after the observations, one line per
-odometry sample ``{"odometry": {"t_ns", "x", "y", "yaw"}}`` (``T_odom_base`` at its own rate).
-Readers of observations skip both.
+line ``{"header": {...}}`` holding ``format`` ("markergraph.observations"), ``version`` (2),
+``mount`` ({x_m, y_m, height_m, yaw_rad, pitch_rad, roll_rad}: the camera's mount the
+observations were made with), ``odom_topic``, ``odometry_evidence`` (what the odometry's first
+messages showed of its kind: it chooses the noise model) and ``frames`` (colour frames read);
+and, after the observations, one line per odometry sample ``{"odometry": {"t_ns", "x", "y",
+"yaw"}}`` (``T_odom_base`` at its own rate). Readers of observations skip both.
 """
 
 from __future__ import annotations
@@ -60,6 +60,7 @@ class ObservationFile:
         odom_topic: the odometry's topic in the log, if written.
         odometry_evidence: what the odometry's messages showed of its kind (it chooses the
             odometry's noise model), if written.
+        frames: the colour frames detect read, if written.
     """
 
     observations: list[Observation]
@@ -69,6 +70,7 @@ class ObservationFile:
     mount: CameraMount | None
     odom_topic: str | None
     odometry_evidence: OdometryEvidence | None = None
+    frames: int | None = None
 
 
 def write_observations(
@@ -78,6 +80,7 @@ def write_observations(
     mount: CameraMount | None = None,
     odom_topic: str | None = None,
     odometry_evidence: OdometryEvidence | None = None,
+    frames: int | None = None,
 ) -> int:
     """Write observations as JSON lines, whole or not at all; with a ``mount``, also the header
     and the odometry lines that ``markergraph map`` maps from.
@@ -91,7 +94,8 @@ def write_observations(
         if mount is not None:
             evidence = asdict(odometry_evidence) if odometry_evidence is not None else None
             header = {"format": FORMAT, "version": VERSION, "mount": asdict(mount),
-                      "odom_topic": odom_topic, "odometry_evidence": evidence}  # fmt: skip
+                      "odom_topic": odom_topic, "odometry_evidence": evidence,
+                      "frames": frames}  # fmt: skip
             stream.write(json.dumps({"header": header}, allow_nan=False) + "\n")
         for obs, pose in zip(observations, poses, strict=True):
             stream.write(
@@ -173,6 +177,7 @@ def read_observation_file(path: Path) -> ObservationFile:
         OdometryEvidence(**header["odometry_evidence"])
         if header.get("odometry_evidence")
         else None,
+        int(header["frames"]) if header.get("frames") is not None else None,
     )
 
 
@@ -241,7 +246,7 @@ def extraction_of_file(path: Path) -> Extraction:
         camera=None,
         mount=read.mount or CameraMount(),
         topics=TopicChoice(None, None, None, read.odom_topic, None),
-        frames=len(stamps),
+        frames=read.frames if read.frames is not None else len(stamps),
         notes=notes,
         odometry_evidence=read.odometry_evidence,
     )
