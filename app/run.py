@@ -89,14 +89,14 @@ def _read(
     its own home marker (None: the first seen). With ``cache`` (and the cache not turned off
     by ``MARKERGRAPH_NO_CACHE``), a log read before with the same front-end settings is taken
     from the cache (:mod:`~markergraph.obs_cache`), and so are the searches made ready with."""
+    start = time.perf_counter()  # the cache's look-up counts as the front end's time
     cache = cache and cache_enabled()
-    keys = [entry_key(Path(log), config.frontend) if cache else "" for log in logs]
-    entries = [load_entry(key) if cache else None for key in keys]
+    keys = [_key(Path(log), config) if cache else "" for log in logs]
+    entries = [load_entry(key) if key else None for key in keys]
     for i, log in enumerate(logs):  # detect's output: read here, no image in it
         if entries[i] is None and is_observation_file(Path(log)):
             entries[i] = CacheEntry(CACHE_VERSION, keys[i], extraction_of_file(Path(log)))
     missing = [i for i, entry in enumerate(entries) if entry is None]
-    start = time.perf_counter()
     if missing:
         stage(f"reading {Path(logs[missing[0]]).name}" if len(missing) == 1 else
               f"reading {len(missing)} logs ({executor})")  # fmt: skip
@@ -115,10 +115,19 @@ def _read(
         if entry.hit:
             extraction = replace(extraction, notes=[*extraction.notes, _cache_note(entry)])
         prepared = prepare(log, extraction, config, stage, home, entry.searches)
-        if cache and (not entry.hit or entry.searches != before):
+        if entry.key and (not entry.hit or entry.searches != before):
             store_entry(entry)
         read.append(_Read(Path(log), extraction, prepared))
     return read
+
+
+def _key(log: Path, config: MapConfig) -> str:
+    """The log's cache key; empty (not cached) where the log cannot be looked at, which the
+    front end then says in its own words."""
+    try:
+        return entry_key(log, config.frontend)
+    except OSError:
+        return ""
 
 
 def _cache_note(entry: CacheEntry) -> Note:

@@ -205,11 +205,13 @@ def is_observation_file(path: Path) -> bool:
     """Whether ``path`` is a ``detect`` output (a file whose first byte opens a JSON object)
     rather than a log."""
     path = Path(path)
+    if not path.is_file():
+        return False
     if path.suffix == ".jsonl":
         return True
     try:
         with open(path, "rb") as stream:
-            return path.is_file() and stream.read(1) == b"{"
+            return stream.read(1) == b"{"
     except OSError:
         return False
 
