@@ -88,10 +88,10 @@ def test_second_run_reads_no_image_and_gives_the_same_map(
 
 
 def test_front_end_setting_or_log_change_reads_again(
-    log: Path, tmp_path: Path, decoded: list[int]
+    log: Path, tmp_path: Path, decoded: list[int], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A changed front-end setting, a log touched, and --no-cache each decode the images
-    again."""
+    """A changed front-end setting, a log touched, --no-cache and MARKERGRAPH_NO_CACHE each
+    decode the images again."""
     copy = tmp_path / "room.mcap"
     shutil.copyfile(log, copy)
     _map(copy, tmp_path / "one")
@@ -109,6 +109,9 @@ def test_front_end_setting_or_log_change_reads_again(
     n = len(decoded)
     _map(copy, tmp_path / "five")  # the touched log's entry, kept by the third run
     assert len(decoded) == n
+    monkeypatch.setenv("MARKERGRAPH_NO_CACHE", "1")
+    _map(copy, tmp_path / "six")
+    assert len(decoded) >= n + 100
 
 
 def test_corrupt_entry_is_ignored_and_rewritten(
