@@ -40,11 +40,13 @@ class ProgressBar:
         self.bar.total = max(total, done)
         self.bar.update(done - self.bar.n)
 
-    def close(self) -> None:
-        """End the bar at the count reached (100 %) on its own line; later calls draw nothing
-        (a bar drawn again after estimation would show a rate that counts its time)."""
+    def close(self, *, complete: bool = True) -> None:
+        """End the bar on its own line, at the count reached (100 %) when ``complete``; later
+        calls draw nothing (a bar drawn again after estimation would show a rate that counts
+        its time)."""
         if self.bar is not None:
-            self.bar.total = self.bar.n
+            if complete:
+                self.bar.total = self.bar.n
             self.bar.refresh()
             self.bar.close()
             self.bar = None
@@ -53,8 +55,8 @@ class ProgressBar:
     def __enter__(self) -> ProgressBar:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
+        self.close(complete=kind is None)  # an error or a stop: the bar stays where it was
 
 
 class Stages:
