@@ -8,6 +8,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from markergraph.common import MarkerGraphError, Note
 from markergraph.estimator import (
@@ -22,6 +23,7 @@ from markergraph.estimator import (
     widened_for_motion,
 )
 from markergraph.frontend import Extraction
+from markergraph.obs_cache import search_key
 from markergraph.sections import Shutter
 from markergraph.settings import MapConfig
 
@@ -57,10 +59,16 @@ def prepare(
     config: MapConfig,
     stage: Callable[[str], None] = lambda name: None,
     home_id: int | None = None,
+    searches: dict[str, Any] | None = None,
 ) -> Prepared:
     """One log's extraction made ready for the estimators: checked, odometry jumps released,
     its noise model chosen, the camera's delay and the odometry's scale applied (each chosen by
     SLAM's residuals unless set).
+
+    Args:
+        searches: the delay and scale searches already run on this extraction, by the settings
+            they depend on (:func:`~markergraph.obs_cache.search_key`); searches run here are
+            added to it.
 
     Raises:
         MarkerGraphError: no marker observations, or no odometry.
@@ -73,10 +81,18 @@ def prepare(
     source, why = config.odometry_source(extraction.topics.odom, evidence)
     _, noise = config.odometry_noise(extraction.topics.odom, evidence)
     notes.append(_noise_note(source, noise, why))
-    if config.camera.delay_ns is None:
+    searches = {} if searches is None else searches
+    basis = (noise, home_id, config.noise.robust, config.camera)
+    delay_key = search_key("delay", *basis)
+    if config.camera.delay_ns is None and delay_key not in searches:
         stage("choosing the camera's delay by SLAM's residuals")
-    observations, delay_ns = _timed(extraction, config, noise, breaks, home_id, notes)
-    scale = _odometry_scale(extraction, config, observations, noise, breaks, home_id, stage, notes)
+    observations, delay_ns = _timed(
+        extraction, config, noise, breaks, home_id, notes, searches, delay_key
+    )
+    scale = _odometry_scale(
+        extraction, config, observations, noise, breaks, home_id, stage, notes,
+        searches, search_key("scale", *basis, delay_ns),
+    )  # fmt: skip
     frames = build_frames(
         observations,
         extraction.odometry.scaled(scale),
@@ -158,6 +174,8 @@ def _timed(
     breaks: list[int],
     home_id: int | None,
     notes: list[Note],
+    searches: dict[str, Any],
+    key: str,
 ) -> tuple[list[Observation], int]:
     """The observations at their capture times (the camera's delay, chosen by the residuals
     unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked,
@@ -179,10 +197,13 @@ def _timed(
     inputs = SlamInputs(
         observations, extraction.odometry, home_id, mount, noise, breaks, config.noise.robust
     )
-    chosen = camera_delay_by_residuals(inputs, readout_ns=readout_ns, image_height=height)
+    if key not in searches:
+        found = camera_delay_by_residuals(inputs, readout_ns=readout_ns, image_height=height)
+        searches[key] = found.delay_ns
+    chosen_ns: int | None = searches[key]
     topic = extraction.topics.odom
-    delay_ns = 0 if chosen.delay_ns is None else chosen.delay_ns
-    if chosen.delay_ns is None:
+    delay_ns = 0 if chosen_ns is None else chosen_ns
+    if chosen_ns is None:
         notes.append(Note(
             "camera.delay_unresolved",
             f"camera stamps taken as they are against {topic}: SLAM's "
@@ -208,19 +229,23 @@ def _odometry_scale(
     home_id: int | None,
     stage: Callable[[str], None],
     notes: list[Note],
+    searches: dict[str, Any],
+    key: str,
 ) -> float:
     """The factor the odometry's distances are multiplied by: as set, or chosen by SLAM's
     residuals (1 where they have no minimum), and said in the notes."""
     configured = config.odometry.scale
     if configured is not None:
         return float(configured)
-    stage("choosing the odometry's scale by SLAM's residuals")
-    found = odometry_scale_by_residuals(
-        SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
-                   noise, breaks, config.noise.robust)
-    )  # fmt: skip
+    if key not in searches:
+        stage("choosing the odometry's scale by SLAM's residuals")
+        searches[key] = odometry_scale_by_residuals(
+            SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
+                       noise, breaks, config.noise.robust)
+        ).chosen  # fmt: skip
+    chosen: float | None = searches[key]
     topic = extraction.topics.odom
-    if found.chosen is None:
+    if chosen is None:
         notes.append(Note(
             "odometry.scale_unresolved",
             f"odometry on {topic} taken at its scale: SLAM's residuals have no minimum between "
@@ -228,12 +253,12 @@ def _odometry_scale(
             topic=topic,
         ))  # fmt: skip
         return 1.0
-    off = 100 * (1 / found.chosen - 1)
+    off = 100 * (1 / chosen - 1)
     notes.append(Note(
         "odometry.scale_chosen",
         f"odometry on {topic} reads distances {abs(off):.2f} % {'long' if off > 0 else 'short'}: "
-        f"its steps are scaled by {found.chosen:.4f} (chosen by SLAM's residuals over "
+        f"its steps are scaled by {chosen:.4f} (chosen by SLAM's residuals over "
         "0.95..1.05; --odometry-scale sets it)",
-        topic=topic, figure=found.chosen,
+        topic=topic, figure=chosen,
     ))  # fmt: skip
-    return found.chosen
+    return chosen

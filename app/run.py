@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from markergraph.common import EstimationError, Note, SettingsError
@@ -19,9 +19,18 @@ from markergraph.estimator import Form, Method, estimate_frames, marker_heights
 from markergraph.estimator.localization import localize
 from markergraph.estimator.sessions import solve_sessions
 from markergraph.executors import extract_logs
+from markergraph.formats.observations import extraction_of_file, is_observation_file
 from markergraph.frontend import Extraction
 from markergraph.localize_accuracy import accuracy_of, ate_note
 from markergraph.markermap import MarkerMap
+from markergraph.obs_cache import (
+    CACHE_VERSION,
+    CacheEntry,
+    cache_enabled,
+    entry_key,
+    load_entry,
+    store_entry,
+)
 from markergraph.prepare import Prepared, prepare
 from markergraph.records import LocalizationRun, MapRun, MethodResult, Session, marker_map_of
 from markergraph.scoring import path_error, score, truth_in_home_frame
@@ -75,21 +84,61 @@ def _read(
     address: str | None = None,
     progress: Progress | None = None,
     stage: Stage = _silent,
+    cache: bool = True,
 ) -> list[_Read]:
     """Every log through the front end (timed as ``front end``), then made ready, each with
-    its own home marker (None: the first seen)."""
-    stage(f"reading {Path(logs[0]).name}" if len(logs) == 1 else f"reading {len(logs)} logs "
-          f"({executor})")  # fmt: skip
-    start = time.perf_counter()
-    extractions = extract_logs(
-        logs, config.frontend, executor=executor, address=address, workers=config.workers,
-        progress=progress,
-    )  # fmt: skip
+    its own home marker (None: the first seen). With ``cache`` (and the cache not turned off
+    by ``MARKERGRAPH_NO_CACHE``), a log read before with the same front-end settings is taken
+    from the cache (:mod:`~markergraph.obs_cache`), and so are the searches made ready with."""
+    start = time.perf_counter()  # the cache's look-up counts as the front end's time
+    cache = cache and cache_enabled()
+    keys = [_key(Path(log), config) if cache else "" for log in logs]
+    entries = [load_entry(key) if key else None for key in keys]
+    for i, log in enumerate(logs):  # detect's output: read here, no image in it
+        if entries[i] is None and is_observation_file(Path(log)):
+            entries[i] = CacheEntry(CACHE_VERSION, keys[i], extraction_of_file(Path(log)))
+    missing = [i for i, entry in enumerate(entries) if entry is None]
+    if missing:
+        stage(f"reading {Path(logs[missing[0]]).name}" if len(missing) == 1 else
+              f"reading {len(missing)} logs ({executor})")  # fmt: skip
+        extractions = extract_logs(
+            [logs[i] for i in missing], config.frontend, executor=executor, address=address,
+            workers=config.workers, progress=progress,
+        )  # fmt: skip
+        for i, extraction in zip(missing, extractions, strict=True):
+            entries[i] = CacheEntry(CACHE_VERSION, keys[i], extraction)
     seconds["front end"] = time.perf_counter() - start
-    return [
-        _Read(Path(log), extraction, prepare(log, extraction, config, stage, home))
-        for log, extraction, home in zip(logs, extractions, homes, strict=True)
-    ]
+    read = []
+    for log, entry, home in zip(logs, entries, homes, strict=True):
+        assert entry is not None  # every miss was just read
+        before = dict(entry.searches)
+        extraction = entry.extraction
+        if entry.hit:
+            extraction = replace(extraction, notes=[*extraction.notes, _cache_note(entry)])
+        prepared = prepare(log, extraction, config, stage, home, entry.searches)
+        if entry.key and (not entry.hit or entry.searches != before):
+            store_entry(entry)
+        read.append(_Read(Path(log), extraction, prepared))
+    return read
+
+
+def _key(log: Path, config: MapConfig) -> str:
+    """The log's cache key; empty (not cached) where the log cannot be looked at, which the
+    front end then says in its own words."""
+    try:
+        return entry_key(log, config.frontend)
+    except OSError:
+        return ""
+
+
+def _cache_note(entry: CacheEntry) -> Note:
+    """Where a log's observations came from when it was not read."""
+    return Note(
+        "frontend.cache",
+        f"observations from the cache ({entry.path}: the log and the front end's settings are "
+        "unchanged; the camera delay and odometry scale found on them are reused under the same "
+        "settings; --no-cache reads the log again)",
+    )
 
 
 def map_log(
@@ -98,6 +147,7 @@ def map_log(
     *,
     progress: Progress | None = None,
     stage: Stage | None = None,
+    cache: bool = True,
 ) -> MapRun:
     """Read a log, estimate the map with each method, and score it when ground truth is logged.
 
@@ -106,12 +156,15 @@ def map_log(
         config: the settings (default: every default).
         progress: called with (colour frames read, frames in all) while the log is read.
         stage: called with the name of each stage as it begins.
+        cache: take the log's extraction (and the delay and scale searches) from the cache
+            folder when it was read before with the same front-end settings, and keep it there
+            (:mod:`~markergraph.obs_cache`).
 
     Raises:
         MarkerGraphError: the log cannot be read, has no marker observations, or no odometry
             (``LogError`` and ``SettingsError`` among them).
     """
-    return map_logs([log], config, progress=progress, stage=stage)
+    return map_logs([log], config, progress=progress, stage=stage, cache=cache)
 
 
 def map_logs(
@@ -123,6 +176,7 @@ def map_logs(
     address: str | None = None,
     progress: Progress | None = None,
     stage: Stage | None = None,
+    cache: bool = True,
 ) -> MapRun:
     """One map from one log, from several logs of one place, or from logs refining a saved map
     (``prior``).
@@ -146,7 +200,7 @@ def map_logs(
     homes = [config.home_id if i == 0 and prior is None else None for i in range(len(logs))]
     methods = _several_log_methods(config) if several else list(config.methods)
     read = _read(logs, config, homes, seconds, executor=executor, address=address,
-                 progress=progress, stage=stage)  # fmt: skip
+                 progress=progress, stage=stage, cache=cache)  # fmt: skip
     if several:
         solved = _solve_several(read, config, methods, prior, stage, seconds)
     else:
@@ -270,6 +324,7 @@ def localize_log(
     *,
     progress: Progress | None = None,
     stage: Stage | None = None,
+    cache: bool = True,
 ) -> LocalizationRun:
     """A log's robot trajectory in a saved map (:func:`~markergraph.estimator.sessions.localize`).
 
@@ -279,7 +334,7 @@ def localize_log(
     """
     config = config or MapConfig.from_values()
     stage = stage or _silent
-    (read,) = _read([log], config, [None], {}, progress=progress, stage=stage)
+    (read,) = _read([log], config, [None], {}, progress=progress, stage=stage, cache=cache)
     priors, prior_notes = priors_of(saved)
     notes = [*read.notes, *prior_notes]
     stage("localising against the saved map")

@@ -52,7 +52,10 @@ def run_detect(args: argparse.Namespace) -> int:
     check_output_file(out, [args.log], force=args.force)
     with ProgressBar(f"reading {args.log.name}", quiet=args.quiet) as bar:
         result = extract(args.log, config.frontend, progress=bar, workers=config.workers)
-    written = write_observations(out, result.observations, result.odometry)
+    written = write_observations(
+        out, result.observations, result.odometry, result.mount, result.topics.odom,
+        result.odometry_evidence, result.frames,
+    )  # fmt: skip
     markers = sorted({o.marker_id for o in result.observations})
     print(
         f"{result.frames} frames ({result.frames_with_depth} with depth), {written} "

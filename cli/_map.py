@@ -10,6 +10,7 @@ from markergraph.cli._settings import add_settings, add_verbosity, settings_from
 from markergraph.common import Note, SettingsError
 from markergraph.common.files import check_output_folder
 from markergraph.common.progress import ProgressBar, Stages
+from markergraph.formats.observations import is_observation_file
 from markergraph.localize_accuracy import accuracy_lines, accuracy_of
 from markergraph.markermap import MarkerMap
 from markergraph.records import MapRun
@@ -33,8 +34,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         type=Path,
         nargs="*",
         metavar="LOG",
-        help="an .mcap file, a rosbag2 folder or a ROS 1 .bag; several logs of one place make "
-        f"one map (default: the bundled {DEFAULT_SAMPLE} sample, rendered once into the cache)",
+        help="an .mcap file, a rosbag2 folder, a ROS 1 .bag or markergraph detect's .jsonl "
+        "output; several logs of one place make one map (default: the bundled "
+        f"{DEFAULT_SAMPLE} sample, rendered once into the cache)",
     )
     parser.add_argument(
         "--prior", type=Path, metavar="MAP.json",
@@ -45,6 +47,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--out", type=Path, default=None, help="result folder (default: map-<log name> here)"
     )
     parser.add_argument("--force", action="store_true", help="replace an existing result folder")
+    add_no_cache(parser)
     parser.add_argument("--no-plots", action="store_true", help="skip map.png and comparison.png")
     parser.add_argument(
         "--strict", action="store_true",
@@ -79,17 +82,28 @@ def add_localize_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", type=Path, required=True, help="result folder")
     parser.add_argument("--force", action="store_true", help="replace an existing result folder")
     parser.add_argument("--no-plots", action="store_true", help="skip map.png")
+    add_no_cache(parser)
     add_verbosity(parser)
     add_settings(parser, "localize")
+
+
+def add_no_cache(parser: argparse.ArgumentParser) -> None:
+    """Read the log even when the cache holds its observations."""
+    parser.add_argument(
+        "--no-cache", action="store_true",
+        help="read the log again rather than take its observations (and the camera delay and "
+        "odometry scale found on them) from the cache folder; MARKERGRAPH_NO_CACHE=1 does the same",
+    )  # fmt: skip
 
 
 def run_localize(args: argparse.Namespace) -> int:
     config = map_config(settings_from(args, "localize"))
     check_output_folder(args.out, [args.log, args.map], force=args.force)
     saved = MarkerMap.load(args.map)
-    stages = Stages(quiet=args.quiet, verbose=args.verbose)
     with ProgressBar(f"reading {Path(args.log).name}", quiet=args.quiet) as bar:
-        run = localize_log(args.log, saved, args.map, config, progress=bar, stage=stages)
+        stages = Stages(quiet=args.quiet, verbose=args.verbose, before=bar.close)
+        run = localize_log(args.log, saved, args.map, config, progress=bar, stage=stages,
+                           cache=not args.no_cache)  # fmt: skip
     stages(f"writing {args.out}/")
     written = write_localization(run, args.out, force=args.force, plots=not args.no_plots)
     stages.close()
@@ -135,15 +149,19 @@ def run(args: argparse.Namespace) -> int:
     if not args.logs:
         logs = [sample_log(DEFAULT_SAMPLE)]
         print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({logs[0]})")
-    three_d, why = wants_3d(logs[0], config) if args.logs else (config.dimensions == "3", None)
+    if args.logs and not is_observation_file(logs[0]):
+        three_d, why = wants_3d(logs[0], config)
+    else:  # the sample, or detect's output (2-D observations)
+        three_d, why = config.dimensions == "3", None
     if three_d:
         if len(logs) > 1 or prior is not None:
             raise SettingsError("a 3-D map is made from one log (several logs and --prior are 2-D)")
         return _run_3d(args, logs[0], out, config, [why] if why else [])
-    stages = Stages(quiet=args.quiet, verbose=args.verbose)
     with ProgressBar(f"reading {Path(logs[0]).name}", quiet=args.quiet) as bar:
+        stages = Stages(quiet=args.quiet, verbose=args.verbose, before=bar.close)
         result = map_logs(logs, config, prior=prior, executor=args.executor,
-                          address=args.ray_address, progress=bar, stage=stages)  # fmt: skip
+                          address=args.ray_address, progress=bar, stage=stages,
+                          cache=not args.no_cache)  # fmt: skip
     stages(f"writing {out}/")
     written = write_results(result, out, force=args.force, plots=not args.no_plots)
     stages.close()

@@ -20,3 +20,11 @@ def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     world, route = scenario("paper-room")
     write_log(world, route, path, seed=3, duration_s=20.0, compressed=True, frame_hz=5.0)
     return path
+
+
+@pytest.fixture(autouse=True)
+def no_extraction_cache(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every test reads its logs (a test that patches the front end must not get an earlier
+    test's extraction), and none writes to the user's cache folder; tests/test_rerun.py turns
+    the cache on, in a folder of its own."""
+    monkeypatch.setenv("MARKERGRAPH_NO_CACHE", "1")
