@@ -12,8 +12,10 @@ from markergraph.cli._settings import add_settings, add_verbosity, settings_from
 from markergraph.common import Note, SettingsError
 from markergraph.common.files import check_output_folder
 from markergraph.common.progress import ProgressBar, Stages
+from markergraph.estimator import MapError
 from markergraph.markermap import MarkerMap
-from markergraph.records import MapRun
+from markergraph.records import MapRun, MethodResult
+from markergraph.report_page import REPORT_PAGE
 from markergraph.results import write_localization, write_results
 from markergraph.results3d import write_results_3d
 from markergraph.run import localize_log, map_logs
@@ -45,7 +47,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--out", type=Path, default=None, help="result folder (default: map-<log name> here)"
     )
     parser.add_argument("--force", action="store_true", help="replace an existing result folder")
-    parser.add_argument("--no-plots", action="store_true", help="skip map.png and comparison.png")
+    parser.add_argument(
+        "--no-plots", action="store_true",
+        help="skip the pictures: map.png, map.svg, comparison.png and diagnostics.png (and each "
+        "method's map.png and map.svg); report.html is still written, without them",
+    )  # fmt: skip
     parser.add_argument(
         "--strict", action="store_true",
         help=f"exit {EXIT_NOT_OK} when a method's verdict is not ok (the folder is still written)",
@@ -146,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
     stages.close()
     _print_summary(result, quiet=args.quiet)
     print(f"wrote {len(written)} files to {out}/")
+    print(f"open {out / REPORT_PAGE}")
     if args.strict and result.judgement.verdict is not Verdict.OK:
         return EXIT_NOT_OK
     return 0
@@ -159,6 +166,7 @@ def _run_3d(
     stages(f"writing {out}/")
     written = write_results_3d(run, out, force=args.force, plots=not args.no_plots)
     stages.close()
+    report_page = out / REPORT_PAGE
     tag_map = run.tag_map
     walls = sum(1 for m in run.marker_map.markers.values())
     print(
@@ -176,9 +184,24 @@ def _run_3d(
         for note in [*run.notes, *tag_map.notes]:
             print(f"note: {note}", file=sys.stderr)
     print(f"wrote {len(written)} files to {out}/")
+    print(f"open {report_page}")
     if args.strict and run.judgement.verdict is not Verdict.OK:
         return EXIT_NOT_OK
     return 0
+
+
+def _error_columns(method_result: MethodResult, home_fixed: MapError) -> str:
+    """A method's aligned and home-fixed marker RMSE, and its ATE over how many poses."""
+    aligned = method_result.map_error_aligned
+    trajectory = method_result.trajectory_error
+    true_path = method_result.true_path
+    poses = len(true_path) if trajectory is not None and true_path is not None else None
+    return (
+        (f" {aligned.rmse_position_m:>16.3f}" if aligned else f" {'-':>16}")
+        + f" {home_fixed.rmse_position_m:>19.3f}"
+        + (f" {trajectory.ate_rmse_m:>7.3f}" if trajectory else f" {'-':>7}")
+        + (f" {poses:>6}" if poses is not None else f" {'-':>6}")
+    )
 
 
 def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
@@ -190,19 +213,17 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
     )
     header = f"{'method':<14} {'markers':>7} {'links':>5}"
     if result.true_markers:
-        header += f" {'marker RMSE':>11} {'aligned':>8} {'ATE':>7}"
+        # Aligned first: the figure evo and other mappers report; home-fixed carries the home
+        # marker's own error to the far markers.
+        header += (
+            f" {'aligned RMSE [m]':>16} {'home-fixed RMSE [m]':>19} {'ATE [m]':>7} {'poses':>6}"
+        )
     print(header)
     for method_result in result.results:
         estimate = method_result.estimate
         line = f"{method_result.label:<14} {len(estimate.markers):>7} {len(estimate.links):>5}"
         if method_result.map_error is not None:
-            aligned = method_result.map_error_aligned
-            trajectory = method_result.trajectory_error
-            line += (
-                f" {method_result.map_error.rmse_position_m:>9.3f} m"
-                + (f" {aligned.rmse_position_m:>8.3f}" if aligned else f" {'-':>8}")
-                + (f" {trajectory.ate_rmse_m:>7.3f}" if trajectory else f" {'-':>7}")
-            )
+            line += _error_columns(method_result, method_result.map_error)
         print(line)
         for estimate_note in estimate.notes:
             print(f"  {method_result.label}: {estimate_note.text}")
