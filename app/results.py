@@ -140,7 +140,8 @@ def _method_entry(run: MapRun, result: MethodResult) -> dict[str, Any]:
         entry["trajectory_poses"] = len(result.path)  # in trajectory.tum
         entry["optimised_poses"] = len(result.estimate.trajectory)
     if result.trajectory_error is not None:
-        entry["ate_m"] = result.trajectory_error.ate_rmse_m
+        entry["ate_m"] = result.trajectory_error.ate_rmse_m  # home-fixed, as evo_ape without -a
+        entry["ate_aligned_m"] = result.trajectory_error.ate_aligned_rmse_m  # evo_ape -a
         entry["ate_poses"] = len(result.true_path) if result.true_path is not None else 0
         rpe = result.trajectory_error.rpe_rmse_m_per_m
         entry["rpe_m_per_m"] = rpe if math.isfinite(rpe) else None  # a path under 1 m

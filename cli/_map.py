@@ -191,17 +191,21 @@ def _run_3d(
 
 
 def _error_columns(method_result: MethodResult, home_fixed: MapError) -> str:
-    """A method's aligned and home-fixed marker RMSE, and its ATE over how many poses."""
+    """A method's aligned and home-fixed marker RMSE, its ATE (aligned and home-fixed) and over
+    how many poses."""
     aligned = method_result.map_error_aligned
     trajectory = method_result.trajectory_error
     true_path = method_result.true_path
-    poses = len(true_path) if trajectory is not None and true_path is not None else None
-    return (
-        (f" {aligned.rmse_position_m:>16.3f}" if aligned else f" {'-':>16}")
-        + f" {home_fixed.rmse_position_m:>19.3f}"
-        + (f" {trajectory.ate_rmse_m:>7.3f}" if trajectory else f" {'-':>7}")
-        + (f" {poses:>6}" if poses is not None else f" {'-':>6}")
-    )
+    columns = [
+        f"{aligned.rmse_position_m:>16.3f}" if aligned else f"{'-':>16}",
+        f"{home_fixed.rmse_position_m:>19.3f}",
+    ]
+    if trajectory is not None and true_path is not None:
+        columns += [f"{trajectory.ate_aligned_rmse_m:>15.3f}", f"{trajectory.ate_rmse_m:>18.3f}",
+                    f"{len(true_path):>6}"]  # fmt: skip
+    else:
+        columns += [f"{'-':>15}", f"{'-':>18}", f"{'-':>6}"]
+    return " " + " ".join(columns)
 
 
 def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
@@ -216,7 +220,8 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
         # Aligned first: the figure evo and other mappers report; home-fixed carries the home
         # marker's own error to the far markers.
         header += (
-            f" {'aligned RMSE [m]':>16} {'home-fixed RMSE [m]':>19} {'ATE [m]':>7} {'poses':>6}"
+            f" {'aligned RMSE [m]':>16} {'home-fixed RMSE [m]':>19} {'ATE aligned [m]':>15}"
+            f" {'ATE home-fixed [m]':>18} {'poses':>6}"
         )
     print(header)
     for method_result in result.results:
