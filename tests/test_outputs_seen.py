@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -201,3 +202,21 @@ def test_legend_hides_no_marker() -> None:
     title = ax.get_title()
     assert "aligned" in title and "fitted onto the map" in title
     assert title.index("aligned") < title.index("home-fixed")
+
+
+@pytest.mark.parametrize("fmt", ["csv", "aruco-yaml", "fiducial-slam", "tagslam"])
+def test_exports_write_no_float_noise(fmt: str, tmp_path: Path) -> None:
+    """A home marker left at -4.2e-21 m by the solver is exported as 0.0, in every format; a
+    value above the noise floor keeps all its digits."""
+    from markergraph.formats import ExportFormat, export_map
+
+    marker_map, _ = _narrow_map()
+    markers = dict(marker_map.markers)
+    markers[0] = MapMarker(0, gtsam.Pose2(-4.2e-21, 3.1e-19, -2.1e-19), None, 10, 0.2)
+    markers[1] = MapMarker(1, gtsam.Pose2(1.5e-3, 2.0, 0.5), None, 10, 0.2)
+    noisy = MarkerMap(markers, (), 0, "DICT_4X4_50", 0.2, "slam", "corridor.mcap")
+    out = tmp_path / "map.txt"
+    export_map(noisy, ExportFormat(fmt), out)
+    text = out.read_text()
+    assert not re.search(r"e-(1[3-9]|[2-9]\d|\d{3})\b", text), text[:400]
+    assert "0.0015" in text or fmt == "aruco-yaml"  # the corners move the centre away
