@@ -26,6 +26,12 @@ from markergraph.verdicts import Verdict
 SUMMARY = "estimate a corrected marker map from an MCAP log (default: the bundled sample)"
 DEFAULT_SAMPLE = "corridor-loop"
 EXIT_NOT_OK = 4  # --strict: a method's verdict is "suspect" or "failed"
+# Exactly what write_results leaves out without plots (a test compares the two folders).
+NO_PLOTS_HELP = (
+    "skip the pictures: map.png, map.svg, comparison.png and diagnostics.png, and each "
+    "method's map.png and map.svg (a 3-D map: its map.png); report.html is still written, "
+    "without them"
+)
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -49,8 +55,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--force", action="store_true", help="replace an existing result folder")
     parser.add_argument(
         "--no-plots", action="store_true",
-        help="skip the pictures: map.png, map.svg, comparison.png and diagnostics.png (and each "
-        "method's map.png and map.svg); report.html is still written, without them",
+        help=NO_PLOTS_HELP,
     )  # fmt: skip
     parser.add_argument(
         "--strict", action="store_true",

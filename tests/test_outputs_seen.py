@@ -220,3 +220,25 @@ def test_exports_write_no_float_noise(fmt: str, tmp_path: Path) -> None:
     text = out.read_text()
     assert not re.search(r"e-(1[3-9]|[2-9]\d|\d{3})\b", text), text[:400]
     assert "0.0015" in text or fmt == "aruco-yaml"  # the corners move the centre away
+
+
+def test_no_plots_skips_what_its_help_says(mapped, log: Path, tmp_path: Path) -> None:
+    """--no-plots leaves out exactly the pictures its help names, and nothing else."""
+    from markergraph.cli._map import NO_PLOTS_HELP
+
+    folder, _ = mapped
+    out = tmp_path / "bare"
+    run = subprocess.run(
+        [sys.executable, "-m", "markergraph.cli", "map", str(log), "--out", str(out),
+         "--no-plots"],
+        capture_output=True, text=True,
+        env={**os.environ, "MARKERGRAPH_CACHE": str(tmp_path / "cache")},
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    with_plots = {p.name for p in folder.rglob("*") if p.is_file()}
+    without = {p.name for p in out.rglob("*") if p.is_file()}
+    skipped = with_plots - without
+    assert without <= with_plots
+    assert skipped == {"map.png", "map.svg", "diagnostics.png"}  # one method: no comparison
+    named = set(re.findall(r"[\w-]+\.(?:png|svg)", NO_PLOTS_HELP))
+    assert named == skipped | {"comparison.png"}
