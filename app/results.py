@@ -163,7 +163,9 @@ def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = 
     Files: ``map.json``, ``map.g2o`` (graph methods), ``map.png`` and ``map.svg`` for the first
     method, and ``overlay.mcap`` (its map and trajectory as ROS 2 messages, to show over the
     log); ``methods/<method>/`` with the same for every method when there are several, and
-    ``comparison.png``; TUM trajectories (estimated per method, odometry, ground truth);
+    ``comparison.png``; TUM trajectories, each naming its frame in a header comment line and
+    in report.json's ``file_frames`` (:data:`TUM_FRAMES`: the corrected path per method at the
+    odometry's rate, the odometry in its odom frame and placed in the map, ground truth);
     ``report.json`` and ``report.html`` (the same report as one self-contained page).
 
     Returns:

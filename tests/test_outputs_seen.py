@@ -242,3 +242,30 @@ def test_no_plots_skips_what_its_help_says(mapped, log: Path, tmp_path: Path) ->
     assert skipped == {"map.png", "map.svg", "diagnostics.png"}  # one method: no comparison
     named = set(re.findall(r"[\w-]+\.(?:png|svg)", NO_PLOTS_HELP))
     assert named == skipped | {"comparison.png"}
+
+
+def test_corrected_odometry_is_exact_when_the_correction_is_constant() -> None:
+    """Odometry that is the true path seen from a frame 3 m and 0.5 rad away, and optimised
+    poses that are the truth at a few stamps: the corrected path is the truth at every
+    odometry stamp between them (exact algebra), and odometry_in_map starts at the first."""
+    from markergraph.estimator import Trajectory, corrected_odometry, odometry_in_map
+
+    rng = np.random.default_rng(7)
+    t_ns = np.arange(0, 5_000_000_000, 20_000_000, dtype=np.int64)
+    steps = rng.normal([0.02, 0.0, 0.0], [0.005, 0.002, 0.02], (len(t_ns), 3))
+    poses = [gtsam.Pose2()]
+    for dx, dy, dyaw in steps[1:]:
+        poses.append(poses[-1].compose(gtsam.Pose2(dx, dy, dyaw)))
+    T_odom_map = gtsam.Pose2(3.0, -1.0, 0.5)
+    truth = np.array([[p.x(), p.y(), p.theta()] for p in poses])
+    odom = [T_odom_map.compose(p) for p in poses]
+    odometry = Trajectory(t_ns, np.array([[p.x(), p.y(), p.theta()] for p in odom]), "odom")
+    keys = np.sort(rng.choice(np.arange(10, len(t_ns) - 10), 6, replace=False))
+    optimised = Trajectory(t_ns[keys], truth[keys], "map")
+    path = corrected_odometry(optimised, odometry)
+    span = (t_ns >= t_ns[keys[0]]) & (t_ns <= t_ns[keys[-1]])
+    np.testing.assert_array_equal(path.t_ns, t_ns[span])
+    np.testing.assert_allclose(path.poses, truth[span], atol=1e-12)
+    placed = odometry_in_map(optimised, odometry)
+    np.testing.assert_array_equal(placed.poses[0], truth[keys[0]])
+    np.testing.assert_allclose(placed.poses, truth[t_ns >= t_ns[keys[0]]], atol=1e-12)
