@@ -204,8 +204,7 @@ def corrected_odometry(optimised: Trajectory, odometry: Trajectory) -> Trajector
     # Linear in (x, y, yaw): consecutive corrections differ by millimetres and milliradians,
     # where this and SE(2)'s constant twist agree to well under a micrometre.
     correction = poses[k] + fraction * step
-    first = np.isin(optimised.t_ns, t_ns[[0, -1]])
-    ends = optimised.poses[first]
+    ends = optimised.poses[np.isin(optimised.t_ns, t_ns[[0, -1]])]  # exact, not re-composed
     return Trajectory(
         np.concatenate([t_ns[:1], stamps, t_ns[-1:]]),
         np.concatenate([ends[:1], _compose(correction, odom), ends[-1:]]),
