@@ -12,10 +12,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.estimator import Observation
+from markergraph.estimator.metrics import align_rigid_2d
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.markermap import MarkerMap
 
-__all__ = ["draw_marker_map", "plot_comparison", "plot_diagnostics", "plot_map"]
+__all__ = [
+    "draw_marker_map",
+    "map_figure",
+    "plot_comparison",
+    "plot_diagnostics",
+    "plot_map",
+    "truth_onto_map",
+]
 
 MARGIN = 0.1  # of the view's larger side, around what is drawn
 CIRCLE = np.stack([np.cos(np.linspace(0, math.tau, 60)), np.sin(np.linspace(0, math.tau, 60))])
@@ -49,14 +57,47 @@ def _map_points(
     return points
 
 
+def truth_onto_map(marker_map: MarkerMap, truth: Mapping[int, gtsam.Pose2]) -> gtsam.Pose2 | None:
+    """``T_map_truth``: the rigid SE(2) fit (Kabsch, positions) of the true markers onto the
+    estimated ones, so that the truth is drawn where the map put the room; None with fewer
+    than two markers in both."""
+    ids = sorted(set(marker_map.markers) & set(truth))
+    if len(ids) < 2:
+        return None
+    true_xy = np.array([[truth[i].x(), truth[i].y()] for i in ids])
+    map_xy = np.array(
+        [[marker_map.markers[i].T_map_marker.x(), marker_map.markers[i].T_map_marker.y()]
+         for i in ids]
+    )  # fmt: skip
+    return align_rigid_2d(true_xy, map_xy)
+
+
+def _aligned(
+    marker_map: MarkerMap, truth: Mapping[int, gtsam.Pose2]
+) -> tuple[dict[int, gtsam.Pose2], gtsam.Pose2 | None]:
+    """The true markers moved onto the map (unmoved when they cannot be fitted), and the fit."""
+    T_map_truth = truth_onto_map(marker_map, truth)
+    if T_map_truth is None:
+        return dict(truth), None
+    return {i: T_map_truth.compose(T) for i, T in truth.items()}, T_map_truth
+
+
 def _title(marker_map: MarkerMap, rmse_m: tuple[float, float] | None) -> str:
-    """What the panel shows: ellipses or none, and the RMSE (in the home marker's frame, and
-    after a rigid alignment) when the truth is known."""
+    """What the panel shows: ellipses or none, and the marker RMSE when the truth is known:
+    after a rigid alignment first (what evo and other mappers report), then with the home
+    marker held fixed (its own error carried to the far markers)."""
     has_covariance = any(m.covariance is not None for m in marker_map.markers.values())
     title = "2-sigma ellipses" if has_covariance else "no covariance"
     if rmse_m is not None:
-        title += f", marker RMSE {100 * rmse_m[0]:.1f} cm ({100 * rmse_m[1]:.1f} aligned)"
+        title += (
+            f", marker RMSE {100 * rmse_m[1]:.1f} cm aligned ({100 * rmse_m[0]:.1f} cm home-fixed)"
+        )
     return title
+
+
+def _legend_outside(ax: Any, fontsize: int) -> None:
+    """The legend right of the axes: inside, a narrow map leaves it nowhere free to go."""
+    ax.legend(fontsize=fontsize, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
 
 
 def _draw_map(
@@ -109,30 +150,45 @@ def _draw_map(
     ax.set_title(title, fontsize=9)
 
 
-def plot_map(
+def map_figure(
     marker_map: MarkerMap,
     truth: Mapping[int, gtsam.Pose2],
-    path: Path,
     *,
     trajectory: Trajectory | None = None,
     odometry: Trajectory | None = None,
     truth_path: Trajectory | None = None,
     rmse_m: tuple[float, float] | None = None,
-) -> None:
+) -> Any:
     """The map with its estimated trajectory, the raw odometry (anchored on the trajectory's
-    first pose) and the dashed ground truth, as PNG and SVG; ``rmse_m`` (against the truth)
-    goes into the title."""
+    first pose) and the dashed ground truth; ``rmse_m`` (against the truth,
+    home-fixed and aligned) goes into the title.
+
+    The truth (markers and path) is drawn fitted onto the map by a rigid SE(2) motion
+    (:func:`truth_onto_map`), as the title says: in the home marker's frame the home marker's
+    own yaw error turns the whole room, and hides how well its shape was found.
+
+    Returns:
+        The matplotlib figure (the caller saves and closes it).
+    """
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 6), constrained_layout=True)
+    truth, T_map_truth = _aligned(marker_map, truth)
+    if T_map_truth is not None and truth_path is not None:
+        truth_path = truth_path.in_frame(T_map_truth, "map")
     drawn_odometry = None
     if trajectory is not None and len(trajectory) and odometry is not None and len(odometry):
         T_map_odom = trajectory.T_self_other(odometry, int(trajectory.t_ns[0]))
         if T_map_odom is not None:
             drawn_odometry = odometry.in_frame(T_map_odom, "map")
     view = _extent(_map_points(marker_map, truth, [trajectory, truth_path, drawn_odometry]))
+    fitted = (
+        "truth fitted onto the map (rigid SE(2) on the markers)"
+        if T_map_truth is not None
+        else "truth as logged"
+    )
     title = (
         f"{marker_map.method}: {_title(marker_map, rmse_m)}\n"
-        f"markers in the frame of marker {marker_map.home_id}"
+        f"map in the frame of marker {marker_map.home_id}; {fitted}"
     )
     _draw_map(ax, marker_map, truth, title, view)
     if drawn_odometry is not None:
@@ -144,7 +200,26 @@ def plot_map(
     if truth_path is not None and len(truth_path):
         xy = truth_path.poses
         ax.plot(xy[:, 0], xy[:, 1], "k--", lw=0.8, label="ground truth")
-    ax.legend(fontsize=8, loc="best")
+    _legend_outside(ax, 8)
+    return fig
+
+
+def plot_map(
+    marker_map: MarkerMap,
+    truth: Mapping[int, gtsam.Pose2],
+    path: Path,
+    *,
+    trajectory: Trajectory | None = None,
+    odometry: Trajectory | None = None,
+    truth_path: Trajectory | None = None,
+    rmse_m: tuple[float, float] | None = None,
+) -> None:
+    """:func:`map_figure` as PNG and SVG."""
+    plt = _pyplot()
+    fig = map_figure(
+        marker_map, truth, trajectory=trajectory, odometry=odometry, truth_path=truth_path,
+        rmse_m=rmse_m,
+    )  # fmt: skip
     fig.savefig(path, bbox_inches="tight")
     fig.savefig(Path(path).with_suffix(".svg"), bbox_inches="tight")
     plt.close(fig)
@@ -164,13 +239,15 @@ def plot_comparison(
         rows, columns, figsize=(5.5 * columns, 4.8 * rows), constrained_layout=True,
         squeeze=False, sharex=True, sharey=True,
     )  # fmt: skip
-    points = [p for _, m, _ in maps for p in _map_points(m, truth, [])]
+    points = [p for _, m, _ in maps for p in _map_points(m, _aligned(m, truth)[0], [])]
     view = _extent(points)
     for ax, (label, marker_map, rmse_m) in zip(axes.flat, maps, strict=False):
-        _draw_map(ax, marker_map, truth, f"{label}\n{_title(marker_map, rmse_m)}", view)
+        fitted, T_map_truth = _aligned(marker_map, truth)
+        how = "truth fitted onto the map" if T_map_truth is not None else "truth as logged"
+        _draw_map(ax, marker_map, fitted, f"{label} ({how})\n{_title(marker_map, rmse_m)}", view)
     for ax in axes.flat[len(maps) :]:
         ax.axis("off")
-    axes[0][0].legend(fontsize=7, loc="best")
+    _legend_outside(axes[0][-1], 7)
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
 

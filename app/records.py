@@ -56,8 +56,12 @@ class MethodResult:
         marker_map: the estimate as a map (what map.json holds).
         map_error, map_error_aligned: marker errors in the home frame, and after the best
             rigid alignment.
-        trajectory_error: ATE and RPE at the estimate's stamps.
-        true_path: the true base poses at the estimate's stamps, in the home marker's frame.
+        trajectory_error: ATE and RPE at ``path``'s stamps (the odometry's rate).
+        true_path: the true base poses at ``path``'s stamps, in the home marker's frame.
+        path: the corrected path at the odometry's rate (the map frame): the estimate's poses
+            with the odometry between them (:func:`~markergraph.estimator.corrected_odometry`);
+            None until :func:`~markergraph.run.map_logs` fills it.
+        odometry_map: the raw odometry placed by the first optimised pose (the map frame).
         inside_95_ellipse: the share of true markers inside the estimate's 95 % ellipses (None
             without covariances or truth): 0.95 when they are honest.
         judgement: how far the estimate can be trusted, and why (:mod:`markergraph.verdicts`).
@@ -70,6 +74,8 @@ class MethodResult:
     map_error_aligned: MapError | None = None
     trajectory_error: TrajectoryError | None = None
     true_path: Trajectory | None = None
+    path: Trajectory | None = None
+    odometry_map: Trajectory | None = None
     inside_95_ellipse: float | None = None
     judgement: Judgement = field(default_factory=lambda: Judgement(Verdict.OK))
 

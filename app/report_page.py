@@ -55,10 +55,14 @@ _METHOD_COLUMNS: tuple[tuple[str, str, str | None], ...] = (
     ("links", "links", None),
     ("unplaced", "unplaced", None),
     ("converged", "converged", None),
-    ("marker_rmse_m", "marker RMSE", "m"),
+    # Aligned first: what evo and other mappers report; home-fixed carries the home marker's
+    # own error to the far markers.
     ("marker_rmse_aligned_m", "aligned RMSE", "m"),
+    ("marker_rmse_m", "home-fixed RMSE", "m"),
     ("marker_yaw_rmse_rad", "yaw RMSE", "°"),
-    ("ate_m", "ATE", "m"),
+    ("ate_aligned_m", "ATE aligned", "m"),
+    ("ate_m", "ATE home-fixed", "m"),
+    ("ate_poses", "ATE poses", None),
     ("rpe_m_per_m", "RPE", "m/m"),
 )
 _METHOD_SECTIONS = (
@@ -339,9 +343,11 @@ def _methods_section(report: Mapping[str, Any]) -> str:
             cells.append(_num_cell("seconds", value, _quantity("_s", value)))
         rows.append("<tr>" + "".join(cells) + "</tr>")
     caption = (
-        "Markers placed and links measured between them; marker RMSE in the home marker's "
-        "frame, and after the best rigid alignment (the map's shape alone); ATE and RPE of the "
-        "robot's path; the best of each in bold."
+        "Markers placed and links measured between them; marker RMSE after the best rigid "
+        "alignment (the map's shape alone, as evo and other mappers report it), then in the home "
+        "marker's frame (home-fixed: the home marker's own error carried to the far markers); "
+        "ATE (aligned, then home-fixed) and RPE of the robot's path at the odometry's rate, "
+        "over the poses counted; the best of each in bold."
         if report.get("ground_truth")
         else "The log carries no ground truth: counts only."
     )

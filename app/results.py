@@ -10,6 +10,7 @@ from typing import Any
 
 from markergraph.common.files import MANIFEST_KEY, REPORT_SCHEMA_PREFIX, result_folder
 from markergraph.diagnostics import diagnostics
+from markergraph.estimator.trajectory import Trajectory
 from markergraph.formats import write_g2o, write_tum
 from markergraph.localize_accuracy import accuracy_entry, accuracy_of
 from markergraph.markermap import write_json
@@ -21,12 +22,32 @@ __all__ = [
     "DIAGNOSTICS_FIGURE",
     "LOCALIZE_FIGURE",
     "REPORT_SCHEMA",
+    "TUM_FRAMES",
     "write_localization",
     "write_results",
 ]
 
 DIAGNOSTICS_FIGURE = "diagnostics.png"
 LOCALIZE_FIGURE = "map.png"  # localize's: the saved map, the localised path, moved markers
+# Which frame each trajectory file is in, and what it holds: report.json's "file_frames" and
+# each file's header comment line.
+TUM_FRAMES: dict[str, tuple[str, str]] = {
+    "trajectory.tum": (
+        "map",
+        "the corrected path at the odometry's rate: the optimised poses with the odometry "
+        "between them, in the home marker's frame",
+    ),
+    "odometry_map.tum": (
+        "map",
+        "the raw odometry placed by the first optimised pose, from that pose on (its drift "
+        "shows against trajectory.tum)",
+    ),
+    "odometry.tum": ("odom", "the raw odometry as logged, in its own odom frame"),
+    "ground_truth.tum": (
+        "map",
+        "the logged true path at trajectory.tum's stamps, in the home marker's frame",
+    ),
+}
 REPORT_SCHEMA = f"{REPORT_SCHEMA_PREFIX}1"  # report.json's layout; bump on a breaking change
 
 
@@ -70,6 +91,11 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         "ground_truth": bool(run.true_markers),
         "seconds": run.seconds,
         "settings": dict(run.config.values),
+        "file_frames": {
+            name: {"frame": frame, "holds": holds}
+            for name, (frame, holds) in TUM_FRAMES.items()
+            if name in files
+        },
         **run.judgement.to_json(),
         "methods": {},
     }
@@ -113,8 +139,13 @@ def _method_entry(run: MapRun, result: MethodResult) -> dict[str, Any]:
         entry["marker_rmse_aligned_m"] = result.map_error_aligned.rmse_position_m
     if result.inside_95_ellipse is not None:
         entry["inside_95_ellipse_share"] = result.inside_95_ellipse
+    if result.path is not None:
+        entry["trajectory_poses"] = len(result.path)  # in trajectory.tum
+        entry["optimised_poses"] = len(result.estimate.trajectory)
     if result.trajectory_error is not None:
-        entry["ate_m"] = result.trajectory_error.ate_rmse_m
+        entry["ate_m"] = result.trajectory_error.ate_rmse_m  # home-fixed, as evo_ape without -a
+        entry["ate_aligned_m"] = result.trajectory_error.ate_aligned_rmse_m  # evo_ape -a
+        entry["ate_poses"] = len(result.true_path) if result.true_path is not None else 0
         rpe = result.trajectory_error.rpe_rmse_m_per_m
         entry["rpe_m_per_m"] = rpe if math.isfinite(rpe) else None  # a path under 1 m
     return entry
@@ -136,7 +167,9 @@ def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = 
     method, and ``overlay.mcap`` (its map and trajectory as ROS 2 messages, to show over the
     log) with ``overlay.layout.json`` (a Foxglove layout for it); ``methods/<method>/`` with
     the same for every method when there are several, and
-    ``comparison.png``; TUM trajectories (estimated per method, odometry, ground truth);
+    ``comparison.png``; TUM trajectories, each naming its frame in a header comment line and
+    in report.json's ``file_frames`` (:data:`TUM_FRAMES`: the corrected path per method at the
+    odometry's rate, the odometry in its odom frame and placed in the map, ground truth);
     ``report.json`` and ``report.html`` (the same report as one self-contained page).
 
     Returns:
@@ -156,8 +189,9 @@ def _write_method(run: MapRun, result: MethodResult, folder: Path, plots: bool) 
     result.marker_map.save(folder / "map.json")
     if estimate.pose_graph is not None:
         write_g2o(folder / "map.g2o", *estimate.pose_graph())  # what was solved, as g2o has it
-    if len(estimate.trajectory):
-        write_tum(folder / "trajectory.tum", estimate.trajectory)
+    path = result.path if result.path is not None else estimate.trajectory
+    if len(path):
+        _write_tum(folder, "trajectory.tum", path)
     if plots:
         from markergraph.plots import plot_map
 
@@ -165,11 +199,18 @@ def _write_method(run: MapRun, result: MethodResult, folder: Path, plots: bool) 
             result.marker_map,
             run.true_markers,
             folder / "map.png",
-            trajectory=estimate.trajectory,
-            odometry=run.extraction.odometry,
+            trajectory=path,
+            # Placed by the first optimised pose, which is the path's first pose too.
+            odometry=result.odometry_map,
             truth_path=result.true_path,
             rmse_m=_rmse(result),
         )
+
+
+def _write_tum(folder: Path, name: str, trajectory: Trajectory) -> None:
+    """A trajectory file whose header comment line says its frame and what it holds."""
+    frame, holds = TUM_FRAMES[name]
+    write_tum(folder / name, trajectory, f"{name}: frame {frame}; {holds}")
 
 
 def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
@@ -190,13 +231,16 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
             )
     odometry = run.extraction.odometry
     write_overlay(
-        folder / "overlay.mcap", first.marker_map, first.estimate.trajectory, odometry,
+        folder / "overlay.mcap", first.marker_map,
+        first.path if first.path is not None else first.estimate.trajectory, odometry,
         map_frame=run.config.overlay.map_frame,
         odom_frame=run.config.overlay.odom_frame,
         image_topic=run.extraction.topics.color,
         calibration_topic=run.extraction.topics.camera_info,
     )  # fmt: skip
-    write_tum(folder / "odometry.tum", odometry)
+    _write_tum(folder, "odometry.tum", odometry)
+    if first.odometry_map is not None and len(first.odometry_map):
+        _write_tum(folder, "odometry_map.tum", first.odometry_map)
     for n, session in enumerate(run.sessions, start=1):
         if session.trajectory is not None:
             (folder / "sessions").mkdir(exist_ok=True)
@@ -206,7 +250,7 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
         marker_map.save(folder / "separate" / str(n) / "map.json")
     if first.true_path is not None:
         # At the estimate's own stamps, so that evo pairs them exactly and prints our figures.
-        write_tum(folder / "ground_truth.tum", first.true_path)
+        _write_tum(folder, "ground_truth.tum", first.true_path)
     files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
     report = _report(run, sorted([*files, "report.json", REPORT_PAGE]
                                  + ([DIAGNOSTICS_FIGURE] if plots else [])))  # fmt: skip

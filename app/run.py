@@ -15,7 +15,14 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from markergraph.common import EstimationError, Note, SettingsError
-from markergraph.estimator import Form, Method, estimate_frames, marker_heights
+from markergraph.estimator import (
+    Form,
+    Method,
+    corrected_odometry,
+    estimate_frames,
+    marker_heights,
+    odometry_in_map,
+)
 from markergraph.estimator.localization import localize
 from markergraph.estimator.sessions import solve_sessions
 from markergraph.executors import extract_logs
@@ -207,7 +214,11 @@ def map_logs(
         solved = _solve_one(read[0], config, stage, seconds)
     first = read[solved.first]
     truth, true_path = truth_in_home_frame(first.extraction, solved.home_id)
+    # The odometry as the estimators used it (scaled), for the path between the frames.
+    odometry = first.extraction.odometry.scaled(first.prepared.odometry_scale)
     for result in solved.results:
+        result.path = corrected_odometry(result.estimate.trajectory, odometry)
+        result.odometry_map = odometry_in_map(result.estimate.trajectory, odometry)
         score(result, truth, true_path)
     prepared = first.prepared
     run = MapRun(

@@ -48,7 +48,10 @@ def score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory 
     result.inside_95_ellipse = None if math.isnan(coverage.share) else coverage.share
     if len(estimate.markers) >= 2:
         result.map_error_aligned = map_error(estimate, truth, align=True)
-    result.trajectory_error, result.true_path = path_error(estimate.trajectory, path)
+    # At the odometry's rate where the corrected path is known: the whole path, not only the
+    # frames with a detection.
+    walked = result.path if result.path is not None else estimate.trajectory
+    result.trajectory_error, result.true_path = path_error(walked, path)
 
 
 def path_error(

@@ -10,10 +10,11 @@ from markergraph.cli._settings import add_settings, add_verbosity, settings_from
 from markergraph.common import Note, SettingsError
 from markergraph.common.files import check_output_folder
 from markergraph.common.progress import ProgressBar, Stages
+from markergraph.estimator import MapError
 from markergraph.formats.observations import is_observation_file
 from markergraph.localize_accuracy import accuracy_lines, accuracy_of
 from markergraph.markermap import MarkerMap
-from markergraph.records import MapRun
+from markergraph.records import MapRun, MethodResult
 from markergraph.report_page import REPORT_PAGE
 from markergraph.results import write_localization, write_results
 from markergraph.results3d import write_results_3d
@@ -25,6 +26,12 @@ from markergraph.verdicts import Verdict
 SUMMARY = "estimate a corrected marker map from an MCAP log (default: the bundled sample)"
 DEFAULT_SAMPLE = "corridor-loop"
 EXIT_NOT_OK = 4  # --strict: a method's verdict is "suspect" or "failed"
+# Exactly what write_results leaves out without plots (a test compares the two folders).
+NO_PLOTS_HELP = (
+    "skip the pictures: map.png, map.svg, comparison.png and diagnostics.png, and each "
+    "method's map.png and map.svg (a 3-D map: its map.png); report.html is still written, "
+    "without them"
+)
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -48,7 +55,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--force", action="store_true", help="replace an existing result folder")
     add_no_cache(parser)
-    parser.add_argument("--no-plots", action="store_true", help="skip map.png and comparison.png")
+    parser.add_argument(
+        "--no-plots", action="store_true",
+        help=NO_PLOTS_HELP,
+    )  # fmt: skip
     parser.add_argument(
         "--strict", action="store_true",
         help=f"exit {EXIT_NOT_OK} when a method's verdict is not ok (the folder is still written)",
@@ -167,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
     stages.close()
     _print_summary(result, quiet=args.quiet)
     print(f"wrote {len(written)} files to {out}/")
+    print(f"open {out / REPORT_PAGE}")
     if args.strict and result.judgement.verdict is not Verdict.OK:
         return EXIT_NOT_OK
     return 0
@@ -180,6 +191,7 @@ def _run_3d(
     stages(f"writing {out}/")
     written = write_results_3d(run, out, force=args.force, plots=not args.no_plots)
     stages.close()
+    report_page = out / REPORT_PAGE
     tag_map = run.tag_map
     walls = sum(1 for m in run.marker_map.markers.values())
     print(
@@ -197,9 +209,28 @@ def _run_3d(
         for note in [*run.notes, *tag_map.notes]:
             print(f"note: {note}", file=sys.stderr)
     print(f"wrote {len(written)} files to {out}/")
+    print(f"open {report_page}")
     if args.strict and run.judgement.verdict is not Verdict.OK:
         return EXIT_NOT_OK
     return 0
+
+
+def _error_columns(method_result: MethodResult, home_fixed: MapError) -> str:
+    """A method's aligned and home-fixed marker RMSE, its ATE (aligned and home-fixed) and over
+    how many poses."""
+    aligned = method_result.map_error_aligned
+    trajectory = method_result.trajectory_error
+    true_path = method_result.true_path
+    columns = [
+        f"{aligned.rmse_position_m:>16.3f}" if aligned else f"{'-':>16}",
+        f"{home_fixed.rmse_position_m:>19.3f}",
+    ]
+    if trajectory is not None and true_path is not None:
+        columns += [f"{trajectory.ate_aligned_rmse_m:>15.3f}", f"{trajectory.ate_rmse_m:>18.3f}",
+                    f"{len(true_path):>6}"]  # fmt: skip
+    else:
+        columns += [f"{'-':>15}", f"{'-':>18}", f"{'-':>6}"]
+    return " " + " ".join(columns)
 
 
 def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
@@ -211,19 +242,18 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
     )
     header = f"{'method':<14} {'markers':>7} {'links':>5}"
     if result.true_markers:
-        header += f" {'marker RMSE':>11} {'aligned':>8} {'ATE':>7}"
+        # Aligned first: the figure evo and other mappers report; home-fixed carries the home
+        # marker's own error to the far markers.
+        header += (
+            f" {'aligned RMSE [m]':>16} {'home-fixed RMSE [m]':>19} {'ATE aligned [m]':>15}"
+            f" {'ATE home-fixed [m]':>18} {'poses':>6}"
+        )
     print(header)
     for method_result in result.results:
         estimate = method_result.estimate
         line = f"{method_result.label:<14} {len(estimate.markers):>7} {len(estimate.links):>5}"
         if method_result.map_error is not None:
-            aligned = method_result.map_error_aligned
-            trajectory = method_result.trajectory_error
-            line += (
-                f" {method_result.map_error.rmse_position_m:>9.3f} m"
-                + (f" {aligned.rmse_position_m:>8.3f}" if aligned else f" {'-':>8}")
-                + (f" {trajectory.ate_rmse_m:>7.3f}" if trajectory else f" {'-':>7}")
-            )
+            line += _error_columns(method_result, method_result.map_error)
         print(line)
         for estimate_note in estimate.notes:
             print(f"  {method_result.label}: {estimate_note.text}")

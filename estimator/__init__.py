@@ -43,7 +43,12 @@ from markergraph.estimator.timing import (
     retimed,
     widened_for_motion,
 )
-from markergraph.estimator.trajectory import Trajectory, turn_rate
+from markergraph.estimator.trajectory import (
+    Trajectory,
+    corrected_odometry,
+    odometry_in_map,
+    turn_rate,
+)
 from markergraph.estimator.types import (
     ODOMETRY_NOISE,
     FactorResidual,
@@ -89,6 +94,7 @@ __all__ = [
     "camera_delay_by_residuals",
     "chi2_interval",
     "compose",
+    "corrected_odometry",
     "edge_from_observation",
     "edge_from_pose2",
     "edge_to_pose2",
@@ -101,6 +107,7 @@ __all__ = [
     "marker_heights",
     "nees",
     "odometry",
+    "odometry_in_map",
     "odometry_nees",
     "odometry_scale_by_residuals",
     "odometry_stretches",

@@ -17,6 +17,8 @@ __all__ = [
     "MAX_ODOMETRY_SPEED_MPS",
     "RATE_WINDOW_NS",
     "Trajectory",
+    "corrected_odometry",
+    "odometry_in_map",
     "turn_rate",
 ]
 
@@ -143,3 +145,89 @@ def turn_rate(odometry: Trajectory, t_ns: int) -> float:
     if before is None or after is None:
         return 0.0
     return before.between(after).theta() / (2 * RATE_WINDOW_NS * 1e-9)
+
+
+def _compose(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Row-wise SE(2) products ``a * b`` of (N, 3) (x, y, yaw) rows."""
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    x = a[:, 0] + c * b[:, 0] - s * b[:, 1]
+    y = a[:, 1] + s * b[:, 0] + c * b[:, 1]
+    yaw = np.arctan2(np.sin(a[:, 2] + b[:, 2]), np.cos(a[:, 2] + b[:, 2]))
+    return np.stack([x, y, yaw], axis=1)
+
+
+def _inverse(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Row-wise SE(2) inverses of (N, 3) (x, y, yaw) rows."""
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    return np.stack([-c * a[:, 0] - s * a[:, 1], s * a[:, 0] - c * a[:, 1], -a[:, 2]], axis=1)
+
+
+def _corrections(optimised: Trajectory, odometry: Trajectory) -> Trajectory:
+    """``T_map_odom = T_map_base * T_odom_base^-1`` at each optimised stamp the odometry
+    reaches."""
+    odometry_there = odometry.at_stamps(optimised.t_ns)
+    kept = np.isin(optimised.t_ns, odometry_there.t_ns)
+    return Trajectory(
+        optimised.t_ns[kept],
+        _compose(optimised.poses[kept], _inverse(odometry_there.poses)),
+        "map",
+    )
+
+
+def corrected_odometry(optimised: Trajectory, odometry: Trajectory) -> Trajectory:
+    """The optimised path at the odometry's rate: the first optimised pose, every odometry
+    sample between the first and the last optimised stamps moved into the map by the correction
+    ``T_map_odom`` interpolated between the optimised poses either side, then the last
+    optimised pose.
+
+    The standard way (a ``map -> odom`` transform held between key frames): the odometry
+    carries the shape of the path between detections, the graph where the robot was at each.
+
+    Args:
+        optimised: the estimate's poses ``T_map_base`` (at the frames' stamps).
+        odometry: ``T_odom_base`` as the estimator used it (scaled).
+
+    Returns:
+        ``T_map_base`` at the odometry's stamps in the optimised span (frame ``"map"``); the
+        optimised path itself when fewer than two of its stamps meet the odometry.
+    """
+    corrections = _corrections(optimised, odometry)
+    if len(corrections) < 2:
+        return optimised
+    t_ns, poses = corrections.t_ns, corrections.poses
+    inside = (odometry.t_ns > t_ns[0]) & (odometry.t_ns < t_ns[-1])
+    stamps, odom = odometry.t_ns[inside], odometry.poses[inside]
+    k = np.clip(np.searchsorted(t_ns, stamps, side="right") - 1, 0, len(t_ns) - 2)
+    fraction = ((stamps - t_ns[k]) / (t_ns[k + 1] - t_ns[k]))[:, None]
+    step = poses[k + 1] - poses[k]
+    step[:, 2] = np.arctan2(np.sin(step[:, 2]), np.cos(step[:, 2]))  # the short way round
+    # Linear in (x, y, yaw): consecutive corrections differ by millimetres and milliradians,
+    # where this and SE(2)'s constant twist agree to well under a micrometre.
+    correction = poses[k] + fraction * step
+    ends = optimised.poses[np.isin(optimised.t_ns, t_ns[[0, -1]])]  # exact, not re-composed
+    return Trajectory(
+        np.concatenate([t_ns[:1], stamps, t_ns[-1:]]),
+        np.concatenate([ends[:1], _compose(correction, odom), ends[-1:]]),
+        "map",
+    )
+
+
+def odometry_in_map(optimised: Trajectory, odometry: Trajectory) -> Trajectory:
+    """The raw odometry placed in the map by the first optimised pose, from that pose on: its
+    drift shows against the corrected path.
+
+    Returns:
+        ``T_map_base`` (frame ``"map"``): the first optimised pose, then every odometry sample
+        after it moved by ``T_map_odom`` at that stamp; empty when they never meet.
+    """
+    corrections = _corrections(optimised, odometry)
+    if not len(corrections):
+        return Trajectory(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), "map")
+    t0 = int(corrections.t_ns[0])
+    after = odometry.t_ns > t0
+    placed = _compose(np.repeat(corrections.poses[:1], int(after.sum()), axis=0),
+                      odometry.poses[after])  # fmt: skip
+    start = optimised.poses[optimised.t_ns == t0][:1]
+    return Trajectory(
+        np.concatenate([[t0], odometry.t_ns[after]]), np.concatenate([start, placed]), "map"
+    )

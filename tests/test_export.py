@@ -136,7 +136,8 @@ def test_every_export_format_parses_back_to_the_map(map_json: Path, tmp_path: Pa
     rows = list(csv.DictReader(paths[ExportFormat.CSV].read_text().splitlines()))
     assert {int(r["id"]) for r in rows} == set(markers)
     for row in rows:
-        assert float(row["x_m"]) == markers[int(row["id"])]["x"]
+        # Exact but for float noise under 1e-12 m (the home marker's), written as 0.0.
+        assert float(row["x_m"]) == pytest.approx(markers[int(row["id"])]["x"], rel=0, abs=1e-12)
 
     storage = cv2.FileStorage(str(paths[ExportFormat.ARUCO_YAML]), cv2.FILE_STORAGE_READ)
     node = storage.getNode("aruco_bc_markers")

@@ -26,6 +26,16 @@ class ExportFormat(Enum):
     CSV = "csv"
 
 
+NOISE_FLOOR = 1e-12  # [m] or [rad]: below it a value is rounding left by the solver, not a place
+
+
+def _number(value: float) -> str:
+    """A value as text, exact (``repr``), with float noise such as the home marker's
+    ``-4.2e-21`` written as 0.0."""
+    value = float(value)
+    return repr(0.0 if abs(value) < NOISE_FLOOR else value)
+
+
 def _R_map_tag(yaw: float) -> NDArray[np.float64]:
     """A wall marker's rotation in OpenCV's marker convention (x to the viewer's right, y up,
     z out of the marker) from its top-view yaw (the normal's heading)."""
@@ -84,7 +94,7 @@ def _csv(marker_map: MarkerMap) -> list[str]:
     lines = [_CSV_2D]
     for m in marker_map.markers.values():
         values = (*_centre(m), m.T_map_marker.theta(), *m.sigmas(), m.sigma_z_m or 0.0)
-        lines.append(",".join([str(m.marker_id), *(repr(float(v)) for v in values),
+        lines.append(",".join([str(m.marker_id), *(_number(v) for v in values),
                                str(m.n_observations)]))  # fmt: skip
     return lines
 
@@ -102,12 +112,12 @@ def _csv_3d(marker_map: MarkerMap) -> list[str]:
         sigma_yaw = repr(m.sigmas()[2]) if m.wall else ""
         cells = [
             str(m.marker_id),
-            *(repr(float(v)) for v in (*_centre(m), m.T_map_marker.theta(), *sigma_p[:2])),
+            *(_number(v) for v in (*_centre(m), m.T_map_marker.theta(), *sigma_p[:2])),
             sigma_yaw,
             repr(float(sigma_p[2])),
             str(m.n_observations),
             *(repr(v) for v in q),
-            *(repr(float(v)) for v in sigma_r),
+            *(_number(v) for v in sigma_r),
             "true" if m.wall else "false",
         ]
         lines.append(",".join(cells))
@@ -142,7 +152,7 @@ def _aruco(marker_map: MarkerMap) -> list[str]:
     ]
     for m in marker_map.every_marker.values():
         corners = ", ".join(
-            "[" + ", ".join(repr(float(v)) for v in corner) + "]" for corner in _corners(m)
+            "[" + ", ".join(_number(v) for v in corner) + "]" for corner in _corners(m)
         )
         lines.append(f"   - {{ id: {m.marker_id}, corners: [ {corners} ] }}")
     return lines
@@ -157,7 +167,7 @@ def _fiducial_slam(marker_map: MarkerMap) -> list[str]:
         if (sigmas := _sigmas3(m)) is not None:
             sx, sy = float(sigmas[0][0]), float(sigmas[0][1])
         fields = [*_centre(m), *(math.degrees(float(a)) for a in rpy), sx * sx + sy * sy]
-        lines.append(" ".join([str(m.marker_id), *(repr(float(v)) for v in fields),
+        lines.append(" ".join([str(m.marker_id), *(_number(v) for v in fields),
                                str(m.n_observations)]))  # fmt: skip
     return lines
 
@@ -183,8 +193,9 @@ def _tagslam(marker_map: MarkerMap) -> list[str]:
             f"       - id: {m.marker_id}",
             f"         size: {m.size_m!r}",
             "         pose:",
-            f"           position: {{x: {float(x)!r}, y: {float(y)!r}, z: {float(z)!r}}}",
-            f"           rotation: {{x: {rotation[0]!r}, y: {rotation[1]!r}, z: {rotation[2]!r}}}",
+            f"           position: {{x: {_number(x)}, y: {_number(y)}, z: {_number(z)}}}",
+            f"           rotation: {{x: {_number(rotation[0])}, y: {_number(rotation[1])}, "
+            f"z: {_number(rotation[2])}}}",
             f"           position_noise: {{x: {sx!r}, y: {sy!r}, z: {sz!r}}}",
             f"           rotation_noise: {{x: {srx!r}, y: {sry!r}, z: {srz!r}}}",
         ]

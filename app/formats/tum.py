@@ -18,8 +18,14 @@ from markergraph.estimator.trajectory import Trajectory
 __all__ = ["read_tum", "write_tum", "write_tum_3d"]
 
 
-def write_tum(path: Path, trajectory: Trajectory) -> None:
+def write_tum(path: Path, trajectory: Trajectory, comment: str | None = None) -> None:
     """A trajectory in TUM format, whole or not at all; non-finite poses are refused.
+
+    Args:
+        path: the file.
+        trajectory: the poses, written in their own frame.
+        comment: one header line (after ``# ``) saying what the file holds and in which frame;
+            evo and :func:`read_tum` skip lines that begin with ``#``.
 
     Raises:
         MarkerGraphError: a pose is NaN or infinite (a bug upstream: never written).
@@ -30,6 +36,8 @@ def write_tum(path: Path, trajectory: Trajectory) -> None:
     # poses, whose text as one string took some 250 bytes a pose.
     block = 1 << 16
     with written_whole(path) as partial, open(partial, "w", encoding="utf-8") as out:
+        if comment is not None:
+            out.write(f"# {' '.join(comment.split())}\n")  # one line, whatever it was given
         for start in range(0, len(trajectory), block):
             stamps = trajectory.t_ns[start : start + block].tolist()
             poses = trajectory.poses[start : start + block].tolist()
