@@ -26,7 +26,8 @@ def test_damaged_logs_end_in_one_line_never_a_crash_a_hang_or_a_gigabyte(tmp_pat
     assert report["failed"] == 0, json.dumps(report["failures"][:5], indent=1)
     assert report["peak_mb"] < 1024
     assert report["info_can_map_but_map_failed"] == 0
-    # Both endings are reached: damage that costs a few messages, and damage that ends the run.
+    # Both endings are reached: damage that costs a few messages (most cases), and damage that
+    # leaves nothing to map (about one case in ten: a file cut in its first chunks).
     exits = report["map_exits"]
-    assert exits.get("0", 0) > CASES // 5 and exits.get("1", 0) > CASES // 5
+    assert exits.get("0", 0) > CASES // 2 and exits.get("1", 0) > CASES // 20
     assert run.returncode == 0
