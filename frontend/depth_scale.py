@@ -99,17 +99,17 @@ def _scale_note(
         return Note("depth_scale.too_far_off", text, topic, scale), False
     if configured is not None:
         text = (
-            f"{reads} ({used} markers); --depth-scale {configured:g} applied"
+            f"{reads} ({used} sightings of markers); --depth-scale {configured:g} applied"
             if configured != 1.0
-            else f"{reads} ({used} markers); depth taken as it is (--depth-scale 1)"
+            else f"{reads} ({used} sightings of markers); depth taken as it is (--depth-scale 1)"
         )
         return Note("depth_scale.configured", text, topic, scale), True
     if abs(scale - 1.0) <= DEPTH_SCALE_RESOLUTION:
         text = (
-            f"{reads} ({used} markers): within the measurement's own "
+            f"{reads} ({used} sightings of markers): within the measurement's own "
             f"{100 * DEPTH_SCALE_RESOLUTION:g} % error, so depth is left as it is "
             "(--depth-scale K sets it)"
         )
         return Note("depth_scale.within_error", text, topic, scale), False
-    text = f"{reads} ({used} markers): ranges from depth corrected"
+    text = f"{reads} ({used} sightings of markers): ranges from depth corrected"
     return Note("depth_scale.corrected", text, topic, scale), True
