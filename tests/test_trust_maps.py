@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import copy
 import json
-import resource
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -16,7 +14,7 @@ from typing import Any
 import gtsam
 import numpy as np
 import pytest
-from trust_helpers import cli, one_line_error, snapshot
+from trust_helpers import cli, one_line_error, run_with_peak, snapshot
 
 from markergraph.cli import main
 from markergraph.estimator.gauge import relative_covariances, relative_covariances_of_groups
@@ -190,9 +188,9 @@ def test_a_full_dictionary_localises_in_bounded_memory(real_map, log, tmp_path) 
     out = tmp_path / "loc"
     command = [sys.executable, "-m", "markergraph.cli", "localize", str(log), "--map", str(path),
                "--out", str(out), "-q"]  # fmt: skip
-    run = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    run, peak_kb = run_with_peak(command)
     assert run.returncode == 0, run.stderr
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024  # Linux: kB
+    peak = peak_kb * 1024  # Linux: kB
     assert peak < PEAK_RSS_BYTES, peak
     assert (out / "localization.json").is_file()
 

@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
+import subprocess
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -53,3 +56,16 @@ def strict_json(path: Path) -> Any:
         raise AssertionError(f"{path} holds {name}")
 
     return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def run_with_peak(command: list[str]) -> tuple[subprocess.CompletedProcess[str], int]:
+    """A command in a process of its own, and that process's own peak memory [kB] (from
+    ``wait4``: ``RUSAGE_CHILDREN`` would give the largest of every child the tests ran)."""
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        process = subprocess.Popen(command, stdout=out, stderr=err, text=True)
+        _, status, usage = os.wait4(process.pid, 0)
+        process.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        err.seek(0)
+        done = subprocess.CompletedProcess(command, process.returncode, out.read(), err.read())
+    return done, int(usage.ru_maxrss)
