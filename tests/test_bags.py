@@ -7,26 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
+from trust_helpers import as_sqlite_bag
 
 from markergraph.datasets import scenario, write_log
 from markergraph.frontend import FrontendConfig, extract, open_log
-
-
-def as_sqlite_bag(mcap: Path, folder: Path) -> None:
-    """The same messages (their CDR bytes as recorded) in a rosbag2 folder stored in SQLite."""
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    with open(mcap, "rb") as stream, Writer(folder, version=8) as writer:
-        connections = {}
-        for schema, channel, message in make_reader(stream).iter_messages():
-            if channel.topic not in connections:
-                connections[channel.topic] = writer.add_connection(
-                    channel.topic, schema.name, typestore=store
-                )
-            writer.write(connections[channel.topic], message.log_time, message.data)
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 from mcap.reader import make_reader
-from trust_helpers import cli, one_line_error, run_with_peak
+from trust_helpers import as_sqlite_bag, cli, one_line_error, run_with_peak
 
 from markergraph.datasets import scenario, write_log
 from markergraph.frontend.logs.ros1 import Ros1Bag, open_ros1
@@ -61,22 +61,6 @@ def as_ros1_bag(mcap: Path, path: Path, compression: str | None) -> None:
                                  src_is2=True, dst_is2=False)  # fmt: skip
             writer.write(connections[channel.topic], message.log_time, bytes(data))
     writer.close()
-
-
-def as_sqlite_bag(mcap: Path, folder: Path) -> None:
-    """The same messages (their CDR bytes as recorded) in a rosbag2 folder stored in SQLite."""
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    with open(mcap, "rb") as stream, Writer(folder, version=8) as writer:
-        connections: dict[str, Any] = {}
-        for schema, channel, message in make_reader(stream).iter_messages():
-            if channel.topic not in connections:
-                connections[channel.topic] = writer.add_connection(
-                    channel.topic, schema.name, typestore=store
-                )
-            writer.write(connections[channel.topic], message.log_time, message.data)
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from mcap.reader import make_reader
 
 from markergraph.cli import main
 
@@ -69,3 +70,19 @@ def run_with_peak(command: list[str]) -> tuple[subprocess.CompletedProcess[str],
         err.seek(0)
         done = subprocess.CompletedProcess(command, process.returncode, out.read(), err.read())
     return done, int(usage.ru_maxrss)
+
+
+def as_sqlite_bag(mcap: Path, folder: Path) -> None:
+    """The same messages (their CDR bytes as recorded) in a rosbag2 folder stored in SQLite."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    with open(mcap, "rb") as stream, Writer(folder, version=8) as writer:
+        connections: dict[str, Any] = {}
+        for schema, channel, message in make_reader(stream).iter_messages():
+            if channel.topic not in connections:
+                connections[channel.topic] = writer.add_connection(
+                    channel.topic, schema.name, typestore=store
+                )
+            writer.write(connections[channel.topic], message.log_time, message.data)
