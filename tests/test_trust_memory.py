@@ -6,7 +6,6 @@ from __future__ import annotations
 import functools
 import json
 import struct
-import subprocess
 import sys
 import zlib
 from array import array
@@ -17,7 +16,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from trust_helpers import snapshot
+from trust_helpers import run_with_peak, snapshot
 
 from markergraph.datasets.rewrite import rewrite_log
 from markergraph.frontend.logs import Message
@@ -69,20 +68,10 @@ def test_png_bomb_is_a_valid_png() -> None:
 
 def run_measured(*arguments: str | Path, timeout_s: float = 300.0) -> tuple[int, str, float]:
     """The ``markergraph`` command in a fresh process: (exit code, stderr, peak RSS [MB] of the
-    largest process it ran, workers included). The wrapper is fresh so that no earlier child
-    of the test process counts in ``RUSAGE_CHILDREN``."""
+    largest process it ran, workers included)."""
     command = [sys.executable, "-m", "markergraph.cli", *map(str, arguments)]
-    wrapper = (
-        "import json, resource, subprocess, sys\n"
-        f"run = subprocess.run({command!r}, capture_output=True, text=True)\n"
-        "peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024\n"
-        "print(json.dumps([run.returncode, run.stderr, peak]))\n"
-    )
-    done = subprocess.run(
-        [sys.executable, "-c", wrapper], capture_output=True, text=True, timeout=timeout_s
-    )
-    code, err, peak_mb = json.loads(done.stdout)
-    return int(code), str(err), float(peak_mb)
+    done, peak_kb = run_with_peak(command, timeout_s=timeout_s)
+    return done.returncode, done.stderr, peak_kb / 1024
 
 
 # --- images ----------------------------------------------------------------------------------
