@@ -1,5 +1,6 @@
 """Test-wide settings and fixtures: hypothesis runs derandomised, so every run draws the same
-examples; the small rendered log several modules damage in their own ways, rendered once."""
+examples; the small rendered log several modules damage in their own ways, rendered once; tests
+marked ``slow`` run only with ``--slow`` (CI passes it)."""
 
 from pathlib import Path
 
@@ -10,6 +11,26 @@ from markergraph.datasets import scenario, write_log
 
 settings.register_profile("markergraph", derandomize=True, database=None, print_blob=True)
 settings.load_profile("markergraph")
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--slow", action="store_true", help="also run the tests marked slow (as CI does)"
+    )
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "slow: a test of many seconds; runs only with --slow")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Without ``--slow``, the slow tests are deselected (counted as such), not skipped."""
+    if config.getoption("--slow"):
+        return
+    slow = [item for item in items if item.get_closest_marker("slow")]
+    if slow:
+        config.hook.pytest_deselected(items=slow)
+        items[:] = [item for item in items if not item.get_closest_marker("slow")]
 
 
 @pytest.fixture(scope="session")

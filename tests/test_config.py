@@ -134,6 +134,7 @@ def test_bad_file_values_name_the_file_and_key(tmp_path: Path, text: str, named:
     assert named in str(error.value) and "\n" not in str(error.value)
 
 
+@pytest.mark.slow
 def test_flags_override_the_file_and_bad_flags_exit_1(tmp_path: Path) -> None:
     """--config then a flag: the flag wins; printed settings show it. A bad value or file is
     one line on stderr and exit 1."""
@@ -179,6 +180,7 @@ def test_readme_example_is_a_valid_settings_file(tmp_path: Path) -> None:
     assert config.frontend.default_mount.pitch_rad == pytest.approx(math.radians(5.0))
 
 
+@pytest.mark.slow
 def test_depth_scale_flag_takes_auto_or_a_number() -> None:
     """--depth-scale auto and --depth-scale 1.012 both reach the settings (each broke once)."""
     import subprocess

@@ -54,6 +54,7 @@ def compare(pairs: list[tuple[NDArray, NDArray, NDArray]]) -> dict[str, float]:
 
 
 @pytest.mark.parametrize("name", ["paper-room", "office"])
+@pytest.mark.slow
 def test_corners_sit_on_the_rendered_truth(name: str) -> None:
     """On a minute of each rendered log OpenCV's corners sit 0.28-0.39 px inside the true ones
     (median error 0.28-0.37 px); ours 0.01-0.05 px (0.04-0.07 px)."""

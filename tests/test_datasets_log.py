@@ -42,6 +42,7 @@ def rendered_run(name: str, seconds: float, seed: int = 0):
         yield world, renderer, T_world_base, renderer.render(T_world_base, rng)
 
 
+@pytest.mark.slow
 def test_detected_corners_match_projected_ground_truth() -> None:
     """Over the paper-room log OpenCV finds the drawn markers at their true corners (median
     under 0.5 px), and below 60 degrees of view angle in the corridor as well."""
@@ -69,6 +70,7 @@ def test_detected_corners_match_projected_ground_truth() -> None:
     assert len(below_60) > 30 and np.median(below_60[:, 1]) < CORNER_MEDIAN_PX
 
 
+@pytest.mark.slow
 def test_depth_at_marker_centres_matches_true_range() -> None:
     """The aligned depth under each marker centre in clear view is its true optical Z within
     3 sigma of the depth noise model (in at least 97% of samples: dropouts aside)."""
@@ -129,6 +131,7 @@ def short_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_one_seed_gives_the_same_bytes(short_log: Path, tmp_path: Path) -> None:
     """Writing the same run twice gives byte-identical files; another seed does not."""
     world, route = scenario("paper-room")
@@ -182,6 +185,7 @@ def test_standard_reader_reads_the_expected_topics(short_log: Path) -> None:
                 assert jpeg.shape == (480, 640, 3)
 
 
+@pytest.mark.slow
 def test_simulate_command_refuses_to_overwrite(tmp_path: Path) -> None:
     """`markergraph simulate` writes a log, then will not overwrite it without --force."""
     out = tmp_path / "run.mcap"
@@ -207,6 +211,7 @@ def test_simulate_command_refuses_to_overwrite(tmp_path: Path) -> None:
     assert len(second.stderr.strip().splitlines()) == 1 and out.stat().st_size == size
 
 
+@pytest.mark.slow
 def test_sample_log_is_generated_once_and_reused(tmp_path: Path, monkeypatch) -> None:
     """The first call renders the sample into the cache (saying so); the second reuses it."""
     from markergraph.datasets import samples

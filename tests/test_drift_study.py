@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from markergraph.datasets import WheelErrors, scenario, simulate_fast
 from markergraph.datasets.study import drift_study, summarise
@@ -17,6 +18,7 @@ from markergraph.estimator import (
 )
 
 
+@pytest.mark.slow
 def test_optimised_maps_beat_the_papers_closed_form_on_the_corridor_loop() -> None:
     """Marker RMSE: SLAM at least 3x better than the closed form; the marker graph between."""
     methods = [
@@ -32,6 +34,7 @@ def test_optimised_maps_beat_the_papers_closed_form_on_the_corridor_loop() -> No
     assert closed > graph > slam
 
 
+@pytest.mark.slow
 def test_ekf_is_consistent_when_its_odometry_model_is_true() -> None:
     """Average NEES over seeded runs lies in its 95% chi-square band when the simulated wheel
     errors are exactly the random walk the filter assumes (no systematic errors)."""

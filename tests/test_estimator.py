@@ -250,6 +250,7 @@ def noisy_run() -> SimulatedRun:
     return simulate_fast(world, route, seed=7)
 
 
+@pytest.mark.slow
 def test_isam2_matches_batch_slam(noisy_run: SimulatedRun) -> None:
     """After the last update iSAM2's map and trajectory equal batch Levenberg-Marquardt's."""
     run = noisy_run
@@ -423,6 +424,7 @@ def test_marker_graph_localises_the_robot_on_its_map(noisy_run: SimulatedRun) ->
     )
 
 
+@pytest.mark.slow
 def test_an_odometry_jump_is_released_and_does_not_bend_the_map(noisy_run: SimulatedRun) -> None:
     """A VIO reset half-way (every later pose moved rigidly by 0.3 m, 0.1 m, 0.05 rad) is found
     by ``Trajectory.jumps``; releasing that step keeps SLAM's map within 1 cm of the map without
@@ -481,6 +483,7 @@ def test_scaled_odometry_is_each_step_scaled() -> None:
 
 
 @pytest.mark.parametrize("factor", [1.0, 0.97, 1.025])
+@pytest.mark.slow
 def test_the_odometry_scale_search_finds_the_wheels_error(factor: float) -> None:
     """Odometry whose distances read ``factor`` of the truth (no other systematic error) is
     scaled back by SLAM's residuals to within 0.4 % of ``1 / factor``; the chosen factor, once

@@ -118,6 +118,7 @@ def run_cli(*arguments: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_every_export_format_parses_back_to_the_map(map_json: Path, tmp_path: Path) -> None:
     """CSV, ArUco's MarkerMap YAML (OpenCV FileStorage), fiducial_slam map.txt and TagSLAM YAML
     carry each marker's position and the direction of its normal."""

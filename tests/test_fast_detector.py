@@ -73,6 +73,7 @@ def rendered(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 
 @pytest.mark.parametrize("name", ["corridor-loop", "office, smeared"])
+@pytest.mark.slow
 def test_fast_keeps_full_detections_on_rendered_logs(rendered: dict[str, Path], name: str) -> None:
     """On rendered logs with small, grazing and smeared markers, the fast detector finds at
     least 99 % of what FULL finds, at a median corner distance under 0.05 px."""
@@ -89,6 +90,7 @@ def test_fast_keeps_full_detections_on_rendered_logs(rendered: dict[str, Path], 
     assert median_px <= MAX_MEDIAN_CORNER_PX
 
 
+@pytest.mark.slow
 def test_pipeline_gives_the_same_observations_with_either_detector(
     rendered: dict[str, Path],
 ) -> None:

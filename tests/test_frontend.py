@@ -198,6 +198,8 @@ def simulated(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[Path, obje
     return runs
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_observations_match_ground_truth_on_simulated_logs(simulated) -> None:
     """Median |theta error| <= 1 deg within 2 m and <= 2 deg within 3 m (|theta| >= 15 deg);
     median range error <= 2 cm; bearings within 0.2 deg."""
@@ -245,6 +247,8 @@ def errors_against_truth(result) -> np.ndarray:
     return np.array(rows)
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_tilted_base_is_levelled_with_the_odometrys_attitude(simulated, tmp_path: Path) -> None:
     """The rendered log rewritten as if the base stood rolled 8 deg (a ramp) with the camera
     counter-rolled on it, so the images are the same: /odom carries the roll, /tf_static the
@@ -293,6 +297,7 @@ def test_tilted_base_is_levelled_with_the_odometrys_attitude(simulated, tmp_path
     assert np.degrees(np.median(rows[:, 4])) <= 0.2
 
 
+@pytest.mark.slow
 def test_log_frames_are_all_accounted_for(simulated) -> None:
     """Every colour frame is read and paired with its depth; the mount comes from /tf_static."""
     for path, result in simulated:
@@ -304,6 +309,8 @@ def test_log_frames_are_all_accounted_for(simulated) -> None:
         assert len(result.odometry) == counts["/odom"]
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_detect_command_writes_json_lines(simulated, tmp_path: Path) -> None:
     """`markergraph detect` writes one line per observation, each with its odometry pose."""
     path, result = simulated[0]
@@ -403,6 +410,7 @@ def write_mismatched_log(path: Path) -> None:
         writer.finish()
 
 
+@pytest.mark.slow
 def test_bad_logs_fail_with_one_line_naming_file_and_topic(tmp_path: Path) -> None:
     """Not MCAP, truncated, no camera, misaligned depth: exit 1 and one line naming the file."""
     not_mcap = tmp_path / "notes.mcap"
@@ -449,6 +457,7 @@ def test_bad_logs_fail_with_one_line_naming_file_and_topic(tmp_path: Path) -> No
         extract(not_mcap)
 
 
+@pytest.mark.slow
 def test_worker_processes_give_the_same_observations(simulated) -> None:
     """Two spawned workers return exactly the single-process observations, in order."""
     path, result = simulated[0]
@@ -555,6 +564,8 @@ def _foxglove_transforms(transforms: Any) -> Any:
     return out
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_foxglove_log_gives_the_same_observations(simulated, tmp_path: Path) -> None:
     """The same run written with Foxglove's protobuf schemas reads to the same observations."""
     path, result = simulated[0]
@@ -609,6 +620,7 @@ def copy_without(path: Path, target: Path, topic: str | None, compression: str =
 
 
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+@pytest.mark.slow
 def test_chunks_read_as_mcaps_own_reader_reads_them(
     simulated, tmp_path: Path, compression: str
 ) -> None:
@@ -684,6 +696,8 @@ def test_a_record_past_its_chunk_is_damage() -> None:
         chunks.chunk_messages(cut, {1})
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_tf_stands_in_for_missing_odometry(simulated, tmp_path: Path) -> None:
     """Without /odom, the odom -> base_link transforms on /tf give the same odometry."""
     path, result = simulated[0]
@@ -694,6 +708,8 @@ def test_tf_stands_in_for_missing_odometry(simulated, tmp_path: Path) -> None:
     assert other.odometry == result.odometry
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_configured_mount_stands_in_for_missing_tf_static(simulated, tmp_path: Path) -> None:
     """Without /tf_static the configured mount is used and said so: the true one (0.6 m,
     pitched 10 deg) gives the same observations as /tf_static; a level camera does not."""

@@ -10,10 +10,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 SCRIPT = Path(__file__).parent / "benchmarks" / "fuzz_logs.py"
 CASES = int(os.environ.get("MARKERGRAPH_FUZZ_CASES", "200"))
 
 
+@pytest.mark.slow
 def test_damaged_logs_end_in_one_line_never_a_crash_a_hang_or_a_gigabyte(tmp_path: Path) -> None:
     run = subprocess.run(
         [sys.executable, str(SCRIPT), "--cases", str(CASES), "--work", str(tmp_path), "--json"],

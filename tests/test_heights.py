@@ -19,6 +19,8 @@ import yaml
 from markergraph.datasets import scenario, write_log
 from markergraph.estimator import MarkerHeight, Observation, marker_heights
 
+pytestmark = pytest.mark.slow  # its tests share a fixture that renders or maps a whole log
+
 HEIGHTS_M = (0.85, 1.2, 1.0, 0.9, 1.15, 1.05)
 
 

@@ -99,6 +99,7 @@ def test_odd_stamps_without_log_times_judge_order_alone() -> None:
 @pytest.mark.parametrize(
     ("index", "seconds", "worst_s"), [(300, 1000, 1000.0), (0, 5, 5.0)], ids=["late", "first"]
 )
+@pytest.mark.slow
 def test_one_odd_odometry_stamp_costs_that_sample(
     log: Path, clean: MapRun, tmp_path: Path, index: int, seconds: int, worst_s: float
 ) -> None:
@@ -153,6 +154,7 @@ def test_a_log_time_of_zero_in_a_sqlite_bag_costs_that_sample(
     assert moved_m(run, clean) < SAME_MAP_M
 
 
+@pytest.mark.slow
 def test_a_frame_stamped_seconds_off_costs_its_observations(
     log: Path, clean: MapRun, tmp_path: Path
 ) -> None:

@@ -24,6 +24,8 @@ from markergraph.estimator.paper import Form
 from markergraph.heading_sigma import heading_sigma
 from markergraph.markermap import MapMarker, MarkerMap
 
+pytestmark = pytest.mark.slow  # its tests share a fixture that renders or maps a whole log
+
 MC_SAMPLES = 2000
 MC_TOLERANCE = 0.15  # a 2000-sample std is within ~3 % (1 sigma); 15 % leaves room for linearity
 MOVED_ID, MOVED_BY_M = 3, 0.3

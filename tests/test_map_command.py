@@ -16,6 +16,8 @@ import pytest
 from markergraph.formats import MARKER_VERTEX_OFFSET, read_tum
 from markergraph.markermap import MAP_SCHEMA
 
+pytestmark = pytest.mark.slow  # its tests share a fixture that renders or maps a whole log
+
 METHODS = ("slam", "closed-form", "marker-graph", "isam2", "ekf")
 
 

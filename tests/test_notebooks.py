@@ -32,6 +32,7 @@ def saved_figures(folder: Path, notebook: str) -> list[Path]:
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+@pytest.mark.slow
 def test_notebook_executes(path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The notebook runs in a fresh kernel without an error, renders its figures and saves
     every figure it shows to $MARKERGRAPH_FIGURES as a PNG file."""
@@ -54,6 +55,7 @@ def test_notebook_executes(path: Path, tmp_path: Path, monkeypatch: pytest.Monke
     assert len(saved_figures(figures, path.stem)) == len(shown)
 
 
+@pytest.mark.slow
 def test_notebook_as_a_script_saves_its_figures_beside_it(tmp_path: Path) -> None:
     """`python notebook.py` with no $MARKERGRAPH_FIGURES writes its figures to figures/ beside
     the notebook's file."""

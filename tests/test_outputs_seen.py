@@ -20,6 +20,8 @@ from markergraph.formats import MARKER_VERTEX_OFFSET, read_tum
 from markergraph.frontend import extract
 from markergraph.markermap import MapMarker, MarkerMap
 
+pytestmark = pytest.mark.slow  # its tests share a fixture that renders or maps a whole log
+
 RATE_TOLERANCE = 0.05  # the path's rate against the odometry's, relative
 MAX_GAP_PERIODS = 2.0  # the longest step of the path, in odometry periods
 PATH_TOLERANCE_M = 0.05  # the corrected path against the simulator's truth, everywhere

@@ -160,6 +160,7 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+@pytest.mark.slow
 def test_the_main_job_needs_no_test_package(tmp_path: Path) -> None:
     """README's main job installs without the test extra: simulate, info and map run with every
     package of that extra made unimportable."""

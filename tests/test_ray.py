@@ -100,6 +100,7 @@ def assert_same_extraction(a: Extraction, b: Extraction) -> None:
     assert (a.depth_scale, a.measured_depth_scale) == (b.depth_scale, b.measured_depth_scale)
 
 
+@pytest.mark.slow
 def test_ray_extractions_equal_local_ones(local: list[Extraction], on_ray: list[Extraction]):
     """Ray tasks give the local executor's extractions, in the order of the logs."""
     assert len(on_ray) == len(local) == len(SEEDS)
@@ -108,6 +109,7 @@ def test_ray_extractions_equal_local_ones(local: list[Extraction], on_ray: list[
     assert local[0].observations != local[1].observations  # the order is the logs' own
 
 
+@pytest.mark.slow
 def test_every_executor_equals_extract_alone(
     logs: list[Path], local: list[Extraction], on_ray: list[Extraction]
 ):

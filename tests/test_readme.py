@@ -25,6 +25,7 @@ def python_blocks() -> list[tuple[Path, str]]:
     ]
 
 
+@pytest.mark.slow
 def test_readme_python_examples_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every python block of README and docs/*.md runs; the main-job example maps robot.mcap
     (20 s of the paper room) and the map.json it writes loads back with the markers the run

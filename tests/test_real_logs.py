@@ -97,6 +97,7 @@ def detection_log(test: str, bags: Path, **extra: Any) -> DetectionLog:
     return read_detection_log(opened, config, choose_topics(log, opened.topics, config))
 
 
+@pytest.mark.slow
 def test_stairs_recording_maps_to_tagslams_map(bags: Path) -> None:
     """Test 21 (a hand-held T265 with VIO up a staircase): every method maps every wall tag
     TagSLAM mapped (and only those: the floor tag is left out), and each agrees with TagSLAM's
@@ -142,6 +143,7 @@ def test_stairs_recording_counts_each_markers_drops(bags: Path) -> None:
     assert sum(c.detections for c in counts.values()) == len(log.observations) + 13
 
 
+@pytest.mark.slow
 def test_closed_form_from_a_late_home_places_every_marker_slam_places(bags: Path) -> None:
     """Test 21 with home marker 15, first seen 237 frames into the walk: the closed form used
     to start there and place 11 of the 22 markers SLAM places (those seen before were never
@@ -168,6 +170,7 @@ def test_closed_form_from_a_late_home_places_every_marker_slam_places(bags: Path
     assert max(p.dead_reckoned_m for p in placements.values()) > 0.1
 
 
+@pytest.mark.slow
 def test_closed_form_uses_a_markers_best_views_when_none_is_sharp(bags: Path) -> None:
     """Test 21's frames with every theta sigma set to 12 deg (as an ambiguous PnP on a fisheye
     rig gives): past the 10 deg gate, the closed form used to place only the home marker. Now
@@ -360,6 +363,7 @@ def _detections(tags: Any, clockwise: bool) -> list[dict[str, Any]]:
 
 
 @pytest.mark.parametrize("clockwise", [False, True], ids=["apriltag-order", "opencv-order"])
+@pytest.mark.slow
 def test_ros2_mcap_with_fisheye_info_and_tf_chain_needs_no_rig_files(
     bags: Path, tmp_path: Path, clockwise: bool
 ) -> None:
@@ -408,6 +412,7 @@ def test_vio_noise_model_is_honest_on_the_stairs_recording(bags: Path, stretch_m
     assert np.mean(odometry_nees(stretches, fitted)) == pytest.approx(3.0, abs=0.3)
 
 
+@pytest.mark.slow
 def test_observation_sigmas_without_depth_are_honest_on_the_stairs_recording(bags: Path) -> None:
     """Range and theta from the corners through PnP, against TagSLAM's path and map: errors of
     half a percent and half a degree (median), and sigmas that cover them as a Gaussian would

@@ -21,6 +21,8 @@ from markergraph.datasets.scenarios import scenario
 from markergraph.datasets.write import write_log
 from markergraph.report_page import REPORT_PAGE, render_report_page
 
+pytestmark = pytest.mark.slow  # its tests share a fixture that renders or maps a whole log
+
 CHROMIUM = shutil.which("chromium")
 needs_chromium = pytest.mark.skipif(
     CHROMIUM is None, reason="needs a headless browser: apt-get install chromium"

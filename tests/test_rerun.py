@@ -66,6 +66,7 @@ def _map_document_text(out: Path) -> str:
     return (out / "map.json").read_text()
 
 
+@pytest.mark.slow
 def test_second_run_reads_no_image_and_gives_the_same_map(
     log: Path, tmp_path: Path, decoded: list[int]
 ) -> None:
@@ -87,6 +88,7 @@ def test_second_run_reads_no_image_and_gives_the_same_map(
     assert moved > 1e-4
 
 
+@pytest.mark.slow
 def test_front_end_setting_or_log_change_reads_again(
     log: Path, tmp_path: Path, decoded: list[int], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -114,6 +116,7 @@ def test_front_end_setting_or_log_change_reads_again(
     assert len(decoded) >= n + 100
 
 
+@pytest.mark.slow
 def test_corrupt_entry_is_ignored_and_rewritten(
     log: Path, tmp_path: Path, decoded: list[int]
 ) -> None:
@@ -188,6 +191,7 @@ def _under_pty(args: list[str], env: dict[str, str]) -> str:
     return b"".join(chunks).decode("utf-8", "replace")
 
 
+@pytest.mark.slow
 def test_progress_on_a_terminal_ends_at_100_and_each_stage_has_its_line(
     log: Path, tmp_path: Path
 ) -> None:
@@ -208,6 +212,7 @@ def test_progress_on_a_terminal_ends_at_100_and_each_stage_has_its_line(
         assert re.search(rf"(^|\n){re.escape(line)}", after), line
 
 
+@pytest.mark.slow
 def test_detect_output_maps_to_the_same_markers_as_the_log(
     log: Path, tmp_path: Path, decoded: list[int]
 ) -> None:

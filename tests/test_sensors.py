@@ -32,6 +32,8 @@ from markergraph.frontend.observe import (
 )
 from markergraph.frontend.sizes import MarkerSizes
 
+pytestmark = pytest.mark.slow  # its tests share a fixture that renders or maps a whole log
+
 RATE = 1.0  # turn rate in the capture tests [rad/s]
 
 

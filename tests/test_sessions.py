@@ -42,6 +42,7 @@ def ate(localization, run) -> float:
 
 
 @pytest.mark.parametrize("method", [Method.SLAM, Method.ISAM2, Method.MARKER_GRAPH])
+@pytest.mark.slow
 def test_two_sessions_merged_map_at_least_as_well_as_either(office, method) -> None:
     """Office, 120 s each, when written: SLAM and iSAM2 9.3 / 9.9 cm alone, 1.2 cm merged; the
     marker graph 104 / 82 cm alone, 31 cm merged."""
@@ -134,6 +135,7 @@ def run_cli(*arguments: str):
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_the_command_line_maps_two_logs_and_localises_a_third(room_logs, tmp_path) -> None:
     """`map A B` writes one map with both trajectories; `localize C --map` puts the third
     robot within 3 cm of its logged truth with honest sigmas; `map C --prior` refines the map."""
@@ -171,6 +173,7 @@ def test_the_command_line_maps_two_logs_and_localises_a_third(room_logs, tmp_pat
                for m in after if m["id"] in trace)  # fmt: skip
 
 
+@pytest.mark.slow
 def test_several_logs_refuse_methods_that_take_one(room_logs, tmp_path) -> None:
     run = run_cli("map", str(room_logs[0]), str(room_logs[1]), "--method", "ekf",
                   "--out", str(tmp_path / "x"))  # fmt: skip

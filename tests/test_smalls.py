@@ -15,6 +15,8 @@ from mcap_ros2.decoder import DecoderFactory
 from markergraph.cli import main
 from markergraph.datasets.sensors import D435I_ON_DIFF_DRIVE
 
+pytestmark = pytest.mark.slow  # its tests share a fixture that renders or maps a whole log
+
 PRESET = D435I_ON_DIFF_DRIVE
 COLOR = "/camera/camera/color/image_raw/compressed"
 COLOR_INFO = "/camera/camera/color/camera_info"

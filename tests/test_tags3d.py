@@ -105,6 +105,7 @@ def test_corner_factor_jacobians_match_finite_differences():
     assert np.abs(A - whitened).max() < 1e-6 * np.abs(whitened).max()
 
 
+@pytest.mark.slow
 def test_a_tilted_camera_maps_tags_on_walls_floor_ceiling_and_a_board():
     truth = make_scene3d(0, cameras=1, tag_size_m=0.3)
     scene = tag_scene(truth, detections(truth, 0, 0.5), pixel_noise_px=0.5)
@@ -134,6 +135,7 @@ def test_a_tilted_camera_maps_tags_on_walls_floor_ceiling_and_a_board():
     assert 0.1 < np.median(position) / np.median(sigmas) < 10
 
 
+@pytest.mark.slow
 def test_unknown_mounts_are_recovered_from_the_tags():
     truth = make_scene3d(0, cameras=3, tag_size_m=0.3)
     scene = tag_scene(truth, detections(truth, 0, 0.5), pixel_noise_px=0.5, mounts_for=["cam0"])
@@ -152,6 +154,7 @@ def test_unknown_mounts_are_recovered_from_the_tags():
     assert np.median(position) < 0.01
 
 
+@pytest.mark.slow
 def test_surveyed_tags_hold_the_map_in_their_frame_and_odometry_joins_in():
     truth = make_scene3d(1, cameras=1, tag_size_m=0.3)
     found = detections(truth, 1, 0.5)
@@ -188,6 +191,7 @@ def test_isam2_maps_as_batch_does():
     assert all(t.covariance is not None for t in incremental.tags.values())
 
 
+@pytest.mark.slow
 def test_markergraph_map_on_a_log_of_detections_without_odometry(tmp_path):
     truth = make_scene3d(3, cameras=2, tag_size_m=0.3, frames=150)
     log = tmp_path / "rig.mcap"
@@ -260,6 +264,7 @@ def test_tagslam_recordings_match_tagslam(test, incremental, tmp_path):
     assert np.median(position) < 0.005 and np.median(rotation) < 0.5
 
 
+@pytest.mark.slow
 def test_a_log_of_images_without_odometry_is_mapped_from_its_tags_or_says_why_not(log, tmp_path):
     """The rendered paper room with its odometry taken out: the images are detected and mapped
     in 3-D. The robot turns from one marker to the next and never sees two together, so only

@@ -82,6 +82,7 @@ def test_out_may_not_be_or_hold_the_input(log: Path, tmp_path: Path, capsys) -> 
     assert snapshot(tmp_path) == before
 
 
+@pytest.mark.slow
 def test_force_replaces_only_our_own_or_an_empty_folder(log: Path, tmp_path: Path, capsys):
     """--force onto a user's folder or onto a file is refused before any work; onto an empty
     folder or a result markergraph wrote, it replaces it with a whole new result."""
@@ -168,6 +169,7 @@ def test_stale_temporary_folders_of_killed_runs_are_cleaned(log: Path, tmp_path:
     assert strict_json(out / "report.json")["schema"] == REPORT_SCHEMA
 
 
+@pytest.mark.slow
 def test_killed_run_leaves_no_workers_and_the_next_run_succeeds(log: Path, tmp_path: Path):
     """SIGKILL to a run with two workers: the workers exit on their own within seconds, and the
     next run to the same --out succeeds and leaves no temporary folder."""
@@ -217,6 +219,7 @@ def test_every_writer_uses_the_one_helper() -> None:
 # --- one bad message costs one frame ----------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_undecodable_frames_cost_those_frames_only(log, frames_with_markers, tmp_path, capsys):
     """Three bad JPEGs (garbage, truncated, empty) in frames with markers: the run goes on, says
     so, and its map equals the map of the log with those frames removed, within 1 mm."""
@@ -291,6 +294,7 @@ def test_damaged_chunk_costs_its_messages(log: Path, tmp_path: Path, capsys) -> 
     assert report["frames"] < 100 and len(markers_of(tmp_path / "r")) == 3
 
 
+@pytest.mark.slow
 def test_non_finite_and_backward_odometry_is_dropped_with_notes(log, tmp_path, capsys) -> None:
     """NaN and inf odometry samples and a stamp that jumps back are dropped with notes; every
     output is strict JSON, map.g2o holds no nan, and the map stays within 1 cm of the clean one."""
@@ -444,6 +448,7 @@ def test_export_onto_its_own_map_is_refused(tmp_path: Path, capsys) -> None:
     assert path.read_text() == '{"schema": "markergraph.map/1"}'
 
 
+@pytest.mark.slow
 def test_too_many_workers_are_capped_with_a_note(log: Path, tmp_path: Path, capsys) -> None:
     """--workers 1000 runs on the cores there are and says so."""
     out = tmp_path / "obs.jsonl"
@@ -475,6 +480,7 @@ def test_ctrl_c_exits_130_and_writes_nothing(tmp_path: Path) -> None:
 # --- found by a hostile review: each a case that once harmed files or stopped a run ---------
 
 
+@pytest.mark.slow
 def test_force_never_deletes_what_the_user_added_to_a_result(log, tmp_path, capsys) -> None:
     """A result folder the user added a file or a folder to is not replaced by --force; the
     line names what markergraph did not write; nothing changes."""
@@ -549,6 +555,7 @@ def moved_from_clean(log: Path, tmp_path: Path, capsys, result: Path) -> float:
     return max(float(np.linalg.norm(clean[i] - got[i])) for i in clean)
 
 
+@pytest.mark.slow
 def test_bad_ground_truth_and_camera_info_cost_only_themselves(log, tmp_path, capsys) -> None:
     """One NaN true pose, one NaN true marker and one camera info with a NaN distortion: the run
     goes on (the next camera info is used), each dropped with a note naming its topic, and the
@@ -572,6 +579,7 @@ def test_bad_ground_truth_and_camera_info_cost_only_themselves(log, tmp_path, ca
     assert moved_from_clean(log, tmp_path, capsys, tmp_path / "r") < SAME_MAP_M
 
 
+@pytest.mark.slow
 def test_absurd_odometry_and_a_spike_are_dropped(log: Path, tmp_path: Path, capsys) -> None:
     """x = 1e300, x = 1e20, a zero quaternion and a 100 m spike in /odom are each dropped with
     a note; the map stays within 1 cm of the clean log's."""
@@ -593,6 +601,7 @@ def test_absurd_odometry_and_a_spike_are_dropped(log: Path, tmp_path: Path, caps
     assert moved_from_clean(log, tmp_path, capsys, tmp_path / "r") < 0.01
 
 
+@pytest.mark.slow
 def test_one_frame_with_a_wrong_stamp_costs_that_frame(log, frames_with_markers, tmp_path, capsys):
     """A colour frame stamped seven years ahead does not hold up the frames behind it: every
     other frame keeps its depth and the map equals the one without that frame, within 1 mm."""
@@ -616,6 +625,7 @@ def test_one_frame_with_a_wrong_stamp_costs_that_frame(log, frames_with_markers,
     assert max(np.linalg.norm(a[i] - b[i]) for i in a) < SAME_MAP_M
 
 
+@pytest.mark.slow
 def test_tf_static_damage_is_a_note_not_a_hang_or_nan(log, tmp_path, capsys) -> None:
     """A loop in /tf_static, or a NaN in it, is named in a note and the configured mount used;
     every output stays strict JSON."""
@@ -701,6 +711,7 @@ def test_huge_numbers_in_files_are_named(tmp_path: Path, capsys) -> None:
     assert not (tmp_path / "out.txt").exists()
 
 
+@pytest.mark.slow
 def test_logs_that_cannot_be_mapped_say_why(log: Path, tmp_path: Path, capsys) -> None:
     """Colour stamps on another clock than odometry, every /odom sample NaN, a metadata.yaml
     listing a file outside its folder: one line that says which."""
@@ -731,6 +742,7 @@ def test_logs_that_cannot_be_mapped_say_why(log: Path, tmp_path: Path, capsys) -
         one_line_error(err, words)
 
 
+@pytest.mark.slow
 def test_an_odometry_reset_is_named_and_released(log: Path, tmp_path: Path, capsys) -> None:
     """Every /odom pose after the 500th moved 0.3 m (a VIO reset): the run names the jump with
     its size and time, and the markers stay within 3 cm of the clean log's map (1.3 cm, and

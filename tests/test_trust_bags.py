@@ -211,6 +211,7 @@ def test_huge_lengths_are_refused_before_they_are_allocated(bags, tmp_path) -> N
 # --- what cannot be read is one line with a reason ------------------------------------------
 
 
+@pytest.mark.slow
 def test_unreadable_bags_are_one_line_with_a_reason(bags, tmp_path) -> None:
     """Bags rosbags gave "not a readable bag (AssertionError: )" for, and worse: a damaged index
     data record is read past (its chunk's span stands for its times); a bag whose records are
@@ -285,6 +286,7 @@ def mutate(data: bytes, bag: Ros1Bag, rng: random.Random) -> tuple[str, bytes]:
 
 
 @pytest.mark.parametrize("kind", ["lz4", "plain"])
+@pytest.mark.slow
 def test_info_and_map_agree_on_damaged_bags(bags, kind, tmp_path, capsys) -> None:
     """Seeded damage (flips, cuts, huge lengths, zeroed records): never a traceback; info exits
     1 exactly when map does, with the same single line; "can map: yes" means map succeeds."""

@@ -157,6 +157,7 @@ def test_sigterm_while_simulate_writes_leaves_nothing(tmp_path: Path) -> None:
     ("signum", "code", "word"),
     [(signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted")],
 )
+@pytest.mark.slow
 def test_a_signal_while_the_result_folder_is_written_keeps_the_old_one(
     log: Path, result: Path, tmp_path: Path, signum: int, code: int, word: str
 ) -> None:

@@ -85,6 +85,7 @@ def test_a_huge_records_length_reads_what_the_chunk_holds(
         np.testing.assert_allclose(pose, clean_map[marker_id], atol=1e-9)
 
 
+@pytest.mark.slow
 def test_a_damaged_footer_is_read_past_and_maps_as_the_clean_log(
     log: Path, tmp_path: Path, capsys, clean_map
 ) -> None:
@@ -123,6 +124,7 @@ def test_a_recording_cut_short_maps_as_far_as_it_goes(log: Path, tmp_path: Path,
     assert "without its index" in err and len(markers(tmp_path / "r")) >= 2
 
 
+@pytest.mark.slow
 def test_a_summary_missing_a_channel_is_rebuilt(log: Path, tmp_path: Path, capsys, clean_map):
     """Before: KeyError from the message index naming a channel the summary lost, exit 2 in
     info. Now the summary is found unusable and rebuilt from the chunks."""

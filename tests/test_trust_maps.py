@@ -174,6 +174,7 @@ def test_more_markers_than_the_dictionary_holds_are_refused(real_map, log, tmp_p
     refused_everywhere(capsys, log, path, tmp_path, "60 markers", "DICT_4X4_50 holds (50)")
 
 
+@pytest.mark.slow
 def test_a_full_dictionary_localises_in_bounded_memory(real_map, log, tmp_path) -> None:
     """localize against a map of 2,320 markers (all of AprilTag 36h10, the largest predefined
     dictionary; 20,000 markers took 3.4 GB and died) succeeds under 1 GB peak RSS: the markers

@@ -146,6 +146,7 @@ def test_compressed_depth_bomb_is_refused_before_decoding() -> None:
         decode_depth(compressed(bytes(12) + forged))
 
 
+@pytest.mark.slow
 def test_png_bomb_in_a_log_costs_one_frame_not_the_machine(bomb_log: Path, tmp_path: Path) -> None:
     """A 30,000 x 30,000 PNG in a log: the run maps the rest, names the topic, and no process
     it runs goes past 1 GB."""

@@ -96,6 +96,7 @@ def test_disagreement_is_the_mahalanobis_length_under_the_summed_covariances() -
     assert d2 == pytest.approx(0.09 / 0.02, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_honest_noise_gives_residuals_inside_their_chi_square_range(clean) -> None:
     """With the simulator's noise equal to the model's, SLAM's chi-square per degree of
     freedom lies within its 99.9 % range (and far below the suspect line)."""
@@ -330,6 +331,7 @@ def _estimate(markers: dict[int, tuple[gtsam.Pose2, np.ndarray]]) -> Estimate:
 COLOR = "/camera/camera/color/image_raw/compressed"
 
 
+@pytest.mark.slow
 def test_cli_prints_verdicts_and_strict_exits_4_only_when_not_ok(log, tmp_path, capsys):
     """The clean log: SLAM ok in the summary, report.json and report.html, and --strict exits 0.
     A quarter of its colour frames undecodable: every method suspect with the share dropped,
