@@ -11,8 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from importlib.metadata import PackageNotFoundError, version
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from markergraph.cli._commands import COMMANDS
 
@@ -36,10 +35,26 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _version() -> str:
+    # importlib.metadata costs more than the rest of `markergraph --help`: read when asked.
+    from importlib.metadata import PackageNotFoundError, version
+
     try:
         return version("markergraph")
     except PackageNotFoundError:  # running from a source tree that is not installed
         return "unknown"
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: argparse's own, but the installed version is looked up only when asked."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
+        super().__init__(
+            option_strings, dest, nargs=0, help="show program's version number and exit", **kwargs
+        )
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        print(f"markergraph {_version()}")
+        parser.exit()
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
@@ -54,7 +69,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         description="Turn a robot's recorded log into a corrected map of the fiducial markers on "
         "its walls.",
     )
-    parser.add_argument("--version", action="version", version=f"markergraph {_version()}")
+    parser.add_argument("--version", action=_VersionAction, default=argparse.SUPPRESS)
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for command in COMMANDS:
         if only is None or command.name == only:
