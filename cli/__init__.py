@@ -6,7 +6,8 @@ itself (one line on stderr naming the file, topic, value or flag: every
 interrupted (Ctrl-C), 143 terminated (SIGTERM).
 
 This module imports nothing heavy: :func:`main` installs its signal handlers first and only then
-imports the subcommands (a second of GTSAM and OpenCV), so that Ctrl-C is one line at any moment.
+imports the subcommand named (``map``'s: a second of GTSAM and OpenCV), so that Ctrl-C is one
+line at any moment.
 """
 
 from __future__ import annotations
@@ -81,20 +82,6 @@ def _stopped(command: str, signum: int) -> int:
 
 def _dispatch(args: argparse.Namespace) -> int:
     """The subcommand ``args`` name, run."""
-    from markergraph.cli import _compare, _frontend, _map, _mapfile, _simulate
+    from markergraph.cli._commands import command
 
-    if args.command == "compare":
-        return _compare.run(args)
-    if args.command == "map":
-        return _map.run(args)
-    if args.command == "localize":
-        return _map.run_localize(args)
-    if args.command == "simulate":
-        return _simulate.run(args)
-    if args.command == "detect":
-        return _frontend.run_detect(args)
-    if args.command == "info":
-        return _frontend.run_info(args)
-    if args.command == "export":
-        return _mapfile.run_export(args)
-    return _mapfile.run_heading(args)
+    return command(args.command).runner()(args)

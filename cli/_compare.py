@@ -5,12 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from markergraph.cli._commands import summary
 from markergraph.common.files import check_output_file
 from markergraph.compare import compare, map_points, read_reference
 from markergraph.compare_text import comparison_document, comparison_lines
 from markergraph.markermap import MarkerMap, write_json
 
-COMPARE = "score a map.json against a reference map or survey"
+COMPARE = summary("compare")
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:

@@ -11,18 +11,17 @@ import argparse
 import sys
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from markergraph.cli._commands import summary
 from markergraph.cli._settings import add_settings, add_verbosity, settings_from
-from markergraph.common.files import check_output_file
-from markergraph.common.progress import ProgressBar
-from markergraph.formats import write_observations
-from markergraph.frontend import extract
-from markergraph.frontend.preflight import preflight
-from markergraph.frontend.preflight_report import ImageStats, Intrinsics, Mount, Preflight
 from markergraph.settings import map_config
 
-DETECT = "detect markers in an MCAP log and write observations as JSON lines"
-INFO = "check that a log can be mapped: what it holds and what map would read from it"
+if TYPE_CHECKING:
+    from markergraph.frontend.preflight_report import ImageStats, Intrinsics, Mount, Preflight
+
+DETECT = summary("detect")
+INFO = summary("info")
 INFO_EPILOG = (
     "Prints the log's duration and time range, each topic's message count, rate and type, the "
     "colour image's size and encoding, whether depth is aligned to it, the camera model, the TF "
@@ -34,19 +33,27 @@ LOG_HELP = "an .mcap file, a rosbag2 folder (MCAP or SQLite) or a ROS 1 .bag"
 EXIT_CANNOT_MAP = 3
 
 
-def add_parsers(commands: argparse._SubParsersAction) -> None:
+def add_detect_parser(commands: argparse._SubParsersAction) -> None:
     detect = commands.add_parser("detect", help=DETECT, description=DETECT)
     detect.add_argument("log", type=Path, help=LOG_HELP)
     detect.add_argument("--out", type=Path, required=True, help="the .jsonl file to write")
     detect.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     add_verbosity(detect)
     add_settings(detect, "detect")
+
+
+def add_info_parser(commands: argparse._SubParsersAction) -> None:
     info = commands.add_parser("info", help=INFO, description=INFO, epilog=INFO_EPILOG)
     info.add_argument("log", type=Path, help=LOG_HELP)
     add_settings(info, "info")
 
 
 def run_detect(args: argparse.Namespace) -> int:
+    from markergraph.common.files import check_output_file
+    from markergraph.common.progress import ProgressBar
+    from markergraph.formats.observations import write_observations
+    from markergraph.frontend.pipeline import extract
+
     out: Path = args.out
     config = map_config(settings_from(args, "detect"))  # the front end's part, and workers
     check_output_file(out, [args.log], force=args.force)
@@ -72,6 +79,8 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 def run_info(args: argparse.Namespace) -> int:
+    from markergraph.frontend.preflight import preflight
+
     config = map_config(settings_from(args, "info")).frontend
     report = preflight(args.log, config)
     _print_preflight(report, config.dictionary)

@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from markergraph.cli._commands import summary
 from markergraph.cli._settings import add_settings, add_verbosity, settings_from
 from markergraph.common import Note, SettingsError
 from markergraph.common.files import check_output_folder
@@ -23,7 +24,7 @@ from markergraph.run3d import map_log_3d, wants_3d
 from markergraph.settings import MapConfig, config_toml, map_config
 from markergraph.verdicts import Verdict
 
-SUMMARY = "estimate a corrected marker map from an MCAP log (default: the bundled sample)"
+SUMMARY = summary("map")
 DEFAULT_SAMPLE = "corridor-loop"
 EXIT_NOT_OK = 4  # --strict: a method's verdict is "suspect" or "failed"
 # Exactly what write_results leaves out without plots (a test compares the two folders).
@@ -72,7 +73,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     add_settings(parser, "map")
 
 
-LOCALIZE = "the robot's path in a saved map, and which of its markers moved"
+LOCALIZE = summary("localize")
 LOCALIZE_FILES = (
     "writes into --out: trajectory.tum (the path, map frame), localization.json (every pose with "
     "its covariance, moved and new markers), overlay.mcap (the map and path for Foxglove), "

@@ -8,6 +8,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from markergraph.cli._commands import summary
 from markergraph.common.errors import SettingsError
 from markergraph.common.files import check_output_file
 from markergraph.estimator.paper import Form
@@ -15,14 +16,11 @@ from markergraph.formats import ExportFormat, export_map
 from markergraph.heading_sigma import HeadingSigma, heading_sigma
 from markergraph.markermap import MarkerMap, MarkerMapError
 
-EXPORT = "write a map.json in another tool's format"
-HEADING = (
-    "the paper's target heading from a localisation on one marker to another, with its 1-sigma "
-    "from the map's covariances: a straight line that knows nothing of walls or obstacles"
-)
+EXPORT = summary("export")
+HEADING = summary("heading")
 
 
-def add_parsers(commands: argparse._SubParsersAction) -> None:
+def add_export_parser(commands: argparse._SubParsersAction) -> None:
     export = commands.add_parser("export", help=EXPORT, description=EXPORT)
     export.add_argument("map", type=Path, help="a map.json written by markergraph map")
     export.add_argument(
@@ -39,6 +37,9 @@ def add_parsers(commands: argparse._SubParsersAction) -> None:
         help="the file to write; - writes to standard output (a file named - is ./-)",
     )
     export.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+
+
+def add_heading_parser(commands: argparse._SubParsersAction) -> None:
     head = commands.add_parser("heading", help=HEADING, description=HEADING)
     head.add_argument("map", type=Path, help="a map.json written by markergraph map")
     head.add_argument(

@@ -1,17 +1,19 @@
 """The ``markergraph`` argument parser: every subcommand's flags, and a usage mistake as one line.
 
-Importing this module imports every subcommand's module, and so most of markergraph (GTSAM,
-OpenCV): :func:`markergraph.cli.main` imports it only once its signal handlers are in place.
+Parsing a command line builds the flags of the subcommand it names alone, and so imports only
+that subcommand's module (``map``'s brings GTSAM and the plots; ``info``'s neither); the others
+are listed by their summaries. :func:`markergraph.cli.main` imports this module once its signal
+handlers are in place.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Sequence
-from importlib.metadata import PackageNotFoundError, version
-from typing import NoReturn
+from typing import Any, NoReturn
 
-from markergraph.cli import _compare, _frontend, _map, _mapfile, _simulate
+from markergraph.cli._commands import COMMANDS
 
 __all__ = ["EXIT_USAGE", "build_parser", "parse_command_line"]
 
@@ -33,28 +35,54 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _version() -> str:
+    # importlib.metadata costs more than the rest of `markergraph --help`: read when asked.
+    from importlib.metadata import PackageNotFoundError, version
+
     try:
         return version("markergraph")
     except PackageNotFoundError:  # running from a source tree that is not installed
         return "unknown"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser for every subcommand."""
+class _VersionAction(argparse.Action):
+    """``--version``: argparse's own, but the installed version is looked up only when asked."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
+        super().__init__(
+            option_strings, dest, nargs=0, help="show program's version number and exit", **kwargs
+        )
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        print(f"markergraph {_version()}")
+        parser.exit()
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser.
+
+    Args:
+        only: the one subcommand whose flags are built (the others are listed, flagless); None
+            builds every subcommand's.
+    """
     parser = _Parser(
         prog="markergraph",
         description="Turn a robot's recorded log into a corrected map of the fiducial markers on "
         "its walls.",
     )
-    parser.add_argument("--version", action="version", version=f"markergraph {_version()}")
+    parser.add_argument("--version", action=_VersionAction, default=argparse.SUPPRESS)
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    _map.add_parser(commands)
-    _map.add_localize_parser(commands)
-    _simulate.add_parser(commands)
-    _frontend.add_parsers(commands)
-    _mapfile.add_parsers(commands)
-    _compare.add_parser(commands)
+    for command in COMMANDS:
+        if only is None or command.name == only:
+            command.adder()(commands)
+        else:
+            commands.add_parser(command.name, help=command.summary)
     return parser
+
+
+def _named_command(argv: Sequence[str]) -> str:
+    """The subcommand ``argv`` names: its first word that is not a flag (the top level has no
+    flag that takes a value), or "" when there is none."""
+    return next((word for word in argv if not word.startswith("-")), "")
 
 
 def parse_command_line(
@@ -66,7 +94,8 @@ def parse_command_line(
     error: unrecognized arguments``); it is reported here as the subcommand's, whose help lists
     the flags.
     """
-    parser = build_parser()
+    words = sys.argv[1:] if argv is None else argv
+    parser = build_parser(only=_named_command(words))
     args, extras = parser.parse_known_args(argv)
     if extras:
         commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))

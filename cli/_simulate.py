@@ -6,6 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
+from markergraph.cli._commands import summary
 from markergraph.common.errors import SettingsError
 from markergraph.common.files import check_output_file
 from markergraph.common.progress import ProgressBar
@@ -14,7 +15,7 @@ from markergraph.datasets.sensors import D435I_ON_DIFF_DRIVE, SENSOR_PRESETS
 from markergraph.datasets.write import write_log
 
 MAX_FRAME_RATE_HZ = 240.0  # faster than any camera the simulator models
-SUMMARY = "simulate a scenario and write a ROS 2 MCAP log with ground truth"
+SUMMARY = summary("simulate")
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:

@@ -1,65 +1,73 @@
-"""markergraph.estimator: the paper's closed forms and the estimators (numpy, gtsam, filterpy)."""
+"""markergraph.estimator: the paper's closed forms and the estimators (numpy, gtsam, filterpy).
 
-from markergraph.estimator.angles import angle_diff, wrap, wrap_array
-from markergraph.estimator.consistency import (
-    OdometryStretch,
-    fit_odometry_noise,
-    odometry_nees,
-    odometry_stretches,
-)
-from markergraph.estimator.estimate import Estimate
-from markergraph.estimator.frames import Frame, Frames, build_frames
-from markergraph.estimator.graph import Robust
-from markergraph.estimator.heights import MarkerHeight, marker_heights
-from markergraph.estimator.metrics import (
-    ELLIPSE_95_D2,
-    EllipseCoverage,
-    MapError,
-    TrajectoryError,
-    chi2_interval,
-    ellipse_coverage,
-    map_error,
-    nees,
-    trajectory_error,
-)
-from markergraph.estimator.odometry_scale import odometry_scale_by_residuals
-from markergraph.estimator.paper import (
-    Edge,
-    Form,
-    Goal,
-    PolarPose,
-    compose,
-    edge_from_observation,
-    edge_from_pose2,
-    edge_to_pose2,
-    heading,
-    odometry,
-)
-from markergraph.estimator.residual_search import GridMinimum, SlamInputs
-from markergraph.estimator.run import estimate, estimate_frames
-from markergraph.estimator.timing import (
-    CameraDelay,
-    camera_delay_by_residuals,
-    retimed,
-    widened_for_motion,
-)
-from markergraph.estimator.trajectory import (
-    Trajectory,
-    corrected_odometry,
-    odometry_in_map,
-    turn_rate,
-)
-from markergraph.estimator.types import (
-    ODOMETRY_NOISE,
-    FactorResidual,
-    MarkerEstimate,
-    MarkerLink,
-    Method,
-    Observation,
-    OdometryNoise,
-    OdometrySample,
-    Placement,
-)
+The names below load on first use: the front end imports the records (``types``,
+``trajectory``) without GTSAM's solvers."""
+
+from typing import TYPE_CHECKING
+
+from markergraph.common.lazy import lazy_package
+
+if TYPE_CHECKING:
+    from markergraph.estimator.angles import angle_diff, wrap, wrap_array
+    from markergraph.estimator.consistency import (
+        OdometryStretch,
+        fit_odometry_noise,
+        odometry_nees,
+        odometry_stretches,
+    )
+    from markergraph.estimator.estimate import Estimate
+    from markergraph.estimator.frames import Frame, Frames, build_frames
+    from markergraph.estimator.heights import MarkerHeight, marker_heights
+    from markergraph.estimator.metrics import (
+        ELLIPSE_95_D2,
+        EllipseCoverage,
+        MapError,
+        TrajectoryError,
+        chi2_interval,
+        ellipse_coverage,
+        map_error,
+        nees,
+        trajectory_error,
+    )
+    from markergraph.estimator.odometry_scale import odometry_scale_by_residuals
+    from markergraph.estimator.paper import (
+        Edge,
+        Form,
+        Goal,
+        PolarPose,
+        compose,
+        edge_from_observation,
+        edge_from_pose2,
+        edge_to_pose2,
+        heading,
+        odometry,
+    )
+    from markergraph.estimator.residual_search import GridMinimum, SlamInputs
+    from markergraph.estimator.run import estimate, estimate_frames
+    from markergraph.estimator.timing import (
+        CameraDelay,
+        camera_delay_by_residuals,
+        retimed,
+        widened_for_motion,
+    )
+    from markergraph.estimator.trajectory import (
+        Trajectory,
+        corrected_odometry,
+        odometry_in_map,
+        turn_rate,
+    )
+    from markergraph.estimator.types import (
+        ODOMETRY_NOISE,
+        FactorResidual,
+        MarkerEstimate,
+        MarkerLink,
+        Method,
+        Observation,
+        OdometryNoise,
+        OdometrySample,
+        Placement,
+        Robust,
+    )
 
 __all__ = [
     "ELLIPSE_95_D2",
@@ -118,3 +126,86 @@ __all__ = [
     "wrap",
     "wrap_array",
 ]
+
+lazy_package(
+    __name__,
+    {
+        "markergraph.estimator.angles": (
+            "angle_diff",
+            "wrap",
+            "wrap_array",
+        ),
+        "markergraph.estimator.consistency": (
+            "OdometryStretch",
+            "fit_odometry_noise",
+            "odometry_nees",
+            "odometry_stretches",
+        ),
+        "markergraph.estimator.estimate": ("Estimate",),
+        "markergraph.estimator.frames": (
+            "Frame",
+            "Frames",
+            "build_frames",
+        ),
+        "markergraph.estimator.heights": (
+            "MarkerHeight",
+            "marker_heights",
+        ),
+        "markergraph.estimator.metrics": (
+            "ELLIPSE_95_D2",
+            "EllipseCoverage",
+            "MapError",
+            "TrajectoryError",
+            "chi2_interval",
+            "ellipse_coverage",
+            "map_error",
+            "nees",
+            "trajectory_error",
+        ),
+        "markergraph.estimator.odometry_scale": ("odometry_scale_by_residuals",),
+        "markergraph.estimator.paper": (
+            "Edge",
+            "Form",
+            "Goal",
+            "PolarPose",
+            "compose",
+            "edge_from_observation",
+            "edge_from_pose2",
+            "edge_to_pose2",
+            "heading",
+            "odometry",
+        ),
+        "markergraph.estimator.residual_search": (
+            "GridMinimum",
+            "SlamInputs",
+        ),
+        "markergraph.estimator.run": (
+            "estimate",
+            "estimate_frames",
+        ),
+        "markergraph.estimator.timing": (
+            "CameraDelay",
+            "camera_delay_by_residuals",
+            "retimed",
+            "widened_for_motion",
+        ),
+        "markergraph.estimator.trajectory": (
+            "Trajectory",
+            "corrected_odometry",
+            "odometry_in_map",
+            "turn_rate",
+        ),
+        "markergraph.estimator.types": (
+            "ODOMETRY_NOISE",
+            "FactorResidual",
+            "MarkerEstimate",
+            "MarkerLink",
+            "Method",
+            "Observation",
+            "OdometryNoise",
+            "OdometrySample",
+            "Placement",
+            "Robust",
+        ),
+    },
+)

@@ -13,7 +13,6 @@ on ideal logs with marker yaws 5.6-6.8 deg off; the polar factors: 1.0-2.6 cm an
 
 from __future__ import annotations
 
-from enum import Enum
 from typing import Any
 
 import gtsam
@@ -23,7 +22,7 @@ from numpy.typing import NDArray
 
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.models import observation_covariance, observation_pose
-from markergraph.estimator.types import FactorResidual, Observation
+from markergraph.estimator.types import FactorResidual, Observation, Robust
 
 __all__ = [
     "HOME_PRIOR_NOISE",
@@ -47,14 +46,6 @@ HOME_PRIOR_NOISE = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-4])
 # A factor counts as an outlier the kernel caught when its weight falls below this: a whitened
 # error beyond 5.4 for Huber, 4.1 for Cauchy, which Gaussian noise in 3 dof almost never reaches.
 DOWNWEIGHTED_BELOW = 0.25
-
-
-class Robust(Enum):
-    """Robust kernel on observation factors."""
-
-    NONE = "none"
-    HUBER = "huber"
-    CAUCHY = "cauchy"
 
 
 # 95% efficiency constants on whitened errors.

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.models import interpolate_pose
+from markergraph.estimator.angles import wrap
 from markergraph.estimator.types import OdometrySample
+
+if TYPE_CHECKING:  # GTSAM loads with the first pose asked for: the front end's paths need none
+    import gtsam
 
 __all__ = [
     "MAX_EXTRAPOLATION_NS",
@@ -18,6 +22,7 @@ __all__ = [
     "RATE_WINDOW_NS",
     "Trajectory",
     "corrected_odometry",
+    "interpolated_xy_yaw",
     "odometry_in_map",
     "turn_rate",
 ]
@@ -79,6 +84,8 @@ class Trajectory:
 
     def pose(self, i: int) -> gtsam.Pose2:
         """The i-th pose."""
+        import gtsam
+
         return gtsam.Pose2(*self.poses[i])
 
     def at(self, t_ns: int, max_extrapolation_ns: int = MAX_EXTRAPOLATION_NS) -> gtsam.Pose2 | None:
@@ -91,8 +98,27 @@ class Trajectory:
             return self.pose(0) if self.t_ns[0] - t_ns <= max_extrapolation_ns else None
         if i == len(self):
             return self.pose(-1) if t_ns - self.t_ns[-1] <= max_extrapolation_ns else None
+        from markergraph.estimator.models import interpolate_pose
+
         t0, t1 = self.t_ns[i - 1], self.t_ns[i]
         return interpolate_pose(self.pose(i - 1), self.pose(i), (t_ns - t0) / (t1 - t0))
+
+    def at_xy_yaw(
+        self, t_ns: int, max_extrapolation_ns: int = MAX_EXTRAPOLATION_NS
+    ) -> tuple[float, float, float] | None:
+        """:meth:`at` as ``(x, y, yaw)`` [m, m, rad], without GTSAM: ``markergraph detect``
+        writes each observation's odometry pose and loads no solver for it."""
+        if not len(self):
+            return None
+        i = int(np.searchsorted(self.t_ns, t_ns))
+        if i == 0 or i == len(self):
+            end = 0 if i == 0 else -1
+            if abs(int(self.t_ns[end]) - t_ns) > max_extrapolation_ns:
+                return None
+            x, y, yaw = self.poses[end]
+            return float(x), float(y), wrap(float(yaw))
+        t0, t1 = self.t_ns[i - 1], self.t_ns[i]
+        return interpolated_xy_yaw(self.poses[i - 1], self.poses[i], float((t_ns - t0) / (t1 - t0)))
 
     def at_stamps(self, stamps_ns: Iterable[int]) -> Trajectory:
         """This trajectory at the given stamps (those it does not reach are left out)."""
@@ -231,3 +257,30 @@ def odometry_in_map(optimised: Trajectory, odometry: Trajectory) -> Trajectory:
     return Trajectory(
         np.concatenate([[t0], odometry.t_ns[after]]), np.concatenate([start, placed]), "map"
     )
+
+
+def interpolated_xy_yaw(
+    pose0: NDArray[np.float64], pose1: NDArray[np.float64], fraction: float
+) -> tuple[float, float, float]:
+    """GTSAM's ``T0 * Expmap(fraction * Logmap(T0^-1 * T1))`` on ``(x, y, yaw)`` poses, in closed
+    form (gtsam/geometry/Pose2.cpp's ``Logmap`` and ``Expmap``; a straight line below 1e-10 rad)."""
+    x0, y0, yaw0 = (float(v) for v in pose0)
+    c0, s0 = math.cos(yaw0), math.sin(yaw0)
+    dx, dy = float(pose1[0]) - x0, float(pose1[1]) - y0
+    tx, ty = c0 * dx + s0 * dy, -s0 * dx + c0 * dy  # T1's position in T0's frame
+    w = wrap(float(pose1[2]) - yaw0)
+    if abs(w) < 1e-10:
+        vx, vy = tx, ty
+    else:  # Logmap: v = w / det * R(pi/2) (R(w)^-1 t - t)
+        c, s = math.cos(w), math.sin(w)
+        ux, uy = c * tx + s * ty - tx, -s * tx + c * ty - ty
+        scale = w / ((c - 1.0) ** 2 + s * s)
+        vx, vy = -uy * scale, ux * scale
+    vx, vy, w = vx * fraction, vy * fraction, w * fraction
+    if abs(w) < 1e-10:
+        px, py = vx, vy
+    else:  # Expmap: t = (v_ortho - R(w) v_ortho) / w, v_ortho = R(pi/2) v
+        c, s = math.cos(w), math.sin(w)
+        ox, oy = -vy, vx
+        px, py = (ox - (c * ox - s * oy)) / w, (oy - (s * ox + c * oy)) / w
+    return x0 + c0 * px - s0 * py, y0 + s0 * px + c0 * py, wrap(yaw0 + w)

@@ -8,13 +8,15 @@ from array import array
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any, overload
+from typing import TYPE_CHECKING, Any, overload
 
-import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common.errors import RejectedObservationError
+
+if TYPE_CHECKING:  # GTSAM loads when a pose is first made: the front end's records need none
+    import gtsam
 
 __all__ = [
     "ODOMETRY_NOISE",
@@ -28,6 +30,14 @@ __all__ = [
     "OdometryTrack",
     "Placement",
 ]
+
+
+class Robust(Enum):
+    """Robust kernel on observation factors."""
+
+    NONE = "none"
+    HUBER = "huber"
+    CAUCHY = "cauchy"
 
 
 class Method(Enum):
@@ -121,6 +131,8 @@ class OdometrySample:
     yaw: float
 
     def pose(self) -> gtsam.Pose2:
+        import gtsam
+
         return gtsam.Pose2(self.x, self.y, self.yaw)
 
 

@@ -6,12 +6,13 @@ import math
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import cv2
-import gtsam
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:  # both load when first used: a settings file or --help reads none of them
+    import gtsam
 
 __all__ = [
     "EQUIDISTANT",
@@ -127,6 +128,8 @@ class Camera:
     ) -> Camera:
         """From an OpenCV calibration file (``camera_matrix``, ``distortion_coefficients``,
         optionally ``image_width``/``image_height``)."""
+        import cv2
+
         storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
         if not storage.isOpened():
             raise ValueError(f"{path}: not a readable OpenCV calibration file")
@@ -154,6 +157,8 @@ class Camera:
         """Pixels (N, 2) as an undistorted camera with the same K would see them."""
         if not self.distortion:
             return np.asarray(pixels, dtype=np.float64)
+        import cv2
+
         points = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
         coefficients = np.array(self.distortion)
         if self.model == EQUIDISTANT:
@@ -221,6 +226,8 @@ class Camera:
 
     def rays(self, pixels: NDArray[np.float64]) -> NDArray[np.float64]:
         """Pixels (N, 2) to normalised rays (N, 2): x/z and y/z in the optical frame."""
+        import cv2
+
         points = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
         coefficients = np.array(self.distortion)
         with np.errstate(all="ignore"):
@@ -234,6 +241,8 @@ class Camera:
 
     def distort(self, rays: NDArray[np.float64]) -> NDArray[np.float64]:
         """Normalised rays (N, 2) to pixels (N, 2) through the lens model."""
+        import cv2
+
         points = np.column_stack([rays, np.ones(len(rays))]).reshape(-1, 1, 3)
         coefficients = np.array(self.distortion) if self.distortion else np.zeros(4)
         zero = np.zeros(3)
@@ -336,6 +345,8 @@ class CameraMount:
     @property
     def T_base_camera(self) -> gtsam.Pose2:
         """The camera's horizontal (top-view) pose on the base."""
+        import gtsam
+
         return gtsam.Pose2(self.x_m, self.y_m, self.yaw_rad)
 
     @property

@@ -11,9 +11,7 @@ from array import array
 from collections import Counter
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from enum import Enum
-from typing import Any
-
-import gtsam
+from typing import TYPE_CHECKING, Any
 
 from markergraph.common.notes import Note
 from markergraph.estimator.trajectory import Trajectory
@@ -23,6 +21,9 @@ from markergraph.frontend.odometry_kind import OdometryEvidence
 from markergraph.frontend.posed import LevelledFrame, MarkerDetections
 from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.topics import TopicChoice
+
+if TYPE_CHECKING:  # true markers are Pose2s, made where a log's truth is read
+    import gtsam
 
 __all__ = ["Extraction", "Join", "Part", "merge_parts"]
 

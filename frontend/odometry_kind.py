@@ -7,11 +7,15 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from markergraph.frontend.logs import DecodeFailures, Log, LogError
+from markergraph.frontend.logs.records import DecodeFailures, LogError
 from markergraph.frontend.tf import rotation_of
+
+if TYPE_CHECKING:  # settings read this module's choices without opening a log
+    from markergraph.frontend.logs import Log
 
 __all__ = ["OdometryEvidence", "choose_odometry_source", "odometry_evidence"]
 

@@ -89,7 +89,7 @@ def write_observations(
         The number of observations written.
     """
     path = Path(path)
-    poses = [odometry.at(o.t_ns) for o in observations]
+    poses = [odometry.at_xy_yaw(o.t_ns) for o in observations]
     with written_whole(path) as partial, open(partial, "w", encoding="utf-8") as stream:
         if mount is not None:
             evidence = asdict(odometry_evidence) if odometry_evidence is not None else None
@@ -114,7 +114,7 @@ def write_observations(
                         "height_m": obs.height_m if math.isfinite(obs.height_m) else None,
                         "odom": None
                         if pose is None
-                        else {"x": pose.x(), "y": pose.y(), "yaw": pose.theta()},
+                        else {"x": pose[0], "y": pose[1], "yaw": pose[2]},
                     },
                     allow_nan=False,
                 )

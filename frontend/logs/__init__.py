@@ -10,10 +10,15 @@ chunk), ``scan`` (reads bounded by the file; an index rebuilt where it is lost),
 ``ahead`` (reading in a thread).
 """
 
-from markergraph.frontend.logs.ahead import read_ahead
-from markergraph.frontend.logs.files import LogKind
-from markergraph.frontend.logs.log import Log, open_log
-from markergraph.frontend.logs.records import DecodeFailures, LogError, LogTopic, Message
+from typing import TYPE_CHECKING
+
+from markergraph.common.lazy import lazy_package
+
+if TYPE_CHECKING:
+    from markergraph.frontend.logs.ahead import read_ahead
+    from markergraph.frontend.logs.files import LogKind
+    from markergraph.frontend.logs.log import Log, open_log
+    from markergraph.frontend.logs.records import DecodeFailures, LogError, LogTopic, Message
 
 __all__ = [
     "DecodeFailures",
@@ -25,3 +30,21 @@ __all__ = [
     "open_log",
     "read_ahead",
 ]
+
+lazy_package(
+    __name__,
+    {
+        "markergraph.frontend.logs.ahead": ("read_ahead",),
+        "markergraph.frontend.logs.files": ("LogKind",),
+        "markergraph.frontend.logs.log": (
+            "Log",
+            "open_log",
+        ),
+        "markergraph.frontend.logs.records": (
+            "DecodeFailures",
+            "LogError",
+            "LogTopic",
+            "Message",
+        ),
+    },
+)

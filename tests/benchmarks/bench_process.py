@@ -1,0 +1,152 @@
+"""Speed as a user meets it: ``markergraph detect`` and ``markergraph map --method slam`` as whole
+processes (start-up, log reading, workers included) against a plain OpenCV loop, and start-up.
+
+The plain loop decodes each JPEG of the log straight to grey (``cv2.imdecode``) and calls OpenCV's
+default ``ArucoDetector.detectMarkers``, on frames already read into memory in this process: no
+start-up, no log reading, which is the strictest floor. The commands run as the user runs them,
+one process each, side by side with the loop in every round (this machine's speed drifts from
+minute to minute); each figure is the best of ``--rounds``. Recall is the default detector's
+share of the plain loop's detections over every frame (``detection_agreement``: same id, corners
+within 5 px). Start-up: ``--help``, ``info LOG`` and ``detect --help`` as processes, beside
+``python -c pass`` (the interpreter alone).
+
+The log: ``--log PATH``, else the corridor loop rendered once by ``markergraph simulate`` (100 s
+at 15 Hz, 640x480 JPEG, the D435i preset: 1,500 frames; about 5 minutes on an idle core, kept in
+the temporary folder).
+
+Usage: python tests/benchmarks/bench_process.py [--log PATH] [--rounds N] [--workers N]
+Targets (issue 30): both commands at >= 1.5x the plain loop's frames/s at >= 99 % recall;
+start-up under 0.25 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from markergraph.frontend import open_log
+from markergraph.frontend.detect import Detection, Detector, detection_agreement
+
+TOPIC = "/camera/camera/color/image_raw/compressed"
+CACHED_LOG = Path(tempfile.gettempdir()) / "markergraph-bench" / "corridor-1500-d435i.mcap"
+COMMAND = [str(Path(sys.executable).with_name("markergraph"))]
+
+
+def rendered_log() -> Path:
+    """The benchmark's log, rendered once by ``markergraph simulate``."""
+    if not CACHED_LOG.exists():
+        CACHED_LOG.parent.mkdir(parents=True, exist_ok=True)
+        print(f"rendering {CACHED_LOG} (once) ...", flush=True)
+        subprocess.run(
+            [*COMMAND, "simulate", "--scenario", "corridor-loop", "--compressed", "--sensors",
+             "d435i", "--duration", "100", "--frame-rate", "15", "--seed", "1", "--out",
+             str(CACHED_LOG)],
+            check=True,
+        )  # fmt: skip
+    return CACHED_LOG
+
+
+def plain_loop(jpegs: list[bytes]) -> tuple[float, list[list[Detection]]]:
+    """(seconds, detections per frame) of the plain loop: decode to grey, default detector."""
+    detector = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), cv2.aruco.DetectorParameters()
+    )
+    found = []
+    start = time.perf_counter()
+    for jpeg in jpegs:
+        grey = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+        corners, ids, _ = detector.detectMarkers(grey)
+        found.append((corners, ids))
+    seconds = time.perf_counter() - start
+    return seconds, [
+        []
+        if ids is None
+        else [
+            Detection(int(i), np.asarray(c, np.float64).reshape(4, 2))
+            for c, i in zip(corners, ids.ravel(), strict=True)
+        ]
+        for corners, ids in found
+    ]
+
+
+def default_detections(jpegs: list[bytes]) -> list[list[Detection]]:
+    """The front end's default detector on every frame (for recall; not timed)."""
+    detector = Detector()
+    return [
+        detector.detect(cv2.imdecode(np.frombuffer(j, np.uint8), cv2.IMREAD_GRAYSCALE))
+        for j in jpegs
+    ]
+
+
+def process_seconds(argv: list[str], cwd: Path) -> float:
+    """Wall-clock seconds of one ``markergraph`` process, to its exit."""
+    start = time.perf_counter()
+    subprocess.run([*COMMAND, *argv], cwd=cwd, check=True, stdout=subprocess.DEVNULL)
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--log", type=Path, help="a 640x480 JPEG log (default: rendered once)")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--workers", type=int, default=None, help="detect's --workers (default: "
+                        "the command's own default)")  # fmt: skip
+    args = parser.parse_args()
+    log = args.log or rendered_log()
+    jpegs = [bytes(m.decoded.data) for m in open_log(log).messages([TOPIC])]
+    frames = len(jpegs)
+    print(f"log {log}: {frames} frames, {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}")
+    workers = [] if args.workers is None else ["--workers", str(args.workers)]
+    runs = {
+        "detect": ["detect", str(log), "--out", "o.jsonl", "--force", "--quiet", *workers],
+        "detect --workers 1": ["detect", str(log), "--out", "o.jsonl", "--force", "--quiet",
+                               "--workers", "1"],
+        "map --method slam": ["map", str(log), "--method", "slam", "--no-cache", "--no-plots",
+                              "--out", "m", "--force", "--quiet"],
+    }  # fmt: skip
+    starts = {
+        "python -c pass": [sys.executable, "-c", "pass"],
+        "markergraph --help": [*COMMAND, "--help"],
+        "markergraph detect --help": [*COMMAND, "detect", "--help"],
+        "markergraph info LOG": [*COMMAND, "info", str(log)],
+    }
+    best: dict[str, float] = {}
+    work = Path(tempfile.mkdtemp(prefix="bench-process-"))
+    reference: list[list[Detection]] = []
+    try:
+        for r in range(args.rounds):
+            seconds, reference = plain_loop(jpegs)
+            best["plain loop"] = min(best.get("plain loop", np.inf), seconds)
+            for name, argv in runs.items():
+                best[name] = min(best.get(name, np.inf), process_seconds(argv, work))
+            for name, argv in starts.items():
+                start = time.perf_counter()
+                subprocess.run(argv, check=False, stdout=subprocess.DEVNULL, cwd=work)
+                best[name] = min(best.get(name, np.inf), time.perf_counter() - start)
+            print(f"round {r + 1}: load {os.getloadavg()[0]:.2f}", flush=True)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    total, recall, _ = detection_agreement(reference, default_detections(jpegs))
+    plain_rate = frames / best["plain loop"]
+    print(f"\nbest of {args.rounds} rounds, load {os.getloadavg()[0]:.2f} at the end")
+    print(f"{'':28}{'seconds':>9}{'frames/s':>10}{'x plain':>9}")
+    for name in ("plain loop", *runs):
+        rate = frames / best[name]
+        print(f"{name:28}{best[name]:9.2f}{rate:10.0f}{rate / plain_rate:9.2f}")
+    print(f"recall: the default detector finds {recall:.1%} of the plain loop's {total} detections")
+    print("\nstart-up (whole process, seconds)")
+    for name in starts:
+        print(f"  {name:30}{best[name]:6.3f}")
+
+
+if __name__ == "__main__":
+    main()
