@@ -2,7 +2,8 @@
 
 Modules: ``logs`` (a log opened once: its files, topics, messages), ``decode`` (images, depth,
 odometry), ``tf`` (camera mount, odometry from /tf), ``topics`` (which topic plays which role),
-``camera``, ``detect``, ``yaw``, ``observe`` (one frame to observations), ``pipeline`` (a log to
+``camera``, ``detect``, ``apriltag3`` (AprilTag 3's detector), ``detectors`` (which one finds a
+dictionary's markers), ``yaw``, ``observe`` (one frame to observations), ``pipeline`` (a log to
 observations: ``extract``), ``spans`` (reading a stretch of a log), ``extraction`` (what a log
 gave), ``cleaning`` (bad samples and stamps dropped), ``depth_scale`` (depth's scale against the
 markers' size), ``config`` (how to read a log), ``preflight`` (can a log be mapped).
@@ -10,10 +11,12 @@ markers' size), ``config`` (how to read a log), ``preflight`` (can a log be mapp
 
 # First: OpenCV reads its pixel bound when cv2 loads (see markergraph.frontend._opencv).
 from markergraph.frontend import _opencv  # noqa: F401  # isort: skip
+from markergraph.frontend.apriltag3 import AprilTag3Detector
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_depth, decode_image, odometry_sample, stamp_ns
 from markergraph.frontend.detect import Detection, Detector, load_dictionary
+from markergraph.frontend.detectors import DetectorChoice, make_detector
 from markergraph.frontend.extraction import Extraction
 from markergraph.frontend.logs import Log, LogError, LogTopic, Message, open_log
 from markergraph.frontend.observe import DepthModel, ObservationModel, observe, observe_detections
@@ -24,11 +27,13 @@ from markergraph.frontend.topics import TopicChoice, choose_topics
 from markergraph.frontend.yaw import YawMethod
 
 __all__ = [
+    "AprilTag3Detector",
     "Camera",
     "CameraMount",
     "DepthModel",
     "Detection",
     "Detector",
+    "DetectorChoice",
     "Extraction",
     "FrontendConfig",
     "Log",
@@ -44,6 +49,7 @@ __all__ = [
     "decode_image",
     "extract",
     "load_dictionary",
+    "make_detector",
     "mount_from_transforms",
     "observe",
     "observe_detections",
