@@ -262,3 +262,17 @@ def test_detectors_are_freed_without_a_crash() -> None:
     )
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "done"
+
+
+def test_cli_refuses_apriltag3_for_an_aruco_dictionary(log: Path, tmp_path: Path) -> None:
+    """``markergraph detect --detector apriltag3`` on a DICT_4X4_50 log: exit 1, one line
+    naming the dictionary and what AprilTag 3 reads."""
+    run = subprocess.run(
+        [sys.executable, "-m", "markergraph.cli", "detect", str(log), "--detector", "apriltag3",
+         "--out", str(tmp_path / "detections.csv")],
+        capture_output=True, text=True, check=False, cwd=Path(__file__).parent,
+    )  # fmt: skip
+    assert run.returncode == 1
+    assert run.stderr.strip().count("\n") == 0
+    assert "DICT_4X4_50" in run.stderr and "DICT_APRILTAG_36h11" in run.stderr
+    assert not (tmp_path / "detections.csv").exists()
