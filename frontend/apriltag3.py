@@ -27,8 +27,9 @@ APRILTAG3_FAMILIES = {
 rendered tags). OpenCV's ``DICT_APRILTAG_36h10`` is not among AprilTag 3's families."""
 
 # Bits the library may correct per family (it corrects up to 2). 16h5 has a minimum Hamming
-# distance of 5 and so few bits that corrected codes are mostly noise: on the rendered office
-# log, AprilTag 3 with 2 corrected bits found 204 tags that were not there (OpenCV: none).
+# distance of 5 and so few bits that corrected codes are mostly noise: on a minute of the
+# rendered office, AprilTag 3 with 2 corrected bits found 204 tags that were not there (OpenCV:
+# none).
 MAX_HAMMING = {"tag16h5": 0, "tag25h9": 2, "tag36h11": 2}
 
 # AprilTag 3 puts pixel centres at +0.5 (pixel i spans [i, i + 1]); OpenCV at integers. On
@@ -64,9 +65,10 @@ class AprilTag3Detector:
         dictionary: an OpenCV AprilTag dictionary name (:data:`APRILTAG3_FAMILIES`).
         subpixel: refine corners with :func:`~markergraph.frontend.detect.edge_refined`, as the
             OpenCV detector does (AprilTag 3's own edge refinement is always on).
-        quad_decimate: AprilTag 3 looks for quads on the image shrunk by this factor. 2 is
-            about 4x faster than 1 and, on the rendered corridor, lost half of the tags 20-40
-            px wide; 1 (the default) found the most tags of any detector measured.
+        quad_decimate: AprilTag 3 looks for quads on the image shrunk by this factor. 2 takes
+            a quarter to a third of the time of 1, but on the rendered corridor found 69 % of
+            the 36h11 tags of 20 px or more against 98 %; 1 (the default) found the most tags
+            of any detector measured (docs/benchmarks.md).
         allowed_ids: if given, detections of other ids are dropped and counted in ``left_out``.
 
     Raises:

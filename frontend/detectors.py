@@ -34,11 +34,11 @@ AUTO_CHOICE: dict[str, DetectorChoice] = {
 }
 """The better library per AprilTag family, by ``tests/benchmarks/bench_apriltag.py --map`` (see
 docs/benchmarks.md), OpenCV for all three. On rendered frames AprilTag 3 on the whole image
-found 1-14 points more of the tags observations use (sides of 20 px or more) and put their
-corners closer at the 90th percentile (0.20-0.42 px against 0.27-1.05 px), but took 10-14x
+found 1-16 points more of the tags observations use (sides of 20 px or more) and put their
+corners closer at the 90th percentile (0.22-0.45 px against 0.27-1.05 px), but took 9-15x
 OpenCV's fast path's time; on a half-size image (3-4x the time) it lost up to a quarter of the
 far tags in the corridor. Mapped by SLAM, a minute of the office in 36h11 gave the same marker
-error with either (aligned RMSE 0.024 m with OpenCV, 0.025 m with AprilTag 3) for 2.7x the CPU
+error with either (aligned RMSE 0.024 m with OpenCV, 0.025 m with AprilTag 3) for 2.6x the CPU
 time. Dictionaries not named here: OpenCV."""
 
 
