@@ -24,6 +24,7 @@ from markergraph.common.errors import SettingsError
 from markergraph.estimator import ODOMETRY_NOISE, Method, OdometryNoise, Robust
 from markergraph.frontend.camera import CameraMount
 from markergraph.frontend.config import FrontendConfig
+from markergraph.frontend.detectors import DetectorChoice
 from markergraph.frontend.observe import DepthModel
 from markergraph.frontend.odometry_kind import OdometryEvidence, choose_odometry_source
 from markergraph.frontend.rig import read_tagslam
@@ -136,6 +137,10 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("dictionary", "DICT_4X4_50", nonempty,
             "OpenCV dictionary name (DICT_*, incl. AprilTag) or a dictionary file",
             flag=Flag("--dictionary", "NAME")),
+    Setting("detector", DetectorChoice.AUTO.value, nonempty,
+            "which library finds the markers: opencv, apriltag3 (AprilTag 16h5, 25h9, 36h11; "
+            "pip install pupil-apriltags), or auto: the better one for the dictionary",
+            choices=[c.value for c in DetectorChoice], flag=Flag("--detector", commands=_READ)),
     Setting("marker_size", 0.2, SIDE_M, "side of the markers' black square [m]",
             flag=Flag("--marker-size", "M", type=float, commands=_READ)),
     Setting("marker_sizes", {}, sizes_by_id, "sides of markers whose size differs, by id [m]",
@@ -401,6 +406,7 @@ class MapConfig:
         topics, rig, noise = self.topics, self.rig, self.noise
         return FrontendConfig(
             dictionary=self.dictionary,
+            detector=DetectorChoice(self.values["detector"]),
             marker_sizes=self.marker_sizes,
             method=self.yaw_method,
             allowed_ids=self.ids,

@@ -2,7 +2,8 @@
 
 Modules: ``logs`` (a log opened once: its files, topics, messages), ``decode`` (images, depth,
 odometry), ``tf`` (camera mount, odometry from /tf), ``topics`` (which topic plays which role),
-``camera``, ``detect``, ``yaw``, ``observe`` (one frame to observations), ``pipeline`` (a log to
+``camera``, ``detect``, ``apriltag3`` (AprilTag 3's detector), ``detectors`` (which one finds a
+dictionary's markers), ``yaw``, ``observe`` (one frame to observations), ``pipeline`` (a log to
 observations: ``extract``), ``spans`` (reading a stretch of a log), ``extraction`` (what a log
 gave), ``cleaning`` (bad samples and stamps dropped), ``depth_scale`` (depth's scale against the
 markers' size), ``config`` (how to read a log), ``preflight`` (can a log be mapped).
@@ -18,10 +19,12 @@ from typing import TYPE_CHECKING
 from markergraph.common.lazy import lazy_package
 
 if TYPE_CHECKING:
+    from markergraph.frontend.apriltag3 import AprilTag3Detector
     from markergraph.frontend.camera import Camera, CameraMount
     from markergraph.frontend.config import FrontendConfig
     from markergraph.frontend.decode import decode_depth, decode_image, odometry_sample, stamp_ns
     from markergraph.frontend.detect import Detection, Detector, load_dictionary
+    from markergraph.frontend.detectors import DetectorChoice, make_detector
     from markergraph.frontend.extraction import Extraction
     from markergraph.frontend.logs import Log, LogError, LogTopic, Message, open_log
     from markergraph.frontend.observe import (
@@ -37,11 +40,13 @@ if TYPE_CHECKING:
     from markergraph.frontend.yaw import YawMethod
 
 __all__ = [
+    "AprilTag3Detector",
     "Camera",
     "CameraMount",
     "DepthModel",
     "Detection",
     "Detector",
+    "DetectorChoice",
     "Extraction",
     "FrontendConfig",
     "Log",
@@ -57,6 +62,7 @@ __all__ = [
     "decode_image",
     "extract",
     "load_dictionary",
+    "make_detector",
     "mount_from_transforms",
     "observe",
     "observe_detections",
@@ -70,6 +76,7 @@ __all__ = [
 lazy_package(
     __name__,
     {
+        "markergraph.frontend.apriltag3": ("AprilTag3Detector",),
         "markergraph.frontend.camera": (
             "Camera",
             "CameraMount",
@@ -85,6 +92,10 @@ lazy_package(
             "Detection",
             "Detector",
             "load_dictionary",
+        ),
+        "markergraph.frontend.detectors": (
+            "DetectorChoice",
+            "make_detector",
         ),
         "markergraph.frontend.extraction": ("Extraction",),
         "markergraph.frontend.logs": (

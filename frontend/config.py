@@ -7,6 +7,7 @@ from pathlib import Path
 
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import DetectorMode
+from markergraph.frontend.detectors import DetectorChoice
 from markergraph.frontend.observe import DepthModel, ObservationModel
 from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.yaw import YawMethod
@@ -41,6 +42,9 @@ class FrontendConfig:
         detector_mode: how images are searched for markers (``FAST`` finds FULL's markers and
             corners at a third to a half of its cost on a robot's frames; see
             :class:`~markergraph.frontend.detect.DetectorMode`).
+        detector: which library finds the markers: OpenCV, AprilTag 3 (AprilTag families
+            only), or AUTO, the better one for the dictionary by our measurements (see
+            :data:`~markergraph.frontend.detectors.AUTO_CHOICE`).
     """
 
     dictionary: str = "DICT_4X4_50"
@@ -63,6 +67,7 @@ class FrontendConfig:
     tagslam: Path | None = None
     depth_scale: float | None = None
     detector_mode: DetectorMode = DetectorMode.FAST
+    detector: DetectorChoice = DetectorChoice.AUTO
 
     @property
     def observation_model(self) -> ObservationModel:

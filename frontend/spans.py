@@ -29,7 +29,8 @@ from markergraph.frontend.decode import (
     odometry_sample,
     stamp_ns,
 )
-from markergraph.frontend.detect import Detector, DetectorMode
+from markergraph.frontend.detect import DetectorMode
+from markergraph.frontend.detectors import DetectorChoice, MarkerDetector, make_detector
 from markergraph.frontend.extraction import Extraction, Part
 from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message, read_ahead
 from markergraph.frontend.observe import Flags, observe_detections
@@ -102,15 +103,19 @@ class Pairing:
         return out
 
 
-_DETECTORS: dict[tuple[str, tuple[int, ...] | None, DetectorMode], Detector] = {}
+_DetectorKey = tuple[str, tuple[int, ...] | None, DetectorMode, DetectorChoice]
+_DETECTORS: dict[_DetectorKey, MarkerDetector] = {}
 
 
-def detector_for(config: FrontendConfig) -> Detector:
+def detector_for(config: FrontendConfig) -> MarkerDetector:
     """One detector per process and configuration (building one costs more than a frame)."""
-    key = (config.dictionary, config.allowed_ids, config.detector_mode)
+    key = (config.dictionary, config.allowed_ids, config.detector_mode, config.detector)
     if key not in _DETECTORS:
-        _DETECTORS[key] = Detector(
-            config.dictionary, mode=config.detector_mode, allowed_ids=config.allowed_ids
+        _DETECTORS[key] = make_detector(
+            config.dictionary,
+            config.detector,
+            mode=config.detector_mode,
+            allowed_ids=config.allowed_ids,
         )
     return _DETECTORS[key]
 
