@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from markergraph.common import MarkerGraphError, Note
+from markergraph.common.numbers import shown
 from markergraph.estimator import (
     Frames,
     Observation,
@@ -213,7 +214,7 @@ def _timed(
     else:
         notes.append(Note(
             "camera.delay_chosen",
-            f"camera stamps {delay_ns / 1e6:+.1f} ms against {topic} "
+            f"camera stamps {shown(delay_ns / 1e6, '+.1f')} ms against {topic} "
             "(chosen by SLAM's residuals over -50..+100 ms; --camera-delay sets it)",
             topic=topic, figure=delay_ns * 1e-9,
         ))  # fmt: skip
