@@ -234,7 +234,7 @@ def render_report_page(report: Mapping[str, Any], figures: Mapping[str, bytes]) 
         *_method_sections(report),
         *_generic_sections(report),
         _log_section(report),
-        _settings_section(report.get("settings")),
+        _settings_section(report.get("settings"), report.get("camera_mount")),
         _files_section(report.get("files")),
     ]
     return (
@@ -358,6 +358,10 @@ def _methods_section(report: Mapping[str, Any]) -> str:
         "over the poses counted; the best of each in bold."
         if report.get("ground_truth")
         else "The log carries no ground truth: counts only."
+    ) + (
+        " Links: marker pairs measured together (– for the EKF, which ties its markers through "
+        "its covariance alone); converged: whether an iterating solver converged (– for the "
+        "closed form, computed once, and the EKF, one update a frame)."
     )
     return (
         '<h2 id="summary">Summary</h2>\n'
@@ -487,15 +491,22 @@ def _log_section(report: Mapping[str, Any]) -> str:
     return '<h2 id="log">The log and the run</h2>\n' + _key_table(rows)
 
 
-def _settings_section(settings: Any) -> str:
+def _settings_section(settings: Any, mount: Any = None) -> str:
     if not isinstance(settings, Mapping) or not settings:
         return ""
+    source = mount.get("source") if isinstance(mount, Mapping) else None
+    said = (
+        f" The camera's mount (<code>camera.x</code> to <code>camera.yaw_deg</code>) is the one "
+        f"used, from {_esc(str(source))}."
+        if source
+        else ""
+    )
     rows = [_key_row(str(key), _esc(_setting(value)), code=True) for key, value in settings.items()]
     half = (len(rows) + 1) // 2
     return (
         '<h2 id="settings">Settings</h2>\n<p class="muted">Every setting the run used, as keys '
         "of a settings file (<code>--config</code>); &ldquo;&ndash;&rdquo; is not set (chosen "
-        'automatically or from the log).</p>\n<div class="pair">'
+        f'automatically or from the log).{said}</p>\n<div class="pair">'
         + _key_table(rows[:half])
         + _key_table(rows[half:])
         + "</div>"

@@ -19,12 +19,16 @@ from markergraph.common.notes import Note
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Observation, OdometryTrack
 from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.logs import DecodeFailures
 from markergraph.frontend.odometry_kind import OdometryEvidence
 from markergraph.frontend.posed import LevelledFrame, MarkerDetections
 from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.topics import TopicChoice
 
-__all__ = ["Extraction", "Join", "Part", "merge_parts"]
+__all__ = ["MOUNT_FROM_SETTINGS", "Extraction", "Join", "Part", "merge_parts"]
+
+MOUNT_FROM_SETTINGS = "the settings (camera.*)"
+"""Where a mount not found in the log comes from (:attr:`Extraction.mount_source`)."""
 
 
 class Join(Enum):
@@ -38,6 +42,9 @@ class Join(Enum):
     """Added up (counts, and counters by key)."""
     CONCAT = "concat"
     """Lists end to end, in log order."""
+    MERGE = "merge"
+    """Messages skipped and files' notes (:class:`DecodeFailures`): counts summed, notes
+    once."""
     UNIQUE = "unique"
     """Lists end to end, each item once (each stretch says the same notes)."""
     NONE = "none"
@@ -67,6 +74,9 @@ class Extraction:
     """The intrinsics used."""
     mount: CameraMount = field(metadata=_FIRST)
     """The camera's mount used."""
+    mount_source: str = field(metadata=_FIRST, default=MOUNT_FROM_SETTINGS, kw_only=True)
+    """Where ``mount`` came from: the log's static transforms (naming the topic and frames) or
+    the settings."""
     topics: TopicChoice = field(metadata=_FIRST)
     """The topics read."""
     frames: int = field(metadata=_SUM, default=0)
@@ -77,8 +87,13 @@ class Extraction:
     """Reason -> frames skipped for it."""
     notes: list[Note] = field(metadata=_UNIQUE, default_factory=list)
     """What was assumed or dropped."""
-    warnings: list[str] = field(metadata=_CONCAT, default_factory=list)
-    """Damaged stretches skipped (unreadable messages, per file and topic)."""
+    read_failures: DecodeFailures = field(
+        metadata={"join": Join.MERGE}, default_factory=DecodeFailures, repr=False
+    )
+    """Messages the stretches could not read, and what was lost or recovered of a file."""
+    warnings: list[str] = field(metadata=_LATER, default_factory=list)
+    """Damaged stretches skipped (unreadable messages, per file and topic), each said once:
+    ``read_failures`` in words, set once the stretches are joined."""
     true_markers: dict[int, gtsam.Pose2] = field(metadata=_FIRST, default_factory=dict)
     """Ground truth ``T_map_marker`` when the log carries it (simulated logs)."""
     true_path: Trajectory = field(
@@ -210,11 +225,14 @@ def merge_parts(parts: list[Part]) -> Part:
             joined[f.name] = sum(values)
         elif how is Join.CONCAT:
             joined[f.name] = [item for value in values for item in value]
+        elif how is Join.MERGE:
+            joined[f.name] = DecodeFailures.merged(values)
         elif how is Join.UNIQUE:
             joined[f.name] = []
             for value in values:  # what every stretch says is said once
                 joined[f.name] += [item for item in value if item not in joined[f.name]]
     merged = Part(Extraction(**joined))
+    merged.extraction.warnings = merged.extraction.read_failures.warnings()
     for name in (f.name for f in fields(Part) if f.name != "extraction"):
         values = [getattr(p, name) for p in parts]
         if name in ("odometry", "true_poses"):

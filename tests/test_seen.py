@@ -78,3 +78,171 @@ def test_report_page_labels_and_zero() -> None:
     assert "xy variance per metre travelled [m²/m]" in text and "2.5e-05" in text
     assert "marker size used [m]" in text and "rate [Hz]" in text
     assert not NEGATIVE_ZERO.search(text), re.findall(r".{30}-0.{10}", text)
+
+
+# --- notes said once, in our words -----------------------------------------------------------
+
+LIBRARY_WORDS = ("RecordLengthLimitExceeded", "McapError", "EndOfFile", "InvalidMagic", "opcode",
+                 "exceeds limit", "ZstdError")  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def cut_log(log: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The short log cut at 80 %, as a recording stopped by a power loss: no summary, a
+    half-written chunk."""
+    cut = tmp_path_factory.mktemp("cut") / "cut.mcap"
+    cut.write_bytes(log.read_bytes()[: int(log.stat().st_size * 0.8)])
+    return cut
+
+
+def test_a_recovered_index_is_said_once_in_our_words(cut_log: Path) -> None:
+    """A cut log's rebuilt index is one note (both of a stretch's readers meet it), naming the
+    file and the byte where the read stopped, without the mcap package's own text."""
+    from markergraph.frontend import extract
+
+    extraction = extract(cut_log)
+    size = cut_log.stat().st_size
+    recovered = [w for w in extraction.warnings if "without its index" in w]
+    assert len(recovered) == 1, extraction.warnings
+    assert recovered[0].startswith(f"{cut_log}: ")
+    assert f"of {size:,}" in recovered[0]
+    assert not any(word in w for w in extraction.warnings for word in LIBRARY_WORDS), (
+        extraction.warnings
+    )
+
+
+def test_stretches_join_their_failures_once() -> None:
+    """Stretches read by several workers each meet the same damaged index: the joined
+    extraction says it once, and sums their skipped messages per topic rather than repeating
+    or collapsing them."""
+    from markergraph.estimator.trajectory import Trajectory
+    from markergraph.frontend.camera import CameraMount
+    from markergraph.frontend.extraction import Extraction, Part, merge_parts
+    from markergraph.frontend.logs import DecodeFailures
+    from markergraph.frontend.topics import TopicChoice
+
+    parts = []
+    for _ in range(3):
+        failures = DecodeFailures()
+        failures.note(Path("log.mcap"), "read up to byte 10 of 20 without its index")
+        failures.add(Path("log.mcap"), "/odom", "a damaged chunk at byte 8")
+        extraction = Extraction([], Trajectory.from_samples([]), None,
+                                CameraMount(0.0, 0.0, 0.0, 0.0, 0.0),
+                                TopicChoice(None, None, None, None, None))  # fmt: skip
+        extraction.read_failures = failures
+        extraction.warnings = failures.warnings()
+        parts.append(Part(extraction))
+    joined = merge_parts(parts).extraction
+    assert joined.warnings == [
+        "log.mcap: read up to byte 10 of 20 without its index",
+        "log.mcap: skipped 3 unreadable message(s) on /odom (a damaged chunk at byte 8)",
+    ]
+
+
+def test_mcap_errors_in_our_words() -> None:
+    """Each error the mcap package raises reads as what it means for the file, never as the
+    library's class and text; our own damage texts pass through as they are."""
+    from mcap.exceptions import EndOfFile, InvalidMagic, RecordLengthLimitExceeded
+
+    from markergraph.frontend.logs.records import McapDamageError, why
+
+    assert why(RecordLengthLimitExceeded(1, 2**62, 100)) == (
+        "a record claims more bytes than the file holds"
+    )
+    assert "cut short" in why(InvalidMagic(b"\x00"))
+    assert why(EndOfFile()) == "the file ends inside a record"
+    assert why(McapDamageError("no chunk at byte 12")) == "no chunk at byte 12"
+
+
+# --- one run of `markergraph map --method all`, with a mount in the settings the log overrides -
+
+UNUSED_HEIGHT_M, UNUSED_PITCH_DEG = 0.45, 5.0
+
+
+@pytest.fixture(scope="module")
+def mapped_all(log: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str, str]:
+    """`markergraph map --method all` on the short log with a camera mount in the settings that
+    the log's /tf_static overrides: the folder, stdout and stderr."""
+    import os
+    import subprocess
+    import sys
+
+    folder = tmp_path_factory.mktemp("seen-all")
+    settings = folder / "robot.toml"
+    settings.write_text(
+        f'method = "all"\n[camera]\nheight = {UNUSED_HEIGHT_M}\npitch_deg = {UNUSED_PITCH_DEG}\n'
+    )
+    out = folder / "result"
+    run = subprocess.run(
+        [sys.executable, "-m", "markergraph.cli", "map", str(log), "--config", str(settings),
+         "--out", str(out)],
+        capture_output=True, text=True, env={**os.environ, "MARKERGRAPH_NO_CACHE": "1"},
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    return out, run.stdout, run.stderr
+
+
+def _odometry_messages(log: Path) -> int:
+    """The /odom messages in the log, counted from its records (not from our reader)."""
+    from mcap.reader import make_reader
+
+    with open(log, "rb") as stream:
+        reader = make_reader(stream)
+        return sum(1 for _ in reader.iter_messages(topics=["/odom"]))
+
+
+def test_odometry_note_states_the_true_count(mapped_all, log: Path) -> None:
+    """The odometry note counts every sample used (the log's /odom messages: 1,001 over 20 s
+    at 50 Hz), not the 600 its kind was judged on, says the model is applied to all of them,
+    and has one colon, not two."""
+    folder, _, err = mapped_all
+    notes = [line for line in err.splitlines() if line.startswith("note: odometry noise")]
+    assert len(notes) == 1, err
+    note = notes[0].removeprefix("note: ")
+    report = json.loads((folder / "report.json").read_text())
+    total = _odometry_messages(log)
+    assert report["odometry_samples"] == total > 600
+    assert f"for all {total:,} odometry samples on /odom" in note
+    assert "first 600 samples" in note
+    assert note.count(":") == 1, note
+    assert note in report["notes"]
+
+
+def test_report_lists_the_mount_used_and_its_source(mapped_all, log: Path) -> None:
+    """A mount from /tf_static is what report.json's and report.html's settings list (not the
+    0.45 m and 5 degrees of the settings file, unused), with where it came from."""
+    from markergraph.frontend.logs import open_log
+    from markergraph.frontend.tf import mount_from_transforms, transforms_of
+
+    folder, _, _ = mapped_all
+    report = json.loads((folder / "report.json").read_text())
+    opened = open_log(log)
+    static = [t for m in opened.messages(["/tf_static"]) for t in transforms_of(m.decoded)]
+    frames = {t.child_frame_id for t in static}
+    optical = next(f for f in frames if "color_optical" in f)
+    truth = mount_from_transforms(static, ("base_link",), optical)
+    settings, mount = report["settings"], report["camera_mount"]
+    assert mount["source"].startswith("/tf_static") and optical in mount["source"]
+    assert settings["camera.height"] == pytest.approx(truth.height_m, abs=1e-6)
+    assert settings["camera.pitch_deg"] == pytest.approx(np.degrees(truth.pitch_rad), abs=1e-5)
+    assert abs(truth.height_m - UNUSED_HEIGHT_M) > 0.05
+    assert mount["height_m"] == pytest.approx(truth.height_m, abs=1e-9)
+    page = (folder / "report.html").read_text()
+    assert f"from {mount['source']}" in page.replace("&gt;", ">")
+
+
+def test_columns_that_mean_nothing_are_dashes(mapped_all) -> None:
+    """The EKF measures no links and neither the closed form nor the EKF iterates: their links
+    and converged are "-" (null in report.json) and the summary says what links are; the
+    graph methods keep their counts."""
+    folder, out, _ = mapped_all
+    report = json.loads((folder / "report.json").read_text())
+    methods = report["methods"]
+    assert methods["ekf"]["links"] is None and methods["ekf"]["converged"] is None
+    assert methods["closed-form"]["converged"] is None and methods["closed-form"]["links"] >= 1
+    assert methods["slam"]["links"] >= 1 and methods["slam"]["converged"] is True
+    ekf_row = next(line for line in out.splitlines() if line.startswith("ekf "))
+    assert ekf_row.split()[1:3] == ["3", "-"], ekf_row
+    assert "links: marker pairs measured together" in out
+    page = (folder / "report.html").read_text()
+    assert "Links: marker pairs measured together" in page
