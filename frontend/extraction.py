@@ -87,10 +87,12 @@ class Extraction:
     """Reason -> frames skipped for it."""
     notes: list[Note] = field(metadata=_UNIQUE, default_factory=list)
     """What was assumed or dropped."""
-    read_failures: DecodeFailures = field(
-        metadata={"join": Join.MERGE}, default_factory=DecodeFailures, repr=False
+    # None by default, a class attribute: an extraction pickled before this field reads None.
+    read_failures: DecodeFailures | None = field(
+        metadata={"join": Join.MERGE}, default=None, repr=False
     )
-    """Messages the stretches could not read, and what was lost or recovered of a file."""
+    """Messages the stretches could not read, and what was lost or recovered of a file (None:
+    not recorded, a detection log)."""
     warnings: list[str] = field(metadata=_LATER, default_factory=list)
     """Damaged stretches skipped (unreadable messages, per file and topic), each said once:
     ``read_failures`` in words, set once the stretches are joined."""
@@ -226,13 +228,14 @@ def merge_parts(parts: list[Part]) -> Part:
         elif how is Join.CONCAT:
             joined[f.name] = [item for value in values for item in value]
         elif how is Join.MERGE:
-            joined[f.name] = DecodeFailures.merged(values)
+            joined[f.name] = DecodeFailures.merged(v for v in values if v is not None)
         elif how is Join.UNIQUE:
             joined[f.name] = []
             for value in values:  # what every stretch says is said once
                 joined[f.name] += [item for item in value if item not in joined[f.name]]
     merged = Part(Extraction(**joined))
-    merged.extraction.warnings = merged.extraction.read_failures.warnings()
+    failures = merged.extraction.read_failures
+    merged.extraction.warnings = failures.warnings() if failures is not None else []
     for name in (f.name for f in fields(Part) if f.name != "extraction"):
         values = [getattr(p, name) for p in parts]
         if name in ("odometry", "true_poses"):

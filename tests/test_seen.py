@@ -246,3 +246,100 @@ def test_columns_that_mean_nothing_are_dashes(mapped_all) -> None:
     assert "links: marker pairs measured together" in out
     page = (folder / "report.html").read_text()
     assert "Links: marker pairs measured together" in page
+
+
+# --- figures ---------------------------------------------------------------------------------
+
+WHITE_BAND_PX = 40  # the tallest run of blank rows allowed between or around panels
+
+
+def _longest_blank_run(png: Path) -> int:
+    """The tallest run of pixel rows that are blank (white) from edge to edge, inside the
+    image (the first and last drawn rows bound it)."""
+    import matplotlib.image
+
+    image = matplotlib.image.imread(png)[..., :3]
+    blank = np.all(image > 0.98, axis=(1, 2))
+    drawn = np.flatnonzero(~blank)
+    longest = run = 0
+    for row_blank in blank[drawn[0] : drawn[-1] + 1]:
+        run = run + 1 if row_blank else 0
+        longest = max(longest, run)
+    return longest
+
+
+def _wide_map(offset_m: float = 0.0) -> MarkerMap:
+    """Twelve markers along a 20 m by 3 m hall, each with a covariance."""
+    rng = np.random.default_rng(8)
+    markers = {
+        i: MapMarker(
+            i, gtsam.Pose2(2.0 * i + offset_m * rng.normal(), 3.0 * (i % 2), 0.5 * i),
+            1e-4 * np.eye(3), 10, 0.2,
+        )
+        for i in range(12)
+    }  # fmt: skip
+    return MarkerMap(markers, (), 0, "DICT_4X4_50", 0.2, "slam", "hall.mcap")
+
+
+def test_diagnostics_legends_cover_no_data_and_ids_are_integers() -> None:
+    """diagnostics.png: no legend box holds a plotted point, and the detections' marker-id axis
+    has whole-number ticks only (3 markers: 0, 1, 2, not 0.25 steps)."""
+    from markergraph.estimator.types import Observation
+    from markergraph.plots import diagnostics_figure
+
+    rng = np.random.default_rng(3)
+    report = {
+        "markers": {
+            str(i): {"whitened_median": 0.2 + 0.1 * i, "whitened_p95": 0.5 + 0.2 * i,
+                     "whitened_max": 0.6 + 0.3 * i, "downweighted": 0}
+            for i in range(3)
+        }
+    }  # fmt: skip
+    observations = [
+        Observation(int(t * 1e9), int(rng.integers(0, 3)), 0.0, 0.0, 2.0, 0.01, 0.01, 0.01)
+        for t in np.linspace(0.0, 60.0, 200)
+    ]
+    fig = diagnostics_figure("slam", report, observations)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        box = ax.get_legend().get_window_extent(renderer)
+        for line in ax.get_lines():
+            xy = ax.transData.transform(np.column_stack(line.get_data()).astype(float))
+            inside = (
+                (xy[:, 0] >= box.x0)
+                & (xy[:, 0] <= box.x1)
+                & (xy[:, 1] >= box.y0)
+                & (xy[:, 1] <= box.y1)
+            )
+            assert not inside.any(), (ax.get_title(), line.get_label())
+    right = fig.axes[1]
+    low, high = right.get_ylim()
+    ticks = [t for t in right.get_yticks() if low <= t <= high]
+    assert ticks and all(float(t).is_integer() for t in ticks), ticks
+
+
+def test_method_comparison_has_no_empty_band(tmp_path: Path) -> None:
+    """comparison.png of five methods on a wide hall: no blank band between or around its rows
+    taller than 40 px (a fixed panel height left about 170 px)."""
+    from markergraph.plots import plot_comparison
+
+    maps = [(label, _wide_map(0.01 * k), None) for k, label in enumerate("abcde")]
+    path = tmp_path / "comparison.png"
+    plot_comparison(maps, {}, path)
+    assert _longest_blank_run(path) < WHITE_BAND_PX
+
+
+def test_compare_plot_has_no_empty_band_nor_noise_magnified(tmp_path: Path) -> None:
+    """`markergraph compare --plot` of a wide hall: no blank band above or below the maps; a map
+    against itself (errors of float noise) is drawn unmagnified, not at x5e14."""
+    from markergraph.cli import main
+    from markergraph.compare_plot import exaggeration
+
+    ours, theirs = tmp_path / "ours.json", tmp_path / "theirs.json"
+    _wide_map(0.02).save(ours)
+    _wide_map().save(theirs)
+    plot = tmp_path / "compare.png"
+    assert main(["compare", str(ours), str(theirs), "--plot", str(plot)]) == 0
+    assert _longest_blank_run(plot) < WHITE_BAND_PX
+    assert exaggeration(np.array([3e-15, 1e-15]), 20.0) == 1.0
