@@ -343,3 +343,49 @@ def test_compare_plot_has_no_empty_band_nor_noise_magnified(tmp_path: Path) -> N
     assert main(["compare", str(ours), str(theirs), "--plot", str(plot)]) == 0
     assert _longest_blank_run(plot) < WHITE_BAND_PX
     assert exaggeration(np.array([3e-15, 1e-15]), 20.0) == 1.0
+
+
+# --- README ----------------------------------------------------------------------------------
+
+
+def test_readme_api_example_prints_the_aligned_error(monkeypatch, capsys) -> None:
+    """README's Python API example prints each method's aligned marker RMSE and names it, with
+    the home-fixed one beside it named too (as the CLI summary does), not the bare home-fixed
+    MapError; it is run here on a stand-in result with known errors (tests/test_readme.py runs
+    it on a real log)."""
+    from types import SimpleNamespace
+
+    import markergraph as mg
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = next(b for b in re.findall(r"```python\n(.*?)```", readme, re.DOTALL) if "map_log" in b)
+    method = SimpleNamespace(
+        label="slam",
+        map_error_aligned=SimpleNamespace(rmse_position_m=0.034),
+        map_error=SimpleNamespace(rmse_position_m=0.190),
+        marker_map=SimpleNamespace(markers={0: None, 1: None}),
+    )
+    monkeypatch.setattr(mg, "map_log", lambda *a, **k: SimpleNamespace(results=[method]))
+    monkeypatch.setattr(mg, "write_results", lambda *a, **k: [])
+    monkeypatch.setattr(mg, "MarkerMap", SimpleNamespace(load=lambda path: None))
+    exec(compile(block, "README.md", "exec"), {})
+    printed = capsys.readouterr().out
+    assert "0.034 m aligned" in printed and "0.190 m home-fixed" in printed, printed
+    assert "MapError" not in printed
+
+
+def test_sizes_are_said_in_mb() -> None:
+    """A chunk claiming more than the 268 MB a chunk may hold is said in MB (10^6 bytes), the
+    unit `simulate` prints, with thousands separators; never MiB."""
+    from mcap.records import Chunk
+
+    from markergraph.frontend.logs.records import McapDamageError
+    from markergraph.frontend.logs.scan import MAX_CHUNK_BYTES, decompress
+
+    chunk = Chunk(message_start_time=0, message_end_time=0, uncompressed_size=2**40,
+                  uncompressed_crc=0, compression="zstd", data=b"")  # fmt: skip
+    with pytest.raises(McapDamageError) as raised:
+        decompress(chunk)
+    text = str(raised.value)
+    assert MAX_CHUNK_BYTES == 268_435_456 and "(more than 268 MB)" in text
+    assert "MiB" not in text and f"{2**40:,} bytes" in text
