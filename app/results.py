@@ -138,7 +138,7 @@ def _settings_used(run: MapRun) -> dict[str, Any]:
     replaces the configured one (``camera_mount`` says where it came from)."""
     values = dict(run.config.values)
     extraction = run.extraction
-    if extraction.mount_source != MOUNT_FROM_SETTINGS:
+    if extraction.mount_origin() != MOUNT_FROM_SETTINGS:
         for key, name, factor in _MOUNT_SETTINGS:
             if key in values:
                 values[key] = round(getattr(extraction.mount, name) * factor, 6)
@@ -149,7 +149,7 @@ def _mount_entry(run: MapRun) -> dict[str, Any]:
     """The camera's mount used and where it came from (report.json's ``camera_mount``)."""
     mount = run.extraction.mount
     return {
-        "source": run.extraction.mount_source,
+        "source": run.extraction.mount_origin(),
         "x_m": mount.x_m,
         "y_m": mount.y_m,
         "height_m": mount.height_m,

@@ -74,9 +74,9 @@ class Extraction:
     """The intrinsics used."""
     mount: CameraMount = field(metadata=_FIRST)
     """The camera's mount used."""
-    mount_source: str = field(metadata=_FIRST, default=MOUNT_FROM_SETTINGS, kw_only=True)
-    """Where ``mount`` came from: the log's static transforms (naming the topic and frames) or
-    the settings."""
+    mount_source: str | None = field(metadata=_FIRST_SET, default=None, kw_only=True)
+    """Where ``mount`` came from when the log gave it: its static transforms (naming the topic
+    and frames); None where the settings gave it, or not recorded (see :meth:`mount_origin`)."""
     topics: TopicChoice = field(metadata=_FIRST)
     """The topics read."""
     frames: int = field(metadata=_SUM, default=0)
@@ -161,6 +161,16 @@ class Extraction:
     odometry_evidence: OdometryEvidence | None = field(metadata=_EVIDENCE, default=None)
     """What the odometry's first messages show of its kind (3-D motion, rate, covariance);
     None for odometry from /tf."""
+
+    def mount_origin(self) -> str:
+        """Where ``mount`` came from, in words: ``mount_source``, else the settings when a
+        note says the log gave none, else the log's static transforms (an extraction kept
+        before ``mount_source`` was)."""
+        if self.mount_source is not None:
+            return self.mount_source
+        if any(note.kind.startswith("mount.") for note in self.notes):
+            return MOUNT_FROM_SETTINGS
+        return "/tf_static" if self.topics.tf_static else MOUNT_FROM_SETTINGS
 
     def input_evidence(self) -> dict[str, Any]:
         """What the front end judged of its inputs, JSON-ready (report.json's ``inputs``): what
