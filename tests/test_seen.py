@@ -389,3 +389,23 @@ def test_sizes_are_said_in_mb() -> None:
     text = str(raised.value)
     assert MAX_CHUNK_BYTES == 268_435_456 and "(more than 268 MB)" in text
     assert "MiB" not in text and f"{2**40:,} bytes" in text
+
+
+def test_compare_prints_no_negative_zero(tmp_path: Path, capsys) -> None:
+    """`markergraph compare` of a map against a copy nudged by float noise prints its zero
+    rotation, translation and errors without a minus sign."""
+    from markergraph.cli import main
+
+    ours, theirs = tmp_path / "ours.json", tmp_path / "theirs.json"
+    _wide_map().save(theirs)
+    nudged = _wide_map()
+    markers = {
+        i: MapMarker(i, gtsam.Pose2(m.T_map_marker.x() + 1e-9, m.T_map_marker.y() + 1e-9,
+                                    m.T_map_marker.theta() + 1e-9), m.covariance, 10, 0.2)
+        for i, m in nudged.markers.items()
+    }  # fmt: skip
+    MarkerMap(markers, (), 0, "DICT_4X4_50", 0.2, "slam", "hall.mcap").save(ours)
+    assert main(["compare", str(ours), str(theirs)]) == 0
+    printed = capsys.readouterr().out
+    assert "translation (0.0000, 0.0000) m" in printed, printed
+    assert not NEGATIVE_ZERO.search(printed), printed
