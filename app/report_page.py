@@ -358,11 +358,13 @@ def _methods_section(report: Mapping[str, Any]) -> str:
         "over the poses counted; the best of each in bold."
         if report.get("ground_truth")
         else "The log carries no ground truth: counts only."
-    ) + (
-        " Links: marker pairs measured together (– for the EKF, which ties its markers through "
-        "its covariance alone); converged: whether an iterating solver converged (– for the "
-        "closed form, computed once, and the EKF, one update a frame)."
     )
+    if any(e.get("links", 0) is None or e.get("converged", True) is None for e in entries.values()):
+        caption += (
+            " Links: marker pairs measured together (– for the EKF, which ties its markers "
+            "through its covariance alone); converged: whether an iterating solver converged "
+            "(– for the closed form, computed once, and the EKF, one update a frame)."
+        )
     return (
         '<h2 id="summary">Summary</h2>\n'
         f'<div class="scroll"><table class="methods"><thead><tr>{"".join(head)}</tr></thead>\n'
