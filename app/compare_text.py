@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.numbers import shown
 from markergraph.compare import Comparison, Figures, Scored
 
 __all__ = ["COMPARE_SCHEMA", "comparison_document", "comparison_lines", "summary"]
@@ -21,7 +22,7 @@ def _ids(ids: tuple[int, ...]) -> str:
 
 
 def _cell(value: float, digits: int) -> str:
-    return "-" if not math.isfinite(value) else f"{value:.{digits}f}"
+    return "-" if not math.isfinite(value) else shown(value, f".{digits}f")
 
 
 def _figure_text(name: str, figures: Figures, unit: str, digits: int) -> str:
@@ -91,8 +92,9 @@ def comparison_lines(result: Comparison) -> list[str]:
         f"markers in common: {len(result.ids)} ({_ids(tuple(int(i) for i in result.ids))}); "
         f"only in the map: {_ids(result.only_map)}; only in the reference: "
         f"{_ids(result.only_reference)}",
-        f"{d}-D comparison; alignment {rotation.how}: rotation {rotation.angle_deg:.3f} deg, "
-        f"translation ({', '.join(f'{v:.4f}' for v in t)}) m"
+        f"{d}-D comparison; alignment {rotation.how}: rotation "
+        f"{shown(rotation.angle_deg, '.3f')} deg, "
+        f"translation ({', '.join(shown(v, '.4f') for v in t)}) m"
         + (f", scale {rotation.scale:.6f}" if rotation.how.startswith("Sim") else ""),
         f"home-fixed on {h.alignment.how}",
         *_table(result),

@@ -37,6 +37,7 @@ from markergraph.common.documents import (
 )
 from markergraph.common.errors import MarkerGraphError
 from markergraph.common.files import written_whole
+from markergraph.common.numbers import denoised, denoised_matrix
 from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.heights import MarkerHeight
 from markergraph.estimator.paper import Edge, Form, edge_from_pose2, heading
@@ -312,10 +313,10 @@ class MarkerMap:
                 "a": link.marker_a,
                 "b": link.marker_b,
                 "n_measurements": link.n_measurements,
-                "phi": link.edge.phi,
-                "theta_ab": link.edge.theta_ab,
-                "theta_ba": link.edge.theta_ba,
-                "d": link.edge.d,
+                "phi": denoised(link.edge.phi),
+                "theta_ab": denoised(link.edge.theta_ab),
+                "theta_ba": denoised(link.edge.theta_ba),
+                "d": denoised(link.edge.d),
                 "covariance": _matrix(link.covariance),
             }
             for link in self.links
@@ -424,17 +425,17 @@ def _marker2_entry(m: MapMarker) -> dict[str, Any]:
     T = m.T_map_marker
     entry: dict[str, Any] = {
         "id": m.marker_id,
-        "x": T.x(),
-        "y": T.y(),
-        "yaw": T.theta(),
+        "x": denoised(T.x()),
+        "y": denoised(T.y()),
+        "yaw": denoised(T.theta()),
         "size_m": m.size_m,
         "covariance": _matrix(m.covariance),
         "n_observations": m.n_observations,
     }
     if m.z_m is not None:
-        entry["z"] = m.z_m
+        entry["z"] = denoised(m.z_m)
     if m.sigma_z_m is not None:
-        entry["sigma_z"] = m.sigma_z_m
+        entry["sigma_z"] = denoised(m.sigma_z_m)
     if m.relative_covariance is not None:
         entry["relative_covariance"] = _matrix(m.relative_covariance)
     return entry
@@ -546,15 +547,15 @@ def _marker_of(
 
 def _quaternion(rotation: gtsam.Rot3) -> list[float]:
     """[w, x, y, z], w >= 0."""
-    return list(quaternion_wxyz(rotation))
+    return [denoised(v) for v in quaternion_wxyz(rotation)]
 
 
 def _pose_fields(T: gtsam.Pose3) -> dict[str, Any]:
     t = T.translation()
     return {
-        "x": float(t[0]),
-        "y": float(t[1]),
-        "z": float(t[2]),
+        "x": denoised(t[0]),
+        "y": denoised(t[1]),
+        "z": denoised(t[2]),
         "quaternion": _quaternion(T.rotation()),
     }
 
@@ -566,7 +567,7 @@ def _marker3_entry(m: MapMarker) -> dict[str, Any]:
     return {
         "id": m.marker_id,
         **_pose_fields(m.T_map_marker3),
-        "yaw": T.theta(),
+        "yaw": denoised(T.theta()),
         "size_m": m.size_m,
         "covariance": _matrix(m.covariance),
         "covariance_6x6": _matrix(m.covariance6),
@@ -730,7 +731,8 @@ MAX_COUNT = 2**63 - 1
 
 
 def _matrix(matrix: NDArray[np.float64] | None) -> list[list[float]] | None:
-    return None if matrix is None else [[float(v) for v in row] for row in matrix]
+    """A covariance as JSON holds it, its float noise (against its largest entry) as 0.0."""
+    return None if matrix is None else denoised_matrix(matrix)
 
 
 def write_json(path: Path, document: Mapping[str, Any]) -> None:

@@ -17,6 +17,7 @@ from markergraph.estimator.trajectory import Trajectory
 from markergraph.markermap import MarkerMap
 
 __all__ = [
+    "diagnostics_figure",
     "draw_marker_map",
     "map_figure",
     "plot_comparison",
@@ -26,6 +27,7 @@ __all__ = [
 ]
 
 MARGIN = 0.1  # of the view's larger side, around what is drawn
+PANEL_TEXT_IN = 1.1  # a comparison panel's two-line title and tick labels [in]
 CIRCLE = np.stack([np.cos(np.linspace(0, math.tau, 60)), np.sin(np.linspace(0, math.tau, 60))])
 
 
@@ -235,12 +237,17 @@ def plot_comparison(
     plt = _pyplot()
     columns = min(3, len(maps))
     rows = math.ceil(len(maps) / columns)
-    fig, axes = plt.subplots(
-        rows, columns, figsize=(5.5 * columns, 4.8 * rows), constrained_layout=True,
-        squeeze=False, sharex=True, sharey=True,
-    )  # fmt: skip
     points = [p for _, m, _ in maps for p in _map_points(m, _aligned(m, truth)[0], [])]
     view = _extent(points)
+    # Each panel as tall as the map is at its width (equal axes), plus its two-line title and
+    # tick labels: a fixed height left an empty band between the rows of a wide map.
+    aspect = (view[3] - view[2]) / (view[1] - view[0])
+    panel_in = 5.5
+    height_in = min(max(panel_in * aspect, 1.5), 2.0 * panel_in) + PANEL_TEXT_IN
+    fig, axes = plt.subplots(
+        rows, columns, figsize=(panel_in * columns, height_in * rows), constrained_layout=True,
+        squeeze=False, sharex=True, sharey=True,
+    )  # fmt: skip
     for ax, (label, marker_map, rmse_m) in zip(axes.flat, maps, strict=False):
         fitted, T_map_truth = _aligned(marker_map, truth)
         how = "truth fitted onto the map" if T_map_truth is not None else "truth as logged"
@@ -248,16 +255,57 @@ def plot_comparison(
     for ax in axes.flat[len(maps) :]:
         ax.axis("off")
     _legend_outside(axes[0][-1], 7)
+    _trim_rows(fig, axes[0][0], rows)
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
+
+
+def _trim_rows(fig: Any, ax: Any, rows: int) -> None:
+    """The figure made as short as its equal-aspect panels allow, so that no empty band is
+    left between rows: the shortest height at which a panel still fills its slot's width
+    (a bisection: the titles and labels keep their size, the layout does not scale)."""
+    width_in, high = fig.get_size_inches()
+    low = rows * 1.0
+    for _ in range(8):
+        middle = 0.5 * (low + high)
+        fig.set_size_inches(width_in, middle)
+        fig.canvas.draw()
+        slot, used = ax.get_position(original=True), ax.get_position()
+        if used.width >= slot.width * 0.995:  # still as wide as its slot: shorter may do
+            high = middle
+        else:
+            low = middle
+    fig.set_size_inches(width_in, high)
 
 
 def plot_diagnostics(
     label: str, report: Mapping[str, Any], observations: Sequence[Observation], path: Path
 ) -> None:
+    """diagnostics.png (:func:`diagnostics_figure`)."""
+    fig = diagnostics_figure(label, report, observations)
+    fig.savefig(path, bbox_inches="tight")
+    _pyplot().close(fig)
+
+
+def _legend_below(ax: Any) -> None:
+    """The legend under the axes, in one row: inside, it covers the markers' points."""
+    handles, _ = ax.get_legend_handles_labels()
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=len(handles),
+              frameon=False)  # fmt: skip
+
+
+def diagnostics_figure(
+    label: str, report: Mapping[str, Any], observations: Sequence[Observation]
+) -> Any:
     """Two panels for one method: each marker's whitened residuals (median, 95th percentile
     and largest, down-weighted factors counted), and a timeline of each marker's detections
-    with the down-weighted ones marked."""
+    with the down-weighted ones marked; legends below the panels, marker ids as integers.
+
+    Returns:
+        The matplotlib figure (the caller saves and closes it).
+    """
+    from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter
+
     plt = _pyplot()
     fig, (left, right) = plt.subplots(
         1, 2, figsize=(12, 4.5), constrained_layout=True, width_ratios=[1, 1.6]
@@ -278,7 +326,11 @@ def plot_diagnostics(
         left.axhline(3.0, color="grey", lw=0.8, ls="--", label="3 sigma")
         left.set_xticks(x, ids, fontsize=7)
         left.set_yscale("log")
-        left.legend(fontsize=7)
+        # 0.2, 0.5, 1, 2, 5: not 3 x 10^-1, and no crowd of minor labels.
+        left.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        left.yaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+        left.yaxis.set_minor_formatter(NullFormatter())
+        _legend_below(left)
     else:
         left.text(0.5, 0.5, f"{label}: no residuals (no factors)", ha="center",
                   transform=left.transAxes)  # fmt: skip
@@ -297,12 +349,12 @@ def plot_diagnostics(
             rt = np.array([(s - t0) * 1e-9 for s, _ in rejected])
             right.plot(rt, [m for _, m in rejected], "x", color="tab:red", ms=6,
                        label="down-weighted by the robust kernel")  # fmt: skip
-        right.legend(fontsize=7, loc="upper right")
+        _legend_below(right)
+    right.yaxis.set_major_locator(MaxNLocator(integer=True))  # marker ids: no 0.25
     right.set_xlabel("time since the first detection [s]")
     right.set_ylabel("marker id")
     right.set_title("detections per marker", fontsize=9)
-    fig.savefig(path, bbox_inches="tight")
-    plt.close(fig)
+    return fig
 
 
 def draw_marker_map(

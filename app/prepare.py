@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from markergraph.common import MarkerGraphError, Note
+from markergraph.common.numbers import shown
 from markergraph.estimator import (
     Frames,
     Observation,
@@ -80,7 +81,7 @@ def prepare(
     evidence = extraction.odometry_evidence
     source, why = config.odometry_source(extraction.topics.odom, evidence)
     _, noise = config.odometry_noise(extraction.topics.odom, evidence)
-    notes.append(_noise_note(source, noise, why))
+    notes.append(_noise_note(source, noise, why, len(extraction.odometry), extraction.topics.odom))
     searches = {} if searches is None else searches
     basis = (noise, home_id, config.noise.robust, config.camera)
     delay_key = search_key("delay", *basis)
@@ -157,12 +158,17 @@ def _content_notes(extraction: Extraction) -> list[Note]:
     return notes
 
 
-def _noise_note(source: str, noise: OdometryNoise, why: str) -> Note:
+def _noise_note(
+    source: str, noise: OdometryNoise, why: str, samples: int, topic: str | None
+) -> Note:
+    """The odometry's noise model, the samples it is applied to, and what chose it."""
+    where = f" on {topic}" if topic else ""
     return Note(
         "odometry.noise_model",
         f"odometry noise: the {source} model ({100 * noise.per_m:.1f} cm and "
         f"{math.degrees(noise.yaw_per_m):.2f} deg per sqrt(m), "
-        f"{math.degrees(noise.yaw_per_rad):.2f} deg per sqrt(rad) turned): {why}",
+        f"{math.degrees(noise.yaw_per_rad):.2f} deg per sqrt(rad) turned) for all "
+        f"{samples:,} odometry samples{where}; {why}",
         figure=noise.per_m,
     )
 
@@ -213,7 +219,7 @@ def _timed(
     else:
         notes.append(Note(
             "camera.delay_chosen",
-            f"camera stamps {delay_ns / 1e6:+.1f} ms against {topic} "
+            f"camera stamps {shown(delay_ns / 1e6, '+.1f')} ms against {topic} "
             "(chosen by SLAM's residuals over -50..+100 ms; --camera-delay sets it)",
             topic=topic, figure=delay_ns * 1e-9,
         ))  # fmt: skip

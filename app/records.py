@@ -26,7 +26,22 @@ from markergraph.markermap import MarkerMap
 from markergraph.settings import MapConfig
 from markergraph.verdicts import Judgement, Verdict
 
-__all__ = ["LocalizationRun", "MapRun", "MethodResult", "Session", "marker_map_of"]
+__all__ = [
+    "ITERATING_METHODS",
+    "LINKING_METHODS",
+    "LocalizationRun",
+    "MapRun",
+    "MethodResult",
+    "Session",
+    "marker_map_of",
+]
+
+LINKING_METHODS = frozenset({Method.CLOSED_FORM, Method.MARKER_GRAPH, Method.SLAM, Method.ISAM2})
+"""Methods that measure links between markers seen together; the EKF measures none (its
+markers are tied through its covariance alone), so its links are shown as "-"."""
+ITERATING_METHODS = frozenset({Method.MARKER_GRAPH, Method.SLAM, Method.ISAM2})
+"""Methods whose solver iterates to convergence; "converged" means nothing for the closed form
+(computed once) or the EKF (one update a frame), so it is shown as "-" for them."""
 
 
 def marker_map_of(

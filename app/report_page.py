@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from markergraph.common.files import written_whole
+from markergraph.common.numbers import shown
 
 __all__ = ["FIGURE_ORDER", "REPORT_PAGE", "figures_in", "render_report_page", "write_report_page"]
 
@@ -101,10 +102,17 @@ _UNITS: tuple[tuple[str, str, float, str], ...] = (
     ("_ms", "ms", 1.0, ".3g"),
     ("_ns", "ms", 1e-6, ".3g"),
     ("_px", "px", 1.0, ".3g"),
+    ("_hz", "Hz", 1.0, ".3g"),
     ("_s", "s", 1.0, ".3g"),
     ("_m", "m", 1.0, ".3f"),
     ("_share", "%", 100.0, ".0f"),
 )
+# Keys whose unit is not a plain suffix: their header and unit as a person reads them.
+_LABELS: dict[str, tuple[str, str | None]] = {
+    "xy_variance_per_m": ("xy variance per metre travelled", "m²/m"),
+}
+# Units inside a key (``marker_size_m_used``): the key's words without it, and the unit.
+_INFIX_UNITS: tuple[tuple[str, str], ...] = (("_m_", "m"),)
 _ACRONYMS = {
     "rmse": "RMSE",
     "rms": "RMS",
@@ -226,7 +234,7 @@ def render_report_page(report: Mapping[str, Any], figures: Mapping[str, bytes]) 
         *_method_sections(report),
         *_generic_sections(report),
         _log_section(report),
-        _settings_section(report.get("settings")),
+        _settings_section(report.get("settings"), report.get("camera_mount")),
         _files_section(report.get("files")),
     ]
     return (
@@ -351,6 +359,12 @@ def _methods_section(report: Mapping[str, Any]) -> str:
         if report.get("ground_truth")
         else "The log carries no ground truth: counts only."
     )
+    if any(e.get("links", 0) is None or e.get("converged", True) is None for e in entries.values()):
+        caption += (
+            " Links: marker pairs measured together (– for the EKF, which ties its markers "
+            "through its covariance alone); converged: whether an iterating solver converged "
+            "(– for the closed form, computed once, and the EKF, one update a frame)."
+        )
     return (
         '<h2 id="summary">Summary</h2>\n'
         f'<div class="scroll"><table class="methods"><thead><tr>{"".join(head)}</tr></thead>\n'
@@ -479,15 +493,22 @@ def _log_section(report: Mapping[str, Any]) -> str:
     return '<h2 id="log">The log and the run</h2>\n' + _key_table(rows)
 
 
-def _settings_section(settings: Any) -> str:
+def _settings_section(settings: Any, mount: Any = None) -> str:
     if not isinstance(settings, Mapping) or not settings:
         return ""
+    source = mount.get("source") if isinstance(mount, Mapping) else None
+    said = (
+        f" The camera's mount (<code>camera.x</code> to <code>camera.yaw_deg</code>) is the one "
+        f"used, from {_esc(str(source))}."
+        if source
+        else ""
+    )
     rows = [_key_row(str(key), _esc(_setting(value)), code=True) for key, value in settings.items()]
     half = (len(rows) + 1) // 2
     return (
         '<h2 id="settings">Settings</h2>\n<p class="muted">Every setting the run used, as keys '
         "of a settings file (<code>--config</code>); &ldquo;&ndash;&rdquo; is not set (chosen "
-        'automatically or from the log).</p>\n<div class="pair">'
+        f'automatically or from the log).{said}</p>\n<div class="pair">'
         + _key_table(rows[:half])
         + _key_table(rows[half:])
         + "</div>"
@@ -589,15 +610,24 @@ def _quantity(key: str, value: Any) -> str:
     if isinstance(value, bool):
         return "yes" if value else "no"
     if _is_number(value) and _is_stamp(key):
-        return f"{value * 1e-9:.3f}"
+        return shown(value * 1e-9, ".3f")
     if isinstance(value, float):
-        for suffix, _, factor, spec in _UNITS:
+        for suffix, _, factor, spec in _units(key):
             if key.endswith(suffix):
-                return format(value * factor, spec)
-        return format(value, ".4g")
+                return shown(value * factor, spec)
+        return shown(value, ".4g")
     if isinstance(value, int) and key.endswith("_ns"):
-        return format(value * 1e-6, ".3g")
+        return shown(value * 1e-6, ".3g")
     return _plain(value)
+
+
+def _units(key: str) -> tuple[tuple[str, str, float, str], ...]:
+    """The unit suffixes that apply to ``key``: a key with its unit inside reads as metres."""
+    if key in _LABELS:
+        return (("", _LABELS[key][1] or "", 1.0, ".3g"),)
+    if not any(key.endswith(u[0]) for u in _UNITS) and any(i in key for i, _ in _INFIX_UNITS):
+        return (("", "m", 1.0, ".4g"),)
+    return _UNITS
 
 
 def _plain(value: Any) -> str:
@@ -606,7 +636,7 @@ def _plain(value: Any) -> str:
     if isinstance(value, int):
         return f"{value:,}"
     if isinstance(value, float):
-        return format(value, ".4g")
+        return shown(value, ".4g")
     if value is None:
         return "–"
     return value if isinstance(value, str) else json.dumps(value)
@@ -621,12 +651,19 @@ def _setting(value: Any) -> str:
 
 
 def _label_unit(key: str) -> tuple[str, str | None]:
-    """A report key as a header and the unit of its values: ``ate_m`` -> ("ATE", "m")."""
+    """A report key as a header and the unit of its values: ``ate_m`` -> ("ATE", "m"),
+    ``marker_size_m_used`` -> ("marker size used", "m")."""
+    if key in _LABELS:
+        return _LABELS[key]
     if _is_stamp(key):
         return _words(key[: -len("_ns")]), "s"
     for suffix, unit, _, _ in _UNITS:
         if key.endswith(suffix) and len(key) > len(suffix):
             return _words(key[: -len(suffix)]), unit
+    for infix, unit in _INFIX_UNITS:  # a unit inside the key: marker_size_m_by_depth
+        head, found, tail = key.partition(infix)
+        if found and head and tail:
+            return _words(f"{head}_{tail}"), unit
     return _words(key), None
 
 

@@ -12,10 +12,17 @@ from markergraph.common.files import MANIFEST_KEY, REPORT_SCHEMA_PREFIX, result_
 from markergraph.diagnostics import diagnostics
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.formats import write_g2o, write_tum
+from markergraph.frontend.extraction import MOUNT_FROM_SETTINGS
 from markergraph.localize_accuracy import accuracy_entry, accuracy_of
 from markergraph.markermap import write_json
 from markergraph.overlay import write_overlay
-from markergraph.records import LocalizationRun, MapRun, MethodResult
+from markergraph.records import (
+    ITERATING_METHODS,
+    LINKING_METHODS,
+    LocalizationRun,
+    MapRun,
+    MethodResult,
+)
 from markergraph.report_page import REPORT_PAGE, write_report_page
 
 __all__ = [
@@ -90,7 +97,8 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         "notes": [*(note.text for note in run.notes), *extraction.warnings],
         "ground_truth": bool(run.true_markers),
         "seconds": run.seconds,
-        "settings": dict(run.config.values),
+        "settings": _settings_used(run),
+        "camera_mount": _mount_entry(run),
         "file_frames": {
             name: {"frame": frame, "holds": holds}
             for name, (frame, holds) in TUM_FRAMES.items()
@@ -115,15 +123,52 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
     return report
 
 
+# The settings that say the camera's mount, and the mount's field each is read from.
+_MOUNT_SETTINGS = (
+    ("camera.x", "x_m", 1.0),
+    ("camera.y", "y_m", 1.0),
+    ("camera.height", "height_m", 1.0),
+    ("camera.pitch_deg", "pitch_rad", math.degrees(1.0)),
+    ("camera.yaw_deg", "yaw_rad", math.degrees(1.0)),
+)
+
+
+def _settings_used(run: MapRun) -> dict[str, Any]:
+    """Every setting as the run used it: a mount read from the log's static transforms
+    replaces the configured one (``camera_mount`` says where it came from)."""
+    values = dict(run.config.values)
+    extraction = run.extraction
+    if extraction.mount_origin() != MOUNT_FROM_SETTINGS:
+        for key, name, factor in _MOUNT_SETTINGS:
+            if key in values:
+                values[key] = round(getattr(extraction.mount, name) * factor, 6)
+    return values
+
+
+def _mount_entry(run: MapRun) -> dict[str, Any]:
+    """The camera's mount used and where it came from (report.json's ``camera_mount``)."""
+    mount = run.extraction.mount
+    return {
+        "source": run.extraction.mount_origin(),
+        "x_m": mount.x_m,
+        "y_m": mount.y_m,
+        "height_m": mount.height_m,
+        "pitch_rad": mount.pitch_rad,
+        "yaw_rad": mount.yaw_rad,
+        "roll_rad": mount.roll_rad,
+    }
+
+
 def _method_entry(run: MapRun, result: MethodResult) -> dict[str, Any]:
     """One method's part of report.json: its verdict, what it placed, its notes and, with
     ground truth, its errors."""
     entry: dict[str, Any] = {
         **result.judgement.to_json(),
         "markers_placed": len(result.estimate.markers),
-        "links": len(result.estimate.links),
+        # None where the column means nothing for the method (records.LINKING_METHODS, ...).
+        "links": len(result.estimate.links) if result.method in LINKING_METHODS else None,
         "unplaced": {str(k): v for k, v in result.estimate.unplaced.items()},
-        "converged": result.estimate.converged,
+        "converged": result.estimate.converged if result.method in ITERATING_METHODS else None,
         "notes": [note.text for note in result.estimate.notes],
         "diagnostics": diagnostics(result.estimate, [s.frames for s in run.sessions] or run.frames),
     }
@@ -334,5 +379,6 @@ def _localize_report(run: LocalizationRun, files: list[str]) -> dict[str, Any]:
         ],
         "ate_m": run.ate_m, "ate_aligned_m": run.ate_aligned_m,
         "notes": [note.text for note in run.notes],
-        "settings": dict(run.config.values),
+        "settings": _settings_used(run),
+        "camera_mount": _mount_entry(run),
     }  # fmt: skip

@@ -15,7 +15,7 @@ from markergraph.estimator import MapError
 from markergraph.formats.observations import is_observation_file
 from markergraph.localize_accuracy import accuracy_lines, accuracy_of
 from markergraph.markermap import MarkerMap
-from markergraph.records import MapRun, MethodResult
+from markergraph.records import LINKING_METHODS, MapRun, MethodResult
 from markergraph.report_page import REPORT_PAGE
 from markergraph.results import write_localization, write_results
 from markergraph.results3d import write_results_3d
@@ -252,12 +252,16 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
     print(header)
     for method_result in result.results:
         estimate = method_result.estimate
-        line = f"{method_result.label:<14} {len(estimate.markers):>7} {len(estimate.links):>5}"
+        links = len(estimate.links) if method_result.method in LINKING_METHODS else "-"
+        line = f"{method_result.label:<14} {len(estimate.markers):>7} {links:>5}"
         if method_result.map_error is not None:
             line += _error_columns(method_result, method_result.map_error)
         print(line)
         for estimate_note in estimate.notes:
             print(f"  {method_result.label}: {estimate_note.text}")
+    if any(r.method not in LINKING_METHODS for r in result.results):
+        print("  links: marker pairs measured together; - for the EKF, which ties its markers "
+              "through its covariance alone")  # fmt: skip
     for method_result in result.results:
         judgement = method_result.judgement
         print(f"verdict {method_result.label}: {judgement.verdict.value}", end="")

@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.common.numbers import shown
+
 if TYPE_CHECKING:  # both load when first used: a settings file or --help reads none of them
     import gtsam
 
@@ -364,13 +366,14 @@ class CameraMount:
     def describe(self) -> str:
         """The mount in plain words and units, for notes."""
         words = (
-            f"{self.x_m:.2f} m ahead, {self.y_m:.2f} m left, {self.height_m:.2f} m up, "
-            f"pitched {math.degrees(self.pitch_rad):+.1f} deg"
+            f"{shown(self.x_m, '.2f')} m ahead, {shown(self.y_m, '.2f')} m left, "
+            f"{shown(self.height_m, '.2f')} m up, "
+            f"pitched {shown(math.degrees(self.pitch_rad), '+.1f')} deg"
         )
         if self.yaw_rad:
-            words += f", turned {math.degrees(self.yaw_rad):+.1f} deg left"
+            words += f", turned {shown(math.degrees(self.yaw_rad), '+.1f')} deg left"
         if self.roll_rad:
-            words += f", rolled {math.degrees(self.roll_rad):+.1f} deg"
+            words += f", rolled {shown(math.degrees(self.roll_rad), '+.1f')} deg"
         return words
 
     @property

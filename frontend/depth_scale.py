@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from markergraph.common.notes import Note
+from markergraph.common.numbers import shown
 from markergraph.estimator import turn_rate
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.frontend.extraction import Extraction
@@ -90,7 +91,7 @@ def _scale_note(
 ) -> tuple[Note, bool]:
     """What the measured ``scale`` says (its kind ``depth_scale.*``, the scale its figure), and
     whether auto would apply it."""
-    reads = f"depth on {topic} reads {100 * (scale - 1):+.2f} % against the markers' size"
+    reads = f"depth on {topic} reads {shown(100 * (scale - 1), '+.2f')} % against the markers' size"
     if abs(scale - 1.0) > MAX_DEPTH_SCALE_ERROR:
         text = (
             f"{reads}: too far off for a depth camera, so the marker size is more likely "

@@ -17,6 +17,7 @@ from markergraph.common.notes import Note
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Observation, OdometryTrack
 from markergraph.frontend.camera import Camera, CameraMount
+from markergraph.frontend.logs import DecodeFailures
 from markergraph.frontend.odometry_kind import OdometryEvidence
 from markergraph.frontend.posed import LevelledFrame, MarkerDetections
 from markergraph.frontend.sizes import MarkerSizes
@@ -25,7 +26,10 @@ from markergraph.frontend.topics import TopicChoice
 if TYPE_CHECKING:  # true markers are Pose2s, made where a log's truth is read
     import gtsam
 
-__all__ = ["Extraction", "Join", "Part", "merge_parts"]
+__all__ = ["MOUNT_FROM_SETTINGS", "Extraction", "Join", "Part", "merge_parts"]
+
+MOUNT_FROM_SETTINGS = "the settings (camera.*)"
+"""Where a mount not found in the log comes from (:attr:`Extraction.mount_source`)."""
 
 
 class Join(Enum):
@@ -39,6 +43,9 @@ class Join(Enum):
     """Added up (counts, and counters by key)."""
     CONCAT = "concat"
     """Lists end to end, in log order."""
+    MERGE = "merge"
+    """Messages skipped and files' notes (:class:`DecodeFailures`): counts summed, notes
+    once."""
     UNIQUE = "unique"
     """Lists end to end, each item once (each stretch says the same notes)."""
     NONE = "none"
@@ -68,6 +75,9 @@ class Extraction:
     """The intrinsics used."""
     mount: CameraMount = field(metadata=_FIRST)
     """The camera's mount used."""
+    mount_source: str | None = field(metadata=_FIRST_SET, default=None, kw_only=True)
+    """Where ``mount`` came from when the log gave it: its static transforms (naming the topic
+    and frames); None where the settings gave it, or not recorded (see :meth:`mount_origin`)."""
     topics: TopicChoice = field(metadata=_FIRST)
     """The topics read."""
     frames: int = field(metadata=_SUM, default=0)
@@ -78,8 +88,15 @@ class Extraction:
     """Reason -> frames skipped for it."""
     notes: list[Note] = field(metadata=_UNIQUE, default_factory=list)
     """What was assumed or dropped."""
-    warnings: list[str] = field(metadata=_CONCAT, default_factory=list)
-    """Damaged stretches skipped (unreadable messages, per file and topic)."""
+    # None by default, a class attribute: an extraction pickled before this field reads None.
+    read_failures: DecodeFailures | None = field(
+        metadata={"join": Join.MERGE}, default=None, repr=False
+    )
+    """Messages the stretches could not read, and what was lost or recovered of a file (None:
+    not recorded, a detection log)."""
+    warnings: list[str] = field(metadata=_LATER, default_factory=list)
+    """Damaged stretches skipped (unreadable messages, per file and topic), each said once:
+    ``read_failures`` in words, set once the stretches are joined."""
     true_markers: dict[int, gtsam.Pose2] = field(metadata=_FIRST, default_factory=dict)
     """Ground truth ``T_map_marker`` when the log carries it (simulated logs)."""
     true_path: Trajectory = field(
@@ -146,6 +163,16 @@ class Extraction:
     """What the odometry's first messages show of its kind (3-D motion, rate, covariance);
     None for odometry from /tf."""
 
+    def mount_origin(self) -> str:
+        """Where ``mount`` came from, in words: ``mount_source``, else the settings when a
+        note says the log gave none, else the log's static transforms (an extraction kept
+        before ``mount_source`` was)."""
+        if self.mount_source is not None:
+            return self.mount_source
+        if any(note.kind.startswith("mount.") for note in self.notes):
+            return MOUNT_FROM_SETTINGS
+        return "/tf_static" if self.topics.tf_static else MOUNT_FROM_SETTINGS
+
     def input_evidence(self) -> dict[str, Any]:
         """What the front end judged of its inputs, JSON-ready (report.json's ``inputs``): what
         it set aside and what it measured, for a verdict to weigh."""
@@ -211,11 +238,15 @@ def merge_parts(parts: list[Part]) -> Part:
             joined[f.name] = sum(values)
         elif how is Join.CONCAT:
             joined[f.name] = [item for value in values for item in value]
+        elif how is Join.MERGE:
+            joined[f.name] = DecodeFailures.merged(v for v in values if v is not None)
         elif how is Join.UNIQUE:
             joined[f.name] = []
             for value in values:  # what every stretch says is said once
                 joined[f.name] += [item for item in value if item not in joined[f.name]]
     merged = Part(Extraction(**joined))
+    failures = merged.extraction.read_failures
+    merged.extraction.warnings = failures.warnings() if failures is not None else []
     for name in (f.name for f in fields(Part) if f.name != "extraction"):
         values = [getattr(p, name) for p in parts]
         if name in ("odometry", "true_poses"):

@@ -121,7 +121,8 @@ def choose_odometry_source(evidence: OdometryEvidence | None, topic: str | None)
             f"chosen by the name {topic}" if by_name else "no nav_msgs/Odometry to judge"
         )
     seen = (
-        f"{evidence.samples} samples at {evidence.rate_hz:.0f} Hz, roll and pitch up to "
+        f"judged on its first {evidence.samples:,} samples at {evidence.rate_hz:.0f} Hz, with "
+        "roll and pitch up to "
         f"{math.degrees(evidence.max_tilt_rad):.1f} deg, z over {evidence.z_span_m:.2f} m, "
         + {
             "unset": "covariance unset",
@@ -138,10 +139,10 @@ def choose_odometry_source(evidence: OdometryEvidence | None, topic: str | None)
     if not evidence.planar:
         fast = evidence.rate_hz >= T265_RATE_HZ
         source = "t265" if by_name == "t265" or fast else "vio"
-        why = "3-D motion: a visual-inertial estimate, wheel odometry is planar"
+        why = "3-D motion, so a visual-inertial estimate (wheel odometry is planar)"
         if source == "t265":
             why += "; a T265 " + ("by its rate" if fast else f"by the name {topic}")
         return source, f"{why} ({seen})"
     if by_name is not None:
         return by_name, f"planar like wheel odometry, but chosen by the name {topic} ({seen})"
-    return "wheel", f"planar: wheel odometry ({seen})"
+    return "wheel", f"planar, so wheel odometry ({seen})"

@@ -284,6 +284,7 @@ def _from_detections(log: DetectionLog, choice: TopicChoice) -> Part:
         skipped=log.skipped,
         notes=list(log.notes),
         warnings=log.warnings,
+        mount_source="none: each detection topic's own mount places its views on the body",
         ids_left_out=log.ids_left_out,
         marker_detections=log.marker_detections,
     )

@@ -214,7 +214,9 @@ class SpanReader:
         if progress is not None:
             progress(total, total)
         result = self.part.extraction
-        result.warnings = self.read_failures.warnings() + self.failures.warnings()
+        # Both readers meet the same damaged index: its note is said once.
+        result.read_failures = DecodeFailures.merged([self.read_failures, self.failures])
+        result.warnings = result.read_failures.warnings()
         result.ids_left_out = self.detector.left_out - left_out_before
         return self.part
 
@@ -313,6 +315,8 @@ class SpanReader:
             bases = (self.odometry_frame, self.config.base_frame)
             try:
                 result.mount = mount_from_transforms(self.static, bases, self.image_frame)
+                base = " or ".join(b for b in dict.fromkeys(bases) if b)
+                result.mount_source = f"{self.choice.tf_static} ({base} to {self.image_frame})"
             except LogError as error:
                 text = f"{error}; assuming the configured camera mount"
                 result.notes.append(Note("mount.not_in_tf", text, self.choice.tf_static))

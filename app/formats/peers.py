@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common.files import written_whole
+from markergraph.common.numbers import denoised
 from markergraph.estimator.tags3d import R_TAG_MARKER, quaternion_wxyz
 from markergraph.markermap import MapMarker, MarkerMap
 
@@ -26,14 +27,10 @@ class ExportFormat(Enum):
     CSV = "csv"
 
 
-NOISE_FLOOR = 1e-12  # [m] or [rad]: below it a value is rounding left by the solver, not a place
-
-
 def _number(value: float) -> str:
     """A value as text, exact (``repr``), with float noise such as the home marker's
     ``-4.2e-21`` written as 0.0."""
-    value = float(value)
-    return repr(0.0 if abs(value) < NOISE_FLOOR else value)
+    return repr(denoised(value))
 
 
 def _R_map_tag(yaw: float) -> NDArray[np.float64]:

@@ -17,7 +17,7 @@ from mcap.records import Channel, Chunk, MessageIndex, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 
-from markergraph.frontend.logs.records import DecodeFailures, LogError, why
+from markergraph.frontend.logs.records import DecodeFailures, LogError, McapDamageError, why
 from markergraph.frontend.logs.scan import (
     BoundedFile,
     chunk_at,
@@ -94,9 +94,12 @@ def summary_records(
                 records = chunk_messages(chunk_at(bounded, index.chunk_start_offset), wanted)
             except DAMAGE as error:
                 if failures is None:
-                    raise LogError(f"{file}: damaged chunk ({why(error)})") from error
+                    raise LogError(
+                        f"{file}: a damaged chunk at byte {index.chunk_start_offset} ({why(error)})"
+                    ) from error
                 for topic, n in indexed_counts(bounded, summary, index, wanted).items():
-                    failures.add(file, topic, f"a damaged chunk: {why(error)}", n)
+                    at = index.chunk_start_offset
+                    failures.add(file, topic, f"a damaged chunk at byte {at}: {why(error)}", n)
                 records = []
             for position, record in enumerate(records):
                 if (start_ns is None or record.log_time >= start_ns) and (
@@ -166,7 +169,7 @@ def chunk_messages(chunk: Chunk, wanted: Collection[int]) -> list[McapMessage]:
         if opcode != _MESSAGE_OPCODE:
             continue
         if end - start < _MESSAGE.size:
-            raise McapError(f"a message record of {end - start} bytes")
+            raise McapDamageError(f"a message record of {end - start} bytes")
         channel, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, start)
         if channel in wanted:
             found.append(

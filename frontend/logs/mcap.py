@@ -16,7 +16,14 @@ from mcap_ros2.decoder import DecoderFactory
 from markergraph.frontend.logs.cdr import FAST_DECODERS
 from markergraph.frontend.logs.chunks import DAMAGE, summary_records
 from markergraph.frontend.logs.files import MCAP_MAGIC
-from markergraph.frontend.logs.records import DecodeFailures, LogError, LogTopic, Message, why
+from markergraph.frontend.logs.records import (
+    DecodeFailures,
+    LogError,
+    LogTopic,
+    McapDamageError,
+    Message,
+    why,
+)
 from markergraph.frontend.logs.scan import BoundedFile, read_summary, scan_summary, summary_problem
 
 __all__ = ["McapFile", "mcap_messages", "mcap_time_range", "mcap_topics", "open_mcap_file"]
@@ -78,7 +85,7 @@ def open_mcap_file(file: Path) -> McapFile:
                 return McapFile(file, summary)
             rebuilt = scan_summary(stream)
             if rebuilt is None:  # nothing chunked to rebuild from
-                unusable = McapError(problem) if summary is not None else None
+                unusable = McapDamageError(problem) if summary is not None else None
                 return McapFile(file, None, error or unusable)
             return McapFile(file, rebuilt[0], recovered=f"{problem}; {rebuilt[1]}")
     except OSError as error:
@@ -157,13 +164,18 @@ def mcap_messages(
                     if failures is None:
                         raise LogError(
                             f"{file.path}: cannot decode a message on {channel.topic} "
-                            f"({why(error)})"
+                            f"({_undecodable(schema)})"
                         ) from error
-                    failures.add(file.path, channel.topic, why(error))
+                    failures.add(file.path, channel.topic, _undecodable(schema))
                     continue
                 yield Message(
                     channel.topic, schema.name if schema else "", message.log_time, decoded
                 )
+
+
+def _undecodable(schema: Any) -> str:
+    """Why a message was skipped, in our words: the decoder's own text names its internals."""
+    return f"its bytes do not decode as {schema.name}" if schema else "its bytes do not decode"
 
 
 def _decoder_for(

@@ -3,14 +3,26 @@ and the error that names what cannot be read."""
 
 from __future__ import annotations
 
+import struct
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import zstandard
+from mcap.exceptions import (
+    DecoderNotFoundError,
+    EndOfFile,
+    InvalidMagic,
+    McapError,
+    RecordLengthLimitExceeded,
+    UnsupportedCompressionError,
+)
+
 from markergraph.common.errors import MarkerGraphError
 
-__all__ = ["DecodeFailures", "LogError", "LogTopic", "Message", "why"]
+__all__ = ["DecodeFailures", "LogError", "LogTopic", "McapDamageError", "Message", "why"]
 
 
 class LogError(MarkerGraphError):
@@ -68,6 +80,22 @@ class DecodeFailures:
         if line not in self.notes:
             self.notes.append(line)
 
+    def merge(self, other: DecodeFailures) -> None:
+        """Add another reader's failures: counts summed, each first reason and note kept
+        once (every stretch of a log reads the same damaged index and says so)."""
+        self.counts.update(other.counts)
+        for key, reason in other.first_error.items():
+            self.first_error.setdefault(key, reason)
+        self.notes += [line for line in other.notes if line not in self.notes]
+
+    @classmethod
+    def merged(cls, many: Iterable[DecodeFailures]) -> DecodeFailures:
+        """Several readers' failures as one (:meth:`merge`)."""
+        joined = cls()
+        for failures in many:
+            joined.merge(failures)
+        return joined
+
     def warnings(self) -> list[str]:
         """The files' notes, then one line per (file, topic): how many were skipped, and the
         first reason."""
@@ -78,6 +106,29 @@ class DecodeFailures:
         ]
 
 
+class McapDamageError(McapError):
+    """Damage our own reading found in an MCAP file; its text is ours, naming the byte."""
+
+
 def why(error: BaseException) -> str:
-    """An error as a reason in a message: its type and its text."""
-    return f"{type(error).__name__}: {error}"
+    """A reading error as a reason in a message, in our words: the mcap package's and the
+    decompressors' own texts name their internals (opcodes, limits, frames), not the file."""
+    if isinstance(error, McapDamageError):
+        return str(error)
+    if isinstance(error, OSError) and error.strerror:
+        return error.strerror
+    for kinds, words in _IN_WORDS:
+        if isinstance(error, kinds):
+            return words
+    return "a damaged record"
+
+
+# What each error a read raises means for the file, most specific first.
+_IN_WORDS: tuple[tuple[type[BaseException] | tuple[type[BaseException], ...], str], ...] = (
+    (RecordLengthLimitExceeded, "a record claims more bytes than the file holds"),
+    (InvalidMagic, "it does not end as an MCAP file ends (cut short, or never closed)"),
+    ((EndOfFile, EOFError, struct.error), "the file ends inside a record"),
+    (UnsupportedCompressionError, "a chunk in a compression this reader does not know"),
+    (DecoderNotFoundError, "messages in an encoding this reader does not know"),
+    ((zstandard.ZstdError, RuntimeError), "a chunk whose compressed data does not decompress"),
+)

@@ -22,6 +22,8 @@ from mcap.reader import SeekingReader
 from mcap.records import Channel, Chunk, ChunkIndex, Schema, Statistics
 from mcap.summary import Summary
 
+from markergraph.frontend.logs.records import McapDamageError
+
 __all__ = [
     "MAX_CHUNK_BYTES",
     "BoundedFile",
@@ -110,12 +112,14 @@ def chunk_at(stream: BoundedFile, offset: int) -> Chunk:
     stream.seek(offset)
     header = stream.read(_HEADER.size)
     if len(header) < _HEADER.size:
-        raise McapError(f"no record at byte {offset} (the file ends first)")
+        raise McapDamageError(f"no record at byte {offset} (the file ends first)")
     opcode, length = _HEADER.unpack(header)
     if opcode != Opcode.CHUNK:
-        raise McapError(f"no chunk at byte {offset} (a record of type {opcode:#04x})")
+        raise McapDamageError(f"no chunk at byte {offset} (a record of type {opcode:#04x})")
     if length > stream.size - offset - _HEADER.size:
-        raise McapError(f"the chunk at byte {offset} claims {length} bytes, past the file's end")
+        raise McapDamageError(
+            f"the chunk at byte {offset} claims {length:,} bytes, past the file's end"
+        )
     return Chunk.read(_within(stream.read(length)))
 
 
@@ -129,22 +133,25 @@ def decompress(chunk: Chunk) -> bytes:
     """
     size = chunk.uncompressed_size
     if size > MAX_CHUNK_BYTES:
-        raise McapError(f"a chunk claims {size} bytes uncompressed (more than 256 MiB)")
+        raise McapDamageError(
+            f"a chunk claims {size:,} bytes uncompressed "
+            f"(more than {MAX_CHUNK_BYTES / 1e6:,.0f} MB)"
+        )
     if chunk.compression == "":
         return chunk.data
     if chunk.compression == "zstd":
         claimed = zstandard.frame_content_size(chunk.data)
         if claimed not in (-1, size):
-            raise McapError(f"a chunk of {size} bytes whose zstd frame claims {claimed}")
+            raise McapDamageError(f"a chunk of {size} bytes whose zstd frame claims {claimed}")
         data: bytes = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=size)
         return data
     if chunk.compression == "lz4":
         claimed = lz4.frame.get_frame_info(chunk.data).get("content_size") or size
         if claimed != size:
-            raise McapError(f"a chunk of {size} bytes whose lz4 frame claims {claimed}")
+            raise McapDamageError(f"a chunk of {size} bytes whose lz4 frame claims {claimed}")
         decompressor = lz4.frame.LZ4FrameDecompressor()
         return bytes(decompressor.decompress(chunk.data, max_length=size))
-    raise McapError(f"unsupported chunk compression {chunk.compression!r}")
+    raise McapDamageError(f"unsupported chunk compression {chunk.compression!r}")
 
 
 def records_in(data: bytes) -> Iterator[tuple[int, int, int]]:
@@ -159,7 +166,7 @@ def records_in(data: bytes) -> Iterator[tuple[int, int, int]]:
         opcode, length = _HEADER.unpack_from(data, position)
         start, position = position + _HEADER.size, position + _HEADER.size + length
         if position > size:
-            raise McapError(f"a record of {length} bytes runs past its chunk")
+            raise McapDamageError(f"a record of {length} bytes runs past its chunk")
         yield opcode, start, position
 
 
@@ -258,7 +265,10 @@ def scan_summary(stream: BoundedFile) -> tuple[Summary, str] | None:
         if opcode in (Opcode.DATA_END, Opcode.FOOTER):
             break
         if length > stream.size - position - _HEADER.size:
-            stop = f"up to byte {position} of {stream.size} (a record there runs past the end)"
+            stop = (
+                f"up to byte {position:,} of {stream.size:,} (a record there runs past the "
+                "end: the file is cut short)"
+            )
             break
         if opcode in (Opcode.CHUNK, Opcode.SCHEMA, Opcode.CHANNEL):
             content = stream.read(length)
@@ -276,8 +286,8 @@ def scan_summary(stream: BoundedFile) -> tuple[Summary, str] | None:
     lost = f", {found.lost_chunks} damaged chunk(s) passed over" if found.lost_chunks else ""
     assert summary.statistics is not None
     return summary, (
-        f"read {stop} without its index: {summary.statistics.message_count} messages "
-        f"in {len(found.chunks)} chunks{lost}"
+        f"read {stop} without its index: {summary.statistics.message_count:,} messages "
+        f"in {len(found.chunks):,} chunks{lost}"
     )
 
 
