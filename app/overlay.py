@@ -35,7 +35,7 @@ from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
 from markergraph.common.files import written_whole
-from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.trajectory import Trajectory, map_to_odom
 from markergraph.formats.cdr import ENCAPSULATION, CdrWriter, pose_stamped
 from markergraph.foxglove_layout import layout_path, overlay_layout, write_layout
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS
@@ -148,15 +148,11 @@ def _tf_messages(
     trajectory: Trajectory, odometry: Trajectory, map_frame: str, odom_frame: str
 ) -> Iterator[_Event]:
     """``map -> odom`` at each estimated pose the odometry reaches."""
-    for t in trajectory.t_ns:
-        t_ns = int(t)
-        T_map_odom = trajectory.T_self_other(odometry, t_ns)
-        if T_map_odom is None:
-            continue
+    corrections = map_to_odom(trajectory, odometry)
+    for t, (x, y, yaw) in zip(corrections.t_ns.tolist(), corrections.poses.tolist(), strict=True):
         cdr = CdrWriter().sequence(1)
-        _transform(cdr, t_ns, map_frame, odom_frame, (T_map_odom.x(), T_map_odom.y(), 0.0),
-                   T_map_odom.theta())  # fmt: skip
-        yield t_ns, _TF, TF_TOPIC, "tf2_msgs/msg/TFMessage", cdr.data()
+        _transform(cdr, t, map_frame, odom_frame, (x, y, 0.0), yaw)
+        yield t, _TF, TF_TOPIC, "tf2_msgs/msg/TFMessage", cdr.data()
 
 
 def _path_messages(

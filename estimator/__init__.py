@@ -46,6 +46,7 @@ from markergraph.estimator.timing import (
 from markergraph.estimator.trajectory import (
     Trajectory,
     corrected_odometry,
+    map_to_odom,
     odometry_in_map,
     turn_rate,
 )
@@ -104,6 +105,7 @@ __all__ = [
     "fit_odometry_noise",
     "heading",
     "map_error",
+    "map_to_odom",
     "marker_heights",
     "nees",
     "odometry",
