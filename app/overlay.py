@@ -36,7 +36,7 @@ from mcap.writer import Writer as McapWriter
 
 from markergraph.common.files import written_whole
 from markergraph.estimator.trajectory import Trajectory, map_to_odom
-from markergraph.formats.cdr import ENCAPSULATION, CdrWriter, pose_stamped
+from markergraph.formats.cdr import ENCAPSULATION, CdrWriter, fill_string, layout, string_fields
 from markergraph.foxglove_layout import layout_path, overlay_layout, write_layout
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS
 from markergraph.markermap import MapMarker, MarkerMap
@@ -149,18 +149,47 @@ def _tf_messages(
 ) -> Iterator[_Event]:
     """``map -> odom`` at each estimated pose the odometry reaches."""
     corrections = map_to_odom(trajectory, odometry)
-    for t, (x, y, yaw) in zip(corrections.t_ns.tolist(), corrections.poses.tolist(), strict=True):
-        cdr = CdrWriter().sequence(1)
-        _transform(cdr, t, map_frame, odom_frame, (x, y, 0.0), yaw)
-        yield t, _TF, TF_TOPIC, "tf2_msgs/msg/TFMessage", cdr.data()
+    fields = [("transforms", "<u4"), *_HEADER, *string_fields("frame_id", map_frame),
+              *string_fields("child_frame_id", odom_frame), ("transform", "(7,)<f8")]  # fmt: skip
+    records = np.zeros(len(corrections), layout(fields))
+    records["transforms"] = 1  # one TransformStamped in each
+    _fill_stamped(records, corrections, map_frame, "transform")
+    fill_string(records, "child_frame_id", odom_frame)
+    size, data = records.dtype.itemsize, records.tobytes()
+    for k, t in enumerate(corrections.t_ns.tolist()):
+        message = ENCAPSULATION + data[k * size : (k + 1) * size]
+        yield t, _TF, TF_TOPIC, "tf2_msgs/msg/TFMessage", message
+
+
+_HEADER = [("sec", "<i4"), ("nanosec", "<u4")]  # a header's stamp; its frame_id follows
+
+
+def _fill_stamped(records: np.ndarray, poses: Trajectory, frame: str, field: str) -> None:
+    """Stamps, frame names and poses (x, y, 0, then the yaw's quaternion) into records."""
+    records["sec"], records["nanosec"] = np.divmod(poses.t_ns, 1_000_000_000)
+    fill_string(records, "frame_id", frame)
+    half = poses.poses[:, 2] / 2.0
+    zeros = np.zeros(len(poses))
+    records[field] = np.column_stack(
+        [poses.poses[:, 0], poses.poses[:, 1], zeros, zeros, zeros, np.sin(half), np.cos(half)]
+    )
+
+
+def _pose_records(trajectory: Trajectory, map_frame: str, start: int = 0) -> np.ndarray:
+    """Each pose as a ``geometry_msgs/PoseStamped`` record laid out from the offset ``start``
+    (mod 8; at 0 they follow one another)."""
+    fields = [*_HEADER, *string_fields("frame_id", map_frame), ("pose", "(7,)<f8")]
+    records = np.zeros(len(trajectory), layout(fields, start))
+    _fill_stamped(records, trajectory, map_frame, "pose")
+    return records
 
 
 def _path_messages(
-    trajectory: Trajectory, bodies: list[bytes], map_frame: str, period_ns: int, max_poses: int
+    trajectory: Trajectory, rows: np.ndarray, map_frame: str, period_ns: int, max_poses: int
 ) -> Iterator[_Event]:
     """The path so far every ``period_ns`` from the first stamp (where it gained a pose), and
     the whole path at the last stamp; each message holds the poses stamped at or before its
-    own stamp (``bodies``: each pose's PoseStamped, encoded once)."""
+    own stamp (``rows``: the bytes of :func:`_pose_records`, one row a pose, encoded once)."""
     stamps = trajectory.t_ns
     if not len(stamps):
         return
@@ -172,30 +201,27 @@ def _path_messages(
         if count == published:  # no new pose since the last message: it still holds
             continue
         published = count
-        kept = list(range(0, count, stride))
+        kept = np.arange(0, count, stride)
         if (count - 1) % stride:  # the newest pose, so the line reaches the robot
-            kept.append(count - 1)
-        data = _path(trajectory, bodies, kept, t_ns, map_frame)
+            kept = np.append(kept, count - 1)
+        data = _path(trajectory, rows, kept, t_ns, map_frame)
         yield t_ns, _PATH, PATH_TOPIC, "nav_msgs/msg/Path", data
-    data = _path(trajectory, bodies, list(range(len(stamps))), last, map_frame)
+    data = _path(trajectory, rows, np.arange(len(stamps)), last, map_frame)
     yield last, _PATH, PATH_TOPIC, "nav_msgs/msg/Path", data
 
 
 def _path(
-    trajectory: Trajectory, bodies: list[bytes], kept: list[int], t_ns: int, map_frame: str
+    trajectory: Trajectory, rows: np.ndarray, kept: np.ndarray, t_ns: int, map_frame: str
 ) -> bytes:
     """A ``nav_msgs/Path`` of the poses ``kept`` (indices, never empty)."""
     cdr = CdrWriter().header(t_ns, map_frame).sequence(len(kept))
-    if not cdr.aligned_to(8):  # the bodies were encoded at a multiple of 8: the first is not
-        _pose_stamped(cdr, trajectory, kept[0], map_frame)
+    start = cdr.offset % 8
+    if start:  # the rows were laid out from a multiple of 8: the first pose is not there
+        first = Trajectory(trajectory.t_ns[kept[:1]], trajectory.poses[kept[:1]])
+        cdr.encoded(_pose_records(first, map_frame, start).tobytes(), start)
         kept = kept[1:]
-    return cdr.bodies([bodies[i] for i in kept]).data()
-
-
-def _pose_stamped(cdr: CdrWriter, trajectory: Trajectory, i: int, map_frame: str) -> CdrWriter:
-    """The i-th estimated pose as a PoseStamped, appended."""
-    x, y, yaw = (float(v) for v in trajectory.poses[i])
-    return pose_stamped(cdr, int(trajectory.t_ns[i]), map_frame, (x, y, 0.0), _yaw_quaternion(yaw))
+    # Rows of bytes, not records: a record array's copy leaves its padding unset.
+    return cdr.encoded(rows[kept].tobytes()).data()
 
 
 def _check_frame(name: str, value: str) -> None:
@@ -269,19 +295,19 @@ def write_overlay(
         )
     firsts = [int(t.t_ns[0]) for t in (trajectory, odometry) if len(t)]
     start = min(firsts) if firsts else 0
-    bodies = [
-        _pose_stamped(CdrWriter(header=False), trajectory, i, map_frame).data()
-        for i in range(len(trajectory))
-    ]
+    records = _pose_records(trajectory, map_frame)
+    size, data = records.dtype.itemsize, records.tobytes()
+    rows = np.frombuffer(data, np.uint8).reshape(len(trajectory), size)  # padding included
     poses = (
-        (int(t), _POSE, POSE_TOPIC, "geometry_msgs/msg/PoseStamped", ENCAPSULATION + body)
-        for t, body in zip(trajectory.t_ns, bodies, strict=True)
-    )
+        (t, _POSE, POSE_TOPIC, "geometry_msgs/msg/PoseStamped",
+         ENCAPSULATION + data[k * size : (k + 1) * size])
+        for k, t in enumerate(trajectory.t_ns.tolist())
+    )  # fmt: skip
     events = heapq.merge(
         _map_messages(marker_map, start, map_frame, marker_frame_prefix),
         _tf_messages(trajectory, odometry, map_frame, odom_frame),
         poses,
-        _path_messages(trajectory, bodies, map_frame, path_period_ns, max_path_poses),
+        _path_messages(trajectory, rows, map_frame, path_period_ns, max_path_poses),
         key=lambda event: event[:2],
     )
     with written_whole(path) as partial, open(partial, "wb") as stream:

@@ -115,8 +115,9 @@ class Trajectory:
 
     def in_frame(self, T_new_frame: gtsam.Pose2, frame: str) -> Trajectory:
         """The same path expressed in another frame: ``T_new_base = T_new_frame * T_frame_base``."""
-        moved = [T_new_frame.compose(self.pose(i)) for i in range(len(self))]
-        return Trajectory(self.t_ns, np.array([[p.x(), p.y(), p.theta()] for p in moved]), frame)
+        row = np.array([[T_new_frame.x(), T_new_frame.y(), T_new_frame.theta()]])
+        moved = _compose(np.repeat(row, len(self), axis=0), self.poses.reshape(-1, 3))
+        return Trajectory(self.t_ns, moved, frame)
 
     def scaled(self, factor: float) -> Trajectory:
         """Every step's translation times ``factor``, headings kept: odometry whose wheels read

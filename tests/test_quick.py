@@ -19,7 +19,7 @@ from mcap_ros2.writer import Writer
 import markergraph.prepare as prepare_module
 from markergraph.cli import main
 from markergraph.estimator.trajectory import Trajectory
-from markergraph.formats.cdr import CdrWriter
+from markergraph.formats.cdr import CdrWriter, layout, string_fields
 from markergraph.markermap import MapMarker, MarkerMap
 from markergraph.overlay import PATH_TOPIC, POSE_TOPIC, TF_TOPIC, write_overlay
 
@@ -163,12 +163,16 @@ def test_overlay_bytes_are_mcap_ros2s(tmp_path: Path, map_frame: str) -> None:
         assert math.isclose(2 * math.atan2(q.z, q.w), yaw, abs_tol=EXACT)
 
 
-def test_a_body_off_its_alignment_is_refused() -> None:
-    """Bytes encoded for a multiple of 8 are not placed at an offset that is not one."""
-    body = CdrWriter(header=False).float64(1.0).data()
-    with pytest.raises(ValueError, match="multiple of 8"):
-        CdrWriter().uint32(1).body(body)
-    assert CdrWriter().uint32(1, 2).body(body).data()[-8:] == body
+def test_bytes_laid_out_for_another_offset_are_refused() -> None:
+    """Records laid out from one offset (mod 8) go only where the message is at that offset,
+    and keep their alignment one after another."""
+    record = layout([("sec", "<i4"), *string_fields("frame_id", "map"), ("x", "<f8")])
+    assert record.itemsize % 8 == 0
+    data = np.zeros(2, record).tobytes()
+    with pytest.raises(ValueError, match="mod 8"):
+        CdrWriter().uint32(1).encoded(data)
+    assert CdrWriter().uint32(1, 2).encoded(data).data()[-len(data) :] == data
+    assert CdrWriter().uint32(1).encoded(data[:16], start=4).offset == 20
 
 
 def test_at_stamps_takes_own_poses_and_interpolates_the_rest() -> None:

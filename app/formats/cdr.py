@@ -3,9 +3,11 @@ hold), field by field, for the overlay's messages.
 
 mcap_ros2's encoder walks the message definition for every field of every message in Python
 (about 2 ms a message for the overlay's paths; 1.5-3 s a sample overlay), and a path message
-repeats every pose before it. Here each pose is encoded once (:func:`pose_stamped`) and a
-path message joins those bytes. Alignment is counted from the end of the 4-byte
-encapsulation header, as the CDR standard and mcap_ros2 do.
+repeats every pose before it. Here messages of one fixed shape (the same frame names) are
+numpy records (:func:`layout`), filled a column at a time, and a path message is the records
+of its poses, encoded once; :class:`CdrWriter` writes the few others field by field.
+Alignment is counted from the end of the 4-byte encapsulation header, as the CDR standard and
+mcap_ros2 do.
 """
 
 from __future__ import annotations
@@ -13,22 +15,26 @@ from __future__ import annotations
 import struct
 from collections.abc import Sequence
 
-__all__ = ["ENCAPSULATION", "CdrWriter", "pose_stamped"]
+import numpy as np
+
+__all__ = [
+    "ENCAPSULATION",
+    "CdrWriter",
+    "fill_string",
+    "layout",
+    "string_fields",
+]
 
 ENCAPSULATION = b"\x00\x01\x00\x00"
 """CDR_LE: the representation identifier (0x0001, big-endian) and two option bytes."""
 
 
 class CdrWriter:
-    """One message's bytes, appended field by field with each field's alignment.
+    """One message's bytes from :data:`ENCAPSULATION` on, appended field by field with each
+    field's alignment."""
 
-    Args:
-        header: start with :data:`ENCAPSULATION` (a whole message); False for a body placed
-            later at an offset that is a multiple of 8 (see :meth:`body`).
-    """
-
-    def __init__(self, header: bool = True) -> None:
-        self._parts: list[bytes] = [ENCAPSULATION] if header else []
+    def __init__(self) -> None:
+        self._parts: list[bytes] = [ENCAPSULATION]
         self._at = 0  # offset from the end of the encapsulation header
 
     def _put(self, code: str, size: int, values: Sequence[float | int]) -> CdrWriter:
@@ -69,27 +75,23 @@ class CdrWriter:
         """A ``std_msgs/Header``."""
         return self.time(t_ns).string(frame_id)
 
-    def body(self, data: bytes) -> CdrWriter:
-        """Bytes encoded by ``CdrWriter(header=False)`` that end on a multiple of 8 (e.g.
-        :func:`pose_stamped`), placed here.
+    @property
+    def offset(self) -> int:
+        """Where the next field goes, from the end of the encapsulation header."""
+        return self._at
+
+    def encoded(self, data: bytes, start: int = 0) -> CdrWriter:
+        """Bytes encoded elsewhere for an offset ``start`` modulo 8 (e.g. records of
+        :func:`layout`), placed here.
 
         Raises:
-            ValueError: the offset here is not a multiple of 8, where the body's own padding
-                would be wrong.
+            ValueError: the offset here is another modulo 8, where their padding would be wrong.
         """
-        if self._at % 8:
-            raise ValueError(f"a body is placed at a multiple of 8 bytes, not at {self._at}")
+        if self._at % 8 != start % 8:
+            raise ValueError(f"bytes laid out from {start} (mod 8) cannot go at {self._at}")
         self._parts.append(data)
         self._at += len(data)
         return self
-
-    def bodies(self, data: Sequence[bytes]) -> CdrWriter:
-        """Several bodies of :meth:`body`, one after the other (each ends on a multiple of 8)."""
-        return self.body(b"".join(data))
-
-    def aligned_to(self, size: int) -> bool:
-        """Whether the next field starts on a multiple of ``size`` bytes."""
-        return self._at % size == 0
 
     def sequence(self, count: int) -> CdrWriter:
         """A sequence's length; its elements follow."""
@@ -100,9 +102,43 @@ class CdrWriter:
         return b"".join(self._parts)
 
 
-def pose_stamped(
-    writer: CdrWriter, t_ns: int, frame_id: str, xyz: Sequence[float], xyzw: Sequence[float]
-) -> CdrWriter:
-    """A ``geometry_msgs/PoseStamped`` appended: header, position, orientation quaternion
-    (x, y, z, w)."""
-    return writer.header(t_ns, frame_id).float64(*xyz, *xyzw)
+Field = tuple[str, str]  # (name, numpy format: "<i4", "<u4", "<f8", "(7,)<f8", "S12")
+
+
+def string_fields(name: str, text: str) -> list[Field]:
+    """A string of fixed content as two fields: ``<name>_length`` (uint32, the NUL included)
+    and ``name``, its bytes and the NUL; fill them with :func:`fill_string`."""
+    return [(f"{name}_length", "<u4"), (name, f"S{len(text.encode()) + 1}")]
+
+
+def fill_string(records: np.ndarray, name: str, text: str) -> None:
+    """Set a string of :func:`string_fields` in every record."""
+    data = text.encode()
+    records[f"{name}_length"] = len(data) + 1
+    records[name] = data  # numpy pads the last byte with the NUL
+
+
+def layout(fields: Sequence[Field], start: int = 0) -> np.dtype:
+    """The numpy record of CDR fields in order, each aligned to its own size, as counted from
+    ``start`` (the record's offset after the encapsulation header); its padding is zeros in
+    ``np.zeros``.
+
+    Raises:
+        ValueError: records of this layout would not keep their alignment one after the
+            other (the size is not a multiple of the largest alignment).
+    """
+    names, formats, offsets = [], [], []
+    at, largest = start, 1
+    for name, fmt in fields:
+        dtype = np.dtype(fmt)
+        align = 1 if dtype.base.kind == "S" else dtype.base.itemsize
+        largest = max(largest, align)
+        at += -at % align
+        names.append(name)
+        formats.append(dtype)
+        offsets.append(at - start)
+        at += dtype.itemsize
+    size = at - start
+    if start % largest == 0 and size % largest:
+        raise ValueError(f"a record of {size} bytes does not keep {largest}-byte alignment")
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": size})
