@@ -10,6 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import gtsam
+
 from markergraph.common import MarkerGraphError, Note
 from markergraph.estimator import (
     ODOMETRY_NOISE,
@@ -95,12 +97,12 @@ def prepare(
     delay_key = search_key("delay", *basis)
     if config.camera.delay_ns is None and delay_key not in searches:
         stage("choosing the camera's delay by SLAM's residuals")
-    observations, delay_ns = _timed(
+    observations, delay_ns, near = _timed(
         extraction, config, ODOMETRY_NOISE[source], breaks, home_id, notes, searches, delay_key
     )
     scale = _odometry_scale(
         extraction, config, observations, ODOMETRY_NOISE[source], breaks, home_id, stage, notes,
-        searches, search_key("scale", *basis, delay_ns),
+        searches, search_key("scale", *basis, delay_ns), near,
     )  # fmt: skip
     frames = build_frames(
         observations,
@@ -185,10 +187,11 @@ def _timed(
     notes: list[Note],
     searches: dict[str, Any],
     key: str,
-) -> tuple[list[Observation], int]:
+) -> tuple[list[Observation], int, gtsam.Values | None]:
     """The observations at their capture times (the camera's delay, chosen by the residuals
     unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked,
-    for the shutter instead; and the camera's delay used [ns]."""
+    for the shutter instead; the camera's delay used [ns]; and the delay search's solution
+    where it ran (None otherwise), for the scale's search to start from."""
     camera = config.camera
     observations = extraction.observations
     readout_ns = camera.readout_ns
@@ -201,15 +204,16 @@ def _timed(
         observations = widened_for_motion(observations, extraction.odometry, window_s)
     if camera.delay_ns is not None:
         delay_ns = camera.delay_ns
-        return retimed(observations, delay_ns, readout_ns, height), delay_ns
+        return retimed(observations, delay_ns, readout_ns, height), delay_ns, None
     mount = extraction.mount.T_base_camera
     inputs = SlamInputs(
         observations, extraction.odometry, home_id, mount, noise, breaks, SEARCH_ROBUST
     )
     cached = _CACHED if key in searches else ""
+    near = None
     if not cached:
         found = camera_delay_by_residuals(inputs, readout_ns=readout_ns, image_height=height)
-        searches[key] = found.delay_ns
+        searches[key], near = found.delay_ns, found.solution
     chosen_ns: int | None = searches[key]
     topic = extraction.topics.odom
     delay_ns = 0 if chosen_ns is None else chosen_ns
@@ -228,7 +232,7 @@ def _timed(
             f"(chosen by SLAM's residuals over -50..+100 ms{cached}; --camera-delay sets it)",
             topic=topic, figure=delay_ns * 1e-9,
         ))  # fmt: skip
-    return retimed(observations, delay_ns, readout_ns, height), delay_ns
+    return retimed(observations, delay_ns, readout_ns, height), delay_ns, near
 
 
 def _odometry_scale(
@@ -242,9 +246,11 @@ def _odometry_scale(
     notes: list[Note],
     searches: dict[str, Any],
     key: str,
+    near: gtsam.Values | None,
 ) -> float:
     """The factor the odometry's distances are multiplied by: as set, or chosen by SLAM's
-    residuals (1 where they have no minimum), and said in the notes."""
+    residuals (1 where they have no minimum; the search starts from ``near``, the delay
+    search's solution on the same frames), and said in the notes."""
     configured = config.odometry.scale
     if configured is not None:
         return float(configured)
@@ -253,7 +259,7 @@ def _odometry_scale(
         stage("choosing the odometry's scale by SLAM's residuals")
         searches[key] = odometry_scale_by_residuals(
             SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
-                       noise, breaks, SEARCH_ROBUST)
+                       noise, breaks, SEARCH_ROBUST), near,
         ).chosen  # fmt: skip
     chosen: float | None = searches[key]
     topic = extraction.topics.odom
