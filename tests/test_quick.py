@@ -54,11 +54,12 @@ def _positions(document: dict) -> dict[int, np.ndarray]:
 
 
 def _position_variances(document: dict) -> dict[int, float]:
-    """Each marker's x and y variances summed [m^2] (the home marker's are zero: left out)."""
+    """Each marker's x and y variances summed [m^2], the home marker (held by a prior) left
+    out."""
     variances = {}
     for m in document["markers"]:
-        covariance = np.asarray(m["covariance"], dtype=float).reshape(3, 3)
-        if covariance[0, 0] + covariance[1, 1] > 0:
+        if m["id"] != document["home_id"]:
+            covariance = np.asarray(m["covariance"], dtype=float).reshape(3, 3)
             variances[int(m["id"])] = float(covariance[0, 0] + covariance[1, 1])
     return variances
 
