@@ -11,9 +11,10 @@ neither read nor written), it times:
 - ``warm --no-plots``: warm without map.png, map.svg and diagnostics.png;
 - ``start-up``: ``markergraph map --help``, the imports alone, as the floor of every run.
 
-Each is a separate process, timed by its wall clock; ``-v``'s stage times are read from its
-stderr. The warm runs are interleaved over ``--rounds`` rounds (default 3), best of each
-printed, so that a moment of load on this shared machine does not pick the winner.
+Each is a separate process, timed by its wall clock and its CPU time (user + system: on a
+machine shared with other work, closer to what an idle one would take); ``-v``'s stage times
+are read from its stderr. The warm runs are interleaved over ``--rounds`` rounds (default 3),
+best of each printed, so that a moment of load on this shared machine does not pick the winner.
 
 Usage: python tests/benchmarks/bench_sample.py [--rounds N]
 Targets (issues 29, 30): warm under 4 s; noise about 1-2 s beyond start-up.
@@ -24,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import resource
 import shutil
 import subprocess
 import sys
@@ -40,14 +42,18 @@ COMMAND = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "markergr
 STAGE = re.compile(r"^  (?P<stage>.+): (?P<seconds>[0-9.]+) s$")
 
 
-def run(args: list[str], env: dict[str, str]) -> tuple[float, dict[str, float]]:
-    """One ``markergraph`` process: its wall-clock time [s] and ``-v``'s stage times."""
+def run(args: list[str], env: dict[str, str]) -> tuple[float, float, dict[str, float]]:
+    """One ``markergraph`` process: its wall-clock and CPU (user + system) times [s] and
+    ``-v``'s stage times."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(
         [*COMMAND, *args],
         env=env, capture_output=True, text=True, check=False,
     )  # fmt: skip
     seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
     if done.returncode:
         raise SystemExit(f"markergraph {' '.join(args)} failed:\n{done.stderr}")
     stages = {}
@@ -55,12 +61,12 @@ def run(args: list[str], env: dict[str, str]) -> tuple[float, dict[str, float]]:
         if match := STAGE.match(line):
             name = re.sub(r"/\S*", "<out>", match["stage"])  # the folder's name varies
             stages[name] = stages.get(name, 0.0) + float(match["seconds"])
-    return seconds, stages
+    return seconds, cpu, stages
 
 
-def show(name: str, seconds: float, stages: dict[str, float]) -> None:
+def show(name: str, seconds: float, cpu: float, stages: dict[str, float]) -> None:
     parts = ", ".join(f"{stage} {value:.2f}" for stage, value in stages.items())
-    print(f"{name:<18} {seconds:6.2f} s   {parts}")
+    print(f"{name:<24} {seconds:6.2f} s wall {cpu:6.2f} s CPU   {parts}")
 
 
 def main() -> None:
@@ -84,18 +90,19 @@ def main() -> None:
             "start-up": ["map", "--help"],
         }
         show("cold", *run(["map", *out], env))
-        best: dict[str, tuple[float, dict[str, float]]] = {}
+        best: dict[str, tuple[float, float, dict[str, float]]] = {}
         for _ in range(rounds):
             for name, args in commands.items():
-                seconds, stages = run(args, env)
-                if name not in best or seconds < best[name][0]:
-                    best[name] = seconds, stages
-        for name, (seconds, stages) in best.items():
-            show(f"{name} (best)", seconds, stages)
-        startup = best["start-up"][0]
-        print(f"beyond start-up: warm {best['warm'][0] - startup:.2f} s, "
-              f"noise {best['noise'][0] - startup:.2f} s, "
-              f"warm --no-plots {best['warm --no-plots'][0] - startup:.2f} s")  # fmt: skip
+                measured = run(args, env)
+                if name not in best or measured[0] < best[name][0]:
+                    best[name] = measured
+        for name, measured in best.items():
+            show(f"{name} (best)", *measured)
+        for i, unit in ((0, "wall"), (1, "CPU")):
+            startup = best["start-up"][i]
+            print(f"beyond start-up ({unit}): warm {best['warm'][i] - startup:.2f} s, "
+                  f"noise {best['noise'][i] - startup:.2f} s, "
+                  f"warm --no-plots {best['warm --no-plots'][i] - startup:.2f} s")  # fmt: skip
     print(f"load after: {os.getloadavg()[0]:.2f}")
 
 
