@@ -24,22 +24,21 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import Any
+from typing import BinaryIO
 
 import numpy as np
-from mcap_ros2.writer import Writer
+from mcap.well_known import MessageEncoding, SchemaEncoding
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
 
 from markergraph.common.files import written_whole
-from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.trajectory import Trajectory, map_to_odom
+from markergraph.formats.cdr import ENCAPSULATION, CdrWriter, fill_string, layout, string_fields
 from markergraph.foxglove_layout import layout_path, overlay_layout, write_layout
-from markergraph.frontend.ros2 import (
-    MESSAGE_DEFINITIONS,
-    header,
-    quaternion_from_yaw,
-    transform_stamped,
-)
+from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS
 from markergraph.markermap import MapMarker, MarkerMap
 
 __all__ = [
@@ -73,41 +72,33 @@ k-th pose (the same ones in every message, so the drawn line only grows) and the
 # The order of messages that share a stamp: what is drawn with a pose comes after the pose.
 _STATIC, _TF, _POSE, _PATH = range(4)
 
-_Event = tuple[int, int, str, str, dict[str, Any]]  # (t_ns, order, topic, schema, message)
+_Event = tuple[int, int, str, str, bytes]  # (t_ns, order, topic, schema, CDR message)
+_Quaternion = tuple[float, float, float, float]  # (x, y, z, w)
+
+
+def _yaw_quaternion(yaw: float) -> _Quaternion:
+    return 0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)
 
 
 def _marker(
+    cdr: CdrWriter,
     t_ns: int,
     frame: str,
     marker_id: int,
     ns: str,
     kind: int,
-    pose: dict[str, Any],
+    pose: tuple[float, float, float, float],
     scale: tuple[float, float, float],
     color: tuple[float, float, float, float],
     text: str = "",
-) -> dict[str, Any]:
-    return {
-        "header": header(t_ns, frame),
-        "ns": ns,
-        "id": marker_id,
-        "type": kind,
-        "action": 0,
-        "pose": pose,
-        "scale": dict(zip("xyz", scale, strict=True)),
-        "color": dict(zip("rgba", color, strict=True)),
-        "lifetime": {"sec": 0, "nanosec": 0},
-        "frame_locked": False,
-        "points": [],
-        "colors": [],
-        "text": text,
-        "mesh_resource": "",
-        "mesh_use_embedded_materials": False,
-    }
-
-
-def _pose(x: float, y: float, z: float, yaw: float) -> dict[str, Any]:
-    return {"position": {"x": x, "y": y, "z": z}, "orientation": quaternion_from_yaw(yaw)}
+) -> None:
+    """One ``visualization_msgs/Marker`` (Humble's fields) appended: added, forever, at ``pose``
+    (x, y, z, yaw)."""
+    x, y, z, yaw = pose
+    cdr.header(t_ns, frame).string(ns).int32(marker_id, kind, 0)
+    cdr.float64(x, y, z, *_yaw_quaternion(yaw)).float64(*scale).float32(*color)
+    cdr.time(0).boolean(False)  # lifetime 0: forever; not frame-locked
+    cdr.sequence(0).sequence(0).string(text).string("").boolean(False)  # no points, colours, mesh
 
 
 def _height_m(marker: MapMarker) -> float:
@@ -116,37 +107,40 @@ def _height_m(marker: MapMarker) -> float:
     return 0.0 if z_m is None else float(z_m)
 
 
+def _transform(
+    cdr: CdrWriter, t_ns: int, parent: str, child: str, xyz: tuple[float, float, float], yaw: float
+) -> None:
+    """One ``geometry_msgs/TransformStamped`` appended."""
+    cdr.header(t_ns, parent).string(child).float64(*xyz, *_yaw_quaternion(yaw))
+
+
 def _map_messages(marker_map: MarkerMap, t_ns: int, map_frame: str, prefix: str) -> list[_Event]:
     """The MarkerArray and the static marker frames, both at ``t_ns``."""
-    markers, transforms = [], []
+    markers = []  # (id, ns, kind, pose, scale, colour, text)
     for marker_id, marker in marker_map.markers.items():
         T = marker.T_map_marker
         z = _height_m(marker)
-        markers.append(
-            _marker(t_ns, map_frame, marker_id, "normals", ARROW, _pose(T.x(), T.y(), z, T.theta()),
-                    (0.3, 0.04, 0.04), (0.1, 0.4, 0.9, 1.0))
-        )  # fmt: skip
-        markers.append(
-            _marker(t_ns, map_frame, marker_id, "ids", TEXT, _pose(T.x(), T.y(), z + 0.25, 0.0),
-                    (0.0, 0.0, 0.2), (1.0, 1.0, 1.0, 1.0), str(marker_id))
-        )  # fmt: skip
+        markers.append((marker_id, "normals", ARROW, (T.x(), T.y(), z, T.theta()),
+                        (0.3, 0.04, 0.04), (0.1, 0.4, 0.9, 1.0), ""))  # fmt: skip
+        markers.append((marker_id, "ids", TEXT, (T.x(), T.y(), z + 0.25, 0.0),
+                        (0.0, 0.0, 0.2), (1.0, 1.0, 1.0, 1.0), str(marker_id)))  # fmt: skip
         ellipse = marker.position_ellipse(2.0)
         if ellipse is not None:
             (major, minor), heading = ellipse
-            markers.append(
-                _marker(t_ns, map_frame, marker_id, "ellipses", CYLINDER,
-                        _pose(T.x(), T.y(), z, heading), (float(major), float(minor), 0.01),
-                        (0.1, 0.4, 0.9, 0.3))
-            )  # fmt: skip
-        transforms.append(
-            transform_stamped(
-                t_ns, map_frame, f"{prefix}{marker_id}", (T.x(), T.y(), z),
-                quaternion_from_yaw(T.theta()),
-            )
-        )  # fmt: skip
+            size = (float(major), float(minor), 0.01)
+            markers.append((marker_id, "ellipses", CYLINDER, (T.x(), T.y(), z, heading),
+                            size, (0.1, 0.4, 0.9, 0.3), ""))  # fmt: skip
+    array = CdrWriter().sequence(len(markers))
+    for marker_id, ns, kind, pose, scale, color, text in markers:
+        _marker(array, t_ns, map_frame, marker_id, ns, kind, pose, scale, color, text)
+    transforms = CdrWriter().sequence(len(marker_map.markers))
+    for marker_id, marker in marker_map.markers.items():
+        T = marker.T_map_marker
+        xyz = (T.x(), T.y(), _height_m(marker))
+        _transform(transforms, t_ns, map_frame, f"{prefix}{marker_id}", xyz, T.theta())
     return [
-        (t_ns, _STATIC, MARKER_TOPIC, "visualization_msgs/msg/MarkerArray", {"markers": markers}),
-        (t_ns, _STATIC, TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", {"transforms": transforms}),
+        (t_ns, _STATIC, MARKER_TOPIC, "visualization_msgs/msg/MarkerArray", array.data()),
+        (t_ns, _STATIC, TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", transforms.data()),
     ]
 
 
@@ -154,31 +148,48 @@ def _tf_messages(
     trajectory: Trajectory, odometry: Trajectory, map_frame: str, odom_frame: str
 ) -> Iterator[_Event]:
     """``map -> odom`` at each estimated pose the odometry reaches."""
-    for t in trajectory.t_ns:
-        t_ns = int(t)
-        T_map_odom = trajectory.T_self_other(odometry, t_ns)
-        if T_map_odom is None:
-            continue
-        transform = transform_stamped(
-            t_ns,
-            map_frame,
-            odom_frame,
-            (T_map_odom.x(), T_map_odom.y(), 0.0),
-            quaternion_from_yaw(T_map_odom.theta()),
-        )
-        yield t_ns, _TF, TF_TOPIC, "tf2_msgs/msg/TFMessage", {"transforms": [transform]}
+    corrections = map_to_odom(trajectory, odometry)
+    fields = [("transforms", "<u4"), *_HEADER, *string_fields("frame_id", map_frame),
+              *string_fields("child_frame_id", odom_frame), ("transform", "(7,)<f8")]  # fmt: skip
+    records = np.zeros(len(corrections), layout(fields))
+    records["transforms"] = 1  # one TransformStamped in each
+    _fill_stamped(records, corrections, map_frame, "transform")
+    fill_string(records, "child_frame_id", odom_frame)
+    size, data = records.dtype.itemsize, records.tobytes()
+    for k, t in enumerate(corrections.t_ns.tolist()):
+        message = ENCAPSULATION + data[k * size : (k + 1) * size]
+        yield t, _TF, TF_TOPIC, "tf2_msgs/msg/TFMessage", message
+
+
+_HEADER = [("sec", "<i4"), ("nanosec", "<u4")]  # a header's stamp; its frame_id follows
+
+
+def _fill_stamped(records: np.ndarray, poses: Trajectory, frame: str, field: str) -> None:
+    """Stamps, frame names and poses (x, y, 0, then the yaw's quaternion) into records."""
+    records["sec"], records["nanosec"] = np.divmod(poses.t_ns, 1_000_000_000)
+    fill_string(records, "frame_id", frame)
+    half = poses.poses[:, 2] / 2.0
+    zeros = np.zeros(len(poses))
+    records[field] = np.column_stack(
+        [poses.poses[:, 0], poses.poses[:, 1], zeros, zeros, zeros, np.sin(half), np.cos(half)]
+    )
+
+
+def _pose_records(trajectory: Trajectory, map_frame: str, start: int = 0) -> np.ndarray:
+    """Each pose as a ``geometry_msgs/PoseStamped`` record laid out from the offset ``start``
+    (mod 8; at 0 they follow one another)."""
+    fields = [*_HEADER, *string_fields("frame_id", map_frame), ("pose", "(7,)<f8")]
+    records = np.zeros(len(trajectory), layout(fields, start))
+    _fill_stamped(records, trajectory, map_frame, "pose")
+    return records
 
 
 def _path_messages(
-    trajectory: Trajectory,
-    stamped: list[dict[str, Any]],
-    map_frame: str,
-    period_ns: int,
-    max_poses: int,
+    trajectory: Trajectory, rows: np.ndarray, map_frame: str, period_ns: int, max_poses: int
 ) -> Iterator[_Event]:
     """The path so far every ``period_ns`` from the first stamp (where it gained a pose), and
     the whole path at the last stamp; each message holds the poses stamped at or before its
-    own stamp."""
+    own stamp (``rows``: the bytes of :func:`_pose_records`, one row a pose, encoded once)."""
     stamps = trajectory.t_ns
     if not len(stamps):
         return
@@ -190,13 +201,27 @@ def _path_messages(
         if count == published:  # no new pose since the last message: it still holds
             continue
         published = count
-        poses = stamped[0:count:stride]
+        kept = np.arange(0, count, stride)
         if (count - 1) % stride:  # the newest pose, so the line reaches the robot
-            poses.append(stamped[count - 1])
-        message = {"header": header(t_ns, map_frame), "poses": poses}
-        yield t_ns, _PATH, PATH_TOPIC, "nav_msgs/msg/Path", message
-    message = {"header": header(last, map_frame), "poses": stamped}
-    yield last, _PATH, PATH_TOPIC, "nav_msgs/msg/Path", message
+            kept = np.append(kept, count - 1)
+        data = _path(trajectory, rows, kept, t_ns, map_frame)
+        yield t_ns, _PATH, PATH_TOPIC, "nav_msgs/msg/Path", data
+    data = _path(trajectory, rows, np.arange(len(stamps)), last, map_frame)
+    yield last, _PATH, PATH_TOPIC, "nav_msgs/msg/Path", data
+
+
+def _path(
+    trajectory: Trajectory, rows: np.ndarray, kept: np.ndarray, t_ns: int, map_frame: str
+) -> bytes:
+    """A ``nav_msgs/Path`` of the poses ``kept`` (indices, never empty)."""
+    cdr = CdrWriter().header(t_ns, map_frame).sequence(len(kept))
+    start = cdr.offset % 8
+    if start:  # the rows were laid out from a multiple of 8: the first pose is not there
+        first = Trajectory(trajectory.t_ns[kept[:1]], trajectory.poses[kept[:1]])
+        cdr.encoded(_pose_records(first, map_frame, start).tobytes(), start)
+        kept = kept[1:]
+    # Rows of bytes, not records: a record array's copy leaves its padding unset.
+    return cdr.encoded(rows[kept].tobytes()).data()
 
 
 def _check_frame(name: str, value: str) -> None:
@@ -270,27 +295,45 @@ def write_overlay(
         )
     firsts = [int(t.t_ns[0]) for t in (trajectory, odometry) if len(t)]
     start = min(firsts) if firsts else 0
-    stamped = [
-        {"header": header(int(t), map_frame), "pose": _pose(x, y, 0.0, yaw)}
-        for t, (x, y, yaw) in zip(trajectory.t_ns, trajectory.poses, strict=True)
-    ]
+    records = _pose_records(trajectory, map_frame)
+    size, data = records.dtype.itemsize, records.tobytes()
+    rows = np.frombuffer(data, np.uint8).reshape(len(trajectory), size)  # padding included
     poses = (
-        (int(t), _POSE, POSE_TOPIC, "geometry_msgs/msg/PoseStamped", message)
-        for t, message in zip(trajectory.t_ns, stamped, strict=True)
-    )
+        (t, _POSE, POSE_TOPIC, "geometry_msgs/msg/PoseStamped",
+         ENCAPSULATION + data[k * size : (k + 1) * size])
+        for k, t in enumerate(trajectory.t_ns.tolist())
+    )  # fmt: skip
     events = heapq.merge(
         _map_messages(marker_map, start, map_frame, marker_frame_prefix),
         _tf_messages(trajectory, odometry, map_frame, odom_frame),
         poses,
-        _path_messages(trajectory, stamped, map_frame, path_period_ns, max_path_poses),
+        _path_messages(trajectory, rows, map_frame, path_period_ns, max_path_poses),
         key=lambda event: event[:2],
     )
     with written_whole(path) as partial, open(partial, "wb") as stream:
-        writer = Writer(stream)
-        schemas: dict[str, Any] = {}
-        for t_ns, _, topic, schema, message in events:
-            if schema not in schemas:
-                schemas[schema] = writer.register_msgdef(schema, MESSAGE_DEFINITIONS[schema])
-            writer.write_message(topic, schemas[schema], message, log_time=t_ns, publish_time=t_ns)
-        writer.finish()
+        _write_events(stream, events)
     _write_layout(Path(path), map_frame, image_topic, calibration_topic)
+
+
+def _write_events(stream: BinaryIO, events: Iterable[_Event]) -> None:
+    """The messages into an MCAP stream of the ``ros2`` profile, each topic's schema the full
+    ``ros2msg`` definition (as mcap_ros2's writer does, with its default zstd chunks)."""
+    writer = McapWriter(stream, compression=CompressionType.ZSTD)
+    writer.start(profile="ros2", library=f"markergraph {_version()}")
+    schemas: dict[str, int] = {}
+    channels: dict[str, int] = {}
+    for t_ns, _, topic, schema, data in events:
+        if schema not in schemas:
+            text = MESSAGE_DEFINITIONS[schema].encode()
+            schemas[schema] = writer.register_schema(schema, SchemaEncoding.ROS2, text)
+        if topic not in channels:
+            channels[topic] = writer.register_channel(topic, MessageEncoding.CDR, schemas[schema])
+        writer.add_message(channels[topic], log_time=t_ns, data=data, publish_time=t_ns)
+    writer.finish()
+
+
+def _version() -> str:
+    try:
+        return version("markergraph")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown"

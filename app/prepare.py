@@ -10,12 +10,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import gtsam
+
 from markergraph.common import MarkerGraphError, Note
 from markergraph.common.numbers import shown
 from markergraph.estimator import (
+    ODOMETRY_NOISE,
     Frames,
     Observation,
     OdometryNoise,
+    Robust,
     SlamInputs,
     build_frames,
     camera_delay_by_residuals,
@@ -28,7 +32,12 @@ from markergraph.obs_cache import search_key
 from markergraph.sections import Shutter
 from markergraph.settings import MapConfig
 
-__all__ = ["Prepared", "prepare"]
+__all__ = ["SEARCH_ROBUST", "Prepared", "prepare"]
+
+SEARCH_ROBUST = Robust.HUBER
+"""The kernel the delay and scale searches solve with, whatever ``--robust`` asks of the map."""
+
+_CACHED = ", on an earlier run: from the cache"  # said of a search's result taken from the cache
 
 
 @dataclass(frozen=True)
@@ -83,16 +92,18 @@ def prepare(
     _, noise = config.odometry_noise(extraction.topics.odom, evidence)
     notes.append(_noise_note(source, noise, why, len(extraction.odometry), extraction.topics.odom))
     searches = {} if searches is None else searches
-    basis = (noise, home_id, config.noise.robust, config.camera)
+    # The searches weigh the residuals by the source's preset, not the noise asked for: the
+    # delay and the scale are the sensors' own, so a changed estimator setting reuses them.
+    basis = (source, ODOMETRY_NOISE[source], SEARCH_ROBUST, home_id, config.camera)
     delay_key = search_key("delay", *basis)
     if config.camera.delay_ns is None and delay_key not in searches:
         stage("choosing the camera's delay by SLAM's residuals")
-    observations, delay_ns = _timed(
-        extraction, config, noise, breaks, home_id, notes, searches, delay_key
+    observations, delay_ns, near = _timed(
+        extraction, config, ODOMETRY_NOISE[source], breaks, home_id, notes, searches, delay_key
     )
     scale = _odometry_scale(
-        extraction, config, observations, noise, breaks, home_id, stage, notes,
-        searches, search_key("scale", *basis, delay_ns),
+        extraction, config, observations, ODOMETRY_NOISE[source], breaks, home_id, stage, notes,
+        searches, search_key("scale", *basis, delay_ns), near,
     )  # fmt: skip
     frames = build_frames(
         observations,
@@ -182,10 +193,11 @@ def _timed(
     notes: list[Note],
     searches: dict[str, Any],
     key: str,
-) -> tuple[list[Observation], int]:
+) -> tuple[list[Observation], int, gtsam.Values | None]:
     """The observations at their capture times (the camera's delay, chosen by the residuals
     unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked,
-    for the shutter instead; and the camera's delay used [ns]."""
+    for the shutter instead; the camera's delay used [ns]; and the delay search's solution
+    where it ran (None otherwise), for the scale's search to start from."""
     camera = config.camera
     observations = extraction.observations
     readout_ns = camera.readout_ns
@@ -198,14 +210,16 @@ def _timed(
         observations = widened_for_motion(observations, extraction.odometry, window_s)
     if camera.delay_ns is not None:
         delay_ns = camera.delay_ns
-        return retimed(observations, delay_ns, readout_ns, height), delay_ns
+        return retimed(observations, delay_ns, readout_ns, height), delay_ns, None
     mount = extraction.mount.T_base_camera
     inputs = SlamInputs(
-        observations, extraction.odometry, home_id, mount, noise, breaks, config.noise.robust
+        observations, extraction.odometry, home_id, mount, noise, breaks, SEARCH_ROBUST
     )
-    if key not in searches:
+    cached = _CACHED if key in searches else ""
+    near = None
+    if not cached:
         found = camera_delay_by_residuals(inputs, readout_ns=readout_ns, image_height=height)
-        searches[key] = found.delay_ns
+        searches[key], near = found.delay_ns, found.solution
     chosen_ns: int | None = searches[key]
     topic = extraction.topics.odom
     delay_ns = 0 if chosen_ns is None else chosen_ns
@@ -213,17 +227,18 @@ def _timed(
         notes.append(Note(
             "camera.delay_unresolved",
             f"camera stamps taken as they are against {topic}: SLAM's "
-            "residuals have no minimum between -50 and +100 ms (--camera-delay sets a delay)",
+            f"residuals have no minimum between -50 and +100 ms{cached} (--camera-delay sets a "
+            "delay)",
             topic=topic,
         ))  # fmt: skip
     else:
         notes.append(Note(
             "camera.delay_chosen",
             f"camera stamps {shown(delay_ns / 1e6, '+.1f')} ms against {topic} "
-            "(chosen by SLAM's residuals over -50..+100 ms; --camera-delay sets it)",
+            f"(chosen by SLAM's residuals over -50..+100 ms{cached}; --camera-delay sets it)",
             topic=topic, figure=delay_ns * 1e-9,
         ))  # fmt: skip
-    return retimed(observations, delay_ns, readout_ns, height), delay_ns
+    return retimed(observations, delay_ns, readout_ns, height), delay_ns, near
 
 
 def _odometry_scale(
@@ -237,17 +252,20 @@ def _odometry_scale(
     notes: list[Note],
     searches: dict[str, Any],
     key: str,
+    near: gtsam.Values | None,
 ) -> float:
     """The factor the odometry's distances are multiplied by: as set, or chosen by SLAM's
-    residuals (1 where they have no minimum), and said in the notes."""
+    residuals (1 where they have no minimum; the search starts from ``near``, the delay
+    search's solution on the same frames), and said in the notes."""
     configured = config.odometry.scale
     if configured is not None:
         return float(configured)
-    if key not in searches:
+    cached = _CACHED if key in searches else ""
+    if not cached:
         stage("choosing the odometry's scale by SLAM's residuals")
         searches[key] = odometry_scale_by_residuals(
             SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
-                       noise, breaks, config.noise.robust)
+                       noise, breaks, SEARCH_ROBUST), near,
         ).chosen  # fmt: skip
     chosen: float | None = searches[key]
     topic = extraction.topics.odom
@@ -255,7 +273,7 @@ def _odometry_scale(
         notes.append(Note(
             "odometry.scale_unresolved",
             f"odometry on {topic} taken at its scale: SLAM's residuals have no minimum between "
-            "0.95 and 1.05 (--odometry-scale sets one)",
+            f"0.95 and 1.05{cached} (--odometry-scale sets one)",
             topic=topic,
         ))  # fmt: skip
         return 1.0
@@ -264,7 +282,7 @@ def _odometry_scale(
         "odometry.scale_chosen",
         f"odometry on {topic} reads distances {abs(off):.2f} % {'long' if off > 0 else 'short'}: "
         f"its steps are scaled by {chosen:.4f} (chosen by SLAM's residuals over "
-        "0.95..1.05; --odometry-scale sets it)",
+        f"0.95..1.05{cached}; --odometry-scale sets it)",
         topic=topic, figure=chosen,
     ))  # fmt: skip
     return chosen

@@ -143,8 +143,8 @@ def _cache_note(entry: CacheEntry) -> Note:
     return Note(
         "frontend.cache",
         f"observations from the cache ({entry.path}: the log and the front end's settings are "
-        "unchanged; the camera delay and odometry scale found on them are reused under the same "
-        "settings; --no-cache reads the log again)",
+        "unchanged; the camera delay and odometry scale found on them are reused, whatever the "
+        "estimator's settings; --no-cache reads the log again)",
     )
 
 

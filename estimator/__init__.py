@@ -53,6 +53,7 @@ if TYPE_CHECKING:
     from markergraph.estimator.trajectory import (
         Trajectory,
         corrected_odometry,
+        map_to_odom,
         odometry_in_map,
         turn_rate,
     )
@@ -112,6 +113,7 @@ __all__ = [
     "fit_odometry_noise",
     "heading",
     "map_error",
+    "map_to_odom",
     "marker_heights",
     "nees",
     "odometry",
@@ -192,6 +194,7 @@ lazy_package(
         "markergraph.estimator.trajectory": (
             "Trajectory",
             "corrected_odometry",
+            "map_to_odom",
             "odometry_in_map",
             "turn_rate",
         ),

@@ -22,11 +22,14 @@ SCALES = tuple(float(s) for s in np.round(np.arange(0.95, 1.0501, 0.01), 4))  # 
 COARSE_STRIDE = 2  # searched first at every second scale (2 %)
 
 
-def odometry_scale_by_residuals(inputs: SlamInputs) -> GridMinimum:
+def odometry_scale_by_residuals(
+    inputs: SlamInputs, near: gtsam.Values | None = None
+) -> GridMinimum:
     """The factor, from 0.95 to 1.05, under which batch SLAM's solution has the lowest cost: a
     2 % grid, then 1 % (:func:`cheapest_on_grid`); ``chosen`` None when the cost has no
     minimum inside the range (the residuals cannot tell, or the wheels are off by more than
-    5 %). A long log is searched on the frames the camera delay's search uses."""
+    5 %). A long log is searched on the frames the camera delay's search uses; ``near``, the
+    delay search's solution on them, is where the first solve starts."""
     sampled = inputs.sampled()
 
     def cost(scale: float, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
@@ -35,4 +38,4 @@ def odometry_scale_by_residuals(inputs: SlamInputs) -> GridMinimum:
     # From 1 outwards, so that each solve starts near the last.
     middle = len(SCALES) // 2
     first = sorted(range(0, len(SCALES), COARSE_STRIDE), key=lambda i: abs(i - middle))
-    return cheapest_on_grid(SCALES, cost, first, COARSE_STRIDE)
+    return cheapest_on_grid(SCALES, cost, first, COARSE_STRIDE, near)

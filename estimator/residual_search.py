@@ -34,11 +34,14 @@ class GridMinimum:
         chosen: that value, refined by a parabola; None when the least cost is at either end
             of the grid or infinite (the residuals cannot tell).
         tried, costs: each value tried and SLAM's final cost with it.
+        solution: SLAM's solution at the grid value of least cost (None where it had none):
+            a start for a search of another setting on the same frames.
     """
 
     chosen: float | None
     tried: tuple[float, ...]
     costs: tuple[float, ...]
+    solution: gtsam.Values | None = None
 
 
 def search_sample(observations: Sequence[Observation], home_id: int | None) -> list[Observation]:
@@ -88,19 +91,26 @@ class SlamInputs:
 
 
 def cheapest_on_grid(
-    grid: Sequence[float], cost: Cost, first: Iterable[int], stride: int
+    grid: Sequence[float],
+    cost: Cost,
+    first: Iterable[int],
+    stride: int,
+    near: gtsam.Values | None = None,
 ) -> GridMinimum:
     """The grid value of least cost: first at the indices ``first`` (every ``stride``-th), then
     at the grid about the best of them, then at the best point's neighbours, and a parabola
-    through the best point and its neighbours; each solve starts from the last one's solution."""
+    through the best point and its neighbours. Each solve starts from the solution of the
+    nearest grid value solved before it (the first from ``near``, else from scratch): fewer
+    iterations than from the last one solved, which may lie across the grid."""
     costs: dict[int, float] = {}  # grid index -> cost
-    near: gtsam.Values | None = None
+    solutions: dict[int, gtsam.Values | None] = {}
 
     def solve(indices: Iterable[int]) -> None:
-        nonlocal near
         for i in indices:
             if 0 <= i < len(grid) and i not in costs:
-                costs[i], near = cost(grid[i], near)
+                nearest = min(solutions, key=lambda j: abs(j - i), default=None)
+                start = near if nearest is None else solutions[nearest]
+                costs[i], solutions[i] = cost(grid[i], start)
 
     solve(first)
     coarse_best = min(costs, key=costs.__getitem__)
@@ -110,10 +120,10 @@ def cheapest_on_grid(
     tried = sorted(costs)
     values, tried_costs = tuple(grid[i] for i in tried), tuple(costs[i] for i in tried)
     if best in (0, len(grid) - 1) or not math.isfinite(costs[best]):
-        return GridMinimum(None, values, tried_costs)
+        return GridMinimum(None, values, tried_costs, solutions[best])
     chosen = grid[best]
     c0, c1, c2 = costs[best - 1], costs[best], costs[best + 1]
     curvature = c0 - 2 * c1 + c2
     if math.isfinite(c0) and math.isfinite(c2) and curvature > 0:
         chosen += 0.5 * (grid[best + 1] - grid[best]) * (c0 - c2) / curvature
-    return GridMinimum(chosen, values, tried_costs)
+    return GridMinimum(chosen, values, tried_costs, solutions[best])

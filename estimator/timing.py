@@ -77,11 +77,14 @@ class CameraDelay:
         delay_ns: the chosen delay: the stamp minus the capture [ns]; None when the cost has
             no minimum inside the range searched (the residuals cannot tell).
         delays_ns, costs: each delay tried and SLAM's final cost with it.
+        solution: SLAM's solution at the delay tried of least cost, for the odometry scale's
+            search to start from.
     """
 
     delay_ns: int | None
     delays_ns: tuple[int, ...]
     costs: tuple[float, ...]
+    solution: gtsam.Values | None = None
 
 
 def camera_delay_by_residuals(
@@ -101,8 +104,10 @@ def camera_delay_by_residuals(
 
     delays = [round(d * 1e9) for d in DELAYS_S]
     # Every third delay of the grid, then the grid about the best of them: the cost is smooth
-    # over tens of milliseconds, and the delays far off cost the most iterations.
-    first = [*range(0, len(delays), COARSE_STRIDE), len(delays) - 1]
+    # over tens of milliseconds, and the delays far off cost the most iterations. Nearest to
+    # no delay first, then outwards: each solve starts from its neighbour's solution.
+    coarse = [*range(0, len(delays), COARSE_STRIDE), len(delays) - 1]
+    first = sorted(coarse, key=lambda i: abs(delays[i]))
     found = cheapest_on_grid(delays, cost, first, COARSE_STRIDE)
     chosen = None if found.chosen is None else round(found.chosen)
-    return CameraDelay(chosen, tuple(map(int, found.tried)), found.costs)
+    return CameraDelay(chosen, tuple(map(int, found.tried)), found.costs, found.solution)

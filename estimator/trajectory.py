@@ -23,6 +23,7 @@ __all__ = [
     "Trajectory",
     "corrected_odometry",
     "interpolated_xy_yaw",
+    "map_to_odom",
     "odometry_in_map",
     "turn_rate",
 ]
@@ -121,19 +122,28 @@ class Trajectory:
         return interpolated_xy_yaw(self.poses[i - 1], self.poses[i], float((t_ns - t0) / (t1 - t0)))
 
     def at_stamps(self, stamps_ns: Iterable[int]) -> Trajectory:
-        """This trajectory at the given stamps (those it does not reach are left out)."""
-        kept_t, kept = [], []
-        for t in stamps_ns:
-            pose = self.at(int(t))
+        """This trajectory at the given stamps (those it does not reach are left out); a stamp
+        of its own takes its pose as it is."""
+        stamps = np.asarray(list(stamps_ns), dtype=np.int64)
+        poses = np.full((len(stamps), 3), np.nan)
+        if len(self) and len(stamps):
+            i = np.minimum(np.searchsorted(self.t_ns, stamps), len(self) - 1)
+            own = self.t_ns[i] == stamps
+            poses[own] = self.poses[i[own]]  # no interpolation: most stamps asked are our own
+        else:
+            own = np.zeros(len(stamps), dtype=bool)
+        for k in np.flatnonzero(~own):
+            pose = self.at(int(stamps[k]))
             if pose is not None:
-                kept_t.append(int(t))
-                kept.append([pose.x(), pose.y(), pose.theta()])
-        return Trajectory(np.array(kept_t, dtype=np.int64), np.array(kept), self.frame)
+                poses[k] = pose.x(), pose.y(), pose.theta()
+        kept = ~np.isnan(poses[:, 0])
+        return Trajectory(stamps[kept], poses[kept].reshape(-1, 3), self.frame)
 
     def in_frame(self, T_new_frame: gtsam.Pose2, frame: str) -> Trajectory:
         """The same path expressed in another frame: ``T_new_base = T_new_frame * T_frame_base``."""
-        moved = [T_new_frame.compose(self.pose(i)) for i in range(len(self))]
-        return Trajectory(self.t_ns, np.array([[p.x(), p.y(), p.theta()] for p in moved]), frame)
+        row = np.array([[T_new_frame.x(), T_new_frame.y(), T_new_frame.theta()]])
+        moved = _compose(np.repeat(row, len(self), axis=0), self.poses.reshape(-1, 3))
+        return Trajectory(self.t_ns, moved, frame)
 
     def scaled(self, factor: float) -> Trajectory:
         """Every step's translation times ``factor``, headings kept: odometry whose wheels read
@@ -188,7 +198,7 @@ def _inverse(a: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.stack([-c * a[:, 0] - s * a[:, 1], s * a[:, 0] - c * a[:, 1], -a[:, 2]], axis=1)
 
 
-def _corrections(optimised: Trajectory, odometry: Trajectory) -> Trajectory:
+def map_to_odom(optimised: Trajectory, odometry: Trajectory) -> Trajectory:
     """``T_map_odom = T_map_base * T_odom_base^-1`` at each optimised stamp the odometry
     reaches."""
     odometry_there = odometry.at_stamps(optimised.t_ns)
@@ -217,7 +227,7 @@ def corrected_odometry(optimised: Trajectory, odometry: Trajectory) -> Trajector
         ``T_map_base`` at the odometry's stamps in the optimised span (frame ``"map"``); the
         optimised path itself when fewer than two of its stamps meet the odometry.
     """
-    corrections = _corrections(optimised, odometry)
+    corrections = map_to_odom(optimised, odometry)
     if len(corrections) < 2:
         return optimised
     t_ns, poses = corrections.t_ns, corrections.poses
@@ -246,7 +256,7 @@ def odometry_in_map(optimised: Trajectory, odometry: Trajectory) -> Trajectory:
         ``T_map_base`` (frame ``"map"``): the first optimised pose, then every odometry sample
         after it moved by ``T_map_odom`` at that stamp; empty when they never meet.
     """
-    corrections = _corrections(optimised, odometry)
+    corrections = map_to_odom(optimised, odometry)
     if not len(corrections):
         return Trajectory(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), "map")
     t0 = int(corrections.t_ns[0])
