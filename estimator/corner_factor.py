@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from markergraph.estimator.tags3d import tag_corners
 
-__all__ = ["FrameViews", "frame_errors", "frame_factor", "residuals"]
+__all__ = ["FrameViews", "adjoint_inverse", "frame_errors", "frame_factor", "residuals"]
 
 
 MIN_DEPTH_M = 1e-3
@@ -38,7 +38,7 @@ def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
-def _adjoint_inverse(T: NDArray[np.float64]) -> NDArray[np.float64]:
+def adjoint_inverse(T: NDArray[np.float64]) -> NDArray[np.float64]:
     """(n, 4, 4) poses to the (n, 6, 6) adjoints of their inverses (rotation first)."""
     R_t = np.swapaxes(T[:, :3, :3], 1, 2)
     out = np.zeros((len(T), 6, 6))
@@ -142,7 +142,7 @@ def _error(
     residual, J_camera, J_tag = residuals(rig @ mounts, tags, corners, views.rays, H is not None)
     if H is not None and J_camera is not None and J_tag is not None:
         n = len(views.tag_keys)
-        J_rig = J_camera @ _adjoint_inverse(mounts)  # the rig moves each camera through its mount
+        J_rig = J_camera @ adjoint_inverse(mounts)  # the rig moves each camera through its mount
         H[0] = J_rig.reshape(8 * n, 6)
         for slot, key in enumerate(this.keys()[1:], start=1):
             block = np.zeros((n, 8, 6))
