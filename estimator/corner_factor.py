@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from markergraph.estimator.tags3d import tag_corners
 
-__all__ = ["FrameViews", "adjoint_inverse", "frame_errors", "frame_factor", "residuals"]
+__all__ = ["FrameViews", "adjoint_inverse", "frame_factor", "residuals"]
 
 
 MIN_DEPTH_M = 1e-3
@@ -120,15 +120,6 @@ def _mounts_now(views: FrameViews, values: gtsam.Values) -> NDArray[np.float64]:
         if key is not None:
             mounts[k] = values.atPose3(key).matrix()
     return mounts
-
-
-def frame_errors(views: FrameViews, values: gtsam.Values) -> NDArray[np.float64]:
-    """Each view's residuals (n, 8) at ``values``."""
-    mounts = _mounts_now(views, values)
-    rig = values.atPose3(views.rig_key).matrix()
-    tags = np.array([values.atPose3(k).matrix() for k in views.tag_keys])
-    residual, _, _ = residuals(rig @ mounts, tags, views.corners(), views.rays)
-    return residual
 
 
 def _error(

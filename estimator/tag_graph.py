@@ -14,9 +14,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.corner_factor import FrameViews, frame_errors, frame_factor
+from markergraph.estimator.corner_factor import FrameViews, frame_factor
 from markergraph.estimator.tag_init import Placed
-from markergraph.estimator.tag_solver import CornerViews
+from markergraph.estimator.tag_solver import CornerViews, corner_residuals
 from markergraph.estimator.tags3d import TagScene
 
 __all__ = ["TagGraph", "camera_key", "rig_key", "tag_key", "view_errors_px"]
@@ -194,9 +194,8 @@ class TagGraph:
 
 def view_errors_px(problem: TagGraph, values: gtsam.Values) -> NDArray[np.float64]:
     """Each view's RMS corner reprojection error [px]."""
-    errors = np.empty(len(problem.views))
-    for indices, views in problem.frame_views():
-        residual = frame_errors(views, values)
-        per_px = np.array([problem.views[k].ray_per_px for k in indices])
-        errors[indices] = np.sqrt(np.mean((residual / per_px) ** 2, axis=1))
-    return errors
+    if not problem.views:
+        return np.empty(0)
+    residual = corner_residuals(problem.corner_views(), values)
+    per_px = np.array([v.ray_per_px for v in problem.views]).reshape(-1, 8)
+    return np.sqrt(np.mean((residual / per_px) ** 2, axis=1))

@@ -25,7 +25,7 @@ from markergraph.estimator.tag_frames import map_framing
 from markergraph.estimator.tag_graph import TagGraph, camera_key, rig_key, tag_key, view_errors_px
 from markergraph.estimator.tag_incremental import solve_incremental
 from markergraph.estimator.tag_init import agree, place
-from markergraph.estimator.tag_solver import LmSettings, solve_lm
+from markergraph.estimator.tag_solver import LmSettings, covariances, solve_lm
 from markergraph.estimator.tags3d import Camera3d, Tag3d, TagMap3d, TagScene
 
 __all__ = ["Solver", "map_tags"]
@@ -131,7 +131,15 @@ def _final_solve(
     """The plain solve from where the problem stands, whether it converged, and its marginals
     (None when they cannot be had)."""
     values, converged = _optimise(problem, None, FINAL_TOLERANCE, MAX_ITERATIONS, solver)
-    return values, converged, marginals_or_note(problem.graph(), values, notes)
+    if solver is Solver.GTSAM:
+        return values, converged, marginals_or_note(problem.graph(), values, notes)
+    try:  # only the tags' and mounts' covariances are written: the rig poses are eliminated
+        marginals = covariances(problem.corner_views(), problem.builtin_graph(), values)
+    except np.linalg.LinAlgError:
+        # Indeterminate or barely determined: GTSAM's Marginals decide as they always have
+        # (a note and no covariances, or huge ones past a pivot that is barely positive).
+        return values, converged, marginals_or_note(problem.graph(), values, notes)
+    return values, converged, marginals
 
 
 def map_tags(

@@ -27,7 +27,14 @@ from markergraph.estimator.tags3d import tag_corners
 if TYPE_CHECKING:
     import scipy.sparse
 
-__all__ = ["CornerViews", "LmSettings", "solve_lm"]
+__all__ = [
+    "CornerViews",
+    "Covariances",
+    "LmSettings",
+    "corner_residuals",
+    "covariances",
+    "solve_lm",
+]
 
 POSE_DIM = 6
 RIG_SYMBOL = "x"
@@ -120,14 +127,14 @@ class _Problem:
         T[:, 3, 3] = 1.0
         return T
 
-    def _whitened(self, values: gtsam.Values, jacobians: bool) -> tuple[
+    def residuals(self, values: gtsam.Values, jacobians: bool) -> tuple[
         NDArray[np.float64],
         NDArray[np.float64] | None,
         NDArray[np.float64] | None,
         NDArray[np.float64],
     ]:  # fmt: skip
-        """The whitened residuals (n, 8), the Jacobians as :func:`residuals` gives them
-        (unwhitened), and each view's mount now."""
+        """The residuals (n, 8), the Jacobians as :func:`residuals` gives them, and each
+        view's mount now (all unwhitened)."""
         c = self.corners
         T = self.poses(values)
         mounts = c.mounts.copy()
@@ -135,12 +142,12 @@ class _Problem:
         residual, J_camera, J_tag = residuals(
             T[self.rig] @ mounts, T[self.tag], c.corners, c.rays, jacobians
         )
-        return residual * c.inverse_sigmas, J_camera, J_tag, mounts
+        return residual, J_camera, J_tag, mounts
 
     def error(self, values: gtsam.Values) -> float:
         """GTSAM's error: half the squared whitened residuals, or the Cauchy loss of each
         view's whitened norm, plus the built-in factors'."""
-        e, *_ = self._whitened(values, False)
+        e = self.residuals(values, False)[0] * self.corners.inverse_sigmas
         squared = np.sum(e * e, axis=1)
         k = self.corners.robust_k
         if k is None:
@@ -156,7 +163,8 @@ class _Problem:
         errors, reweighted by the kernel as GTSAM's ``Robust::WhitenSystem`` does)."""
         import scipy.sparse  # heavy: imported when a 3-D map is solved, not at start-up
 
-        e, J_camera, J_tag, mounts = self._whitened(values, True)
+        e, J_camera, J_tag, mounts = self.residuals(values, True)
+        e = e * self.corners.inverse_sigmas
         assert J_camera is not None and J_tag is not None  # asked for
         w = self.corners.inverse_sigmas[:, :, None]
         J_rig = (J_camera @ adjoint_inverse(mounts)) * w
@@ -215,37 +223,119 @@ class _Problem:
         return values.retract(update)
 
 
-def _solve(
-    H: scipy.sparse.csr_matrix, g: NDArray[np.float64], frames: int
-) -> NDArray[np.float64] | None:
-    """The damped normal equations ``H delta = g`` solved through the rig poses' Schur
-    complement, None where a factorisation fails (GTSAM's indeterminate system: the step is
-    refused and lambda raised).
-
-    The rig poses come last in key order (``x`` after ``c`` and ``t``) and join only their
-    neighbours in time, so their block is banded (a 6x6 block tridiagonal, 11 sub-diagonals):
-    a banded Cholesky eliminates them in linear time, leaving a dense system over the tags and
-    mounts (a few hundred poses at most). A general sparse LU (SuperLU) took 0.4 s a solve on
-    test 16's 1,812 unknowns; this takes milliseconds.
-    """
-    import scipy.linalg
-
-    k = H.shape[0] - POSE_DIM * frames
-    A = H[k:, k:]
+def _banded(A: scipy.sparse.csr_matrix) -> NDArray[np.float64]:
+    """The rig poses' block in ``cholesky_banded``'s lower form (11 sub-diagonals)."""
     band = POSE_DIM * 2 - 1
     ab = np.zeros((band + 1, A.shape[0]))
     for u in range(min(band + 1, A.shape[0])):
         ab[u, : A.shape[0] - u] = A.diagonal(-u)
+    return ab
+
+
+def _schur(
+    H: scipy.sparse.csr_matrix, g: NDArray[np.float64], frames: int, strict: bool = True
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The rig poses eliminated from ``H delta = g``: the Schur complement S over the tags and
+    mounts, its right-hand side, and ``A^-1 [B g_rig]`` (to recover the rig poses' step).
+
+    The rig poses come last in key order (``x`` after ``c`` and ``t``) and join only their
+    neighbours in time, so their block A is banded (a 6x6 block tridiagonal): a banded
+    Cholesky eliminates them in linear time, leaving a dense system over the tags and mounts
+    (a few hundred poses at most). A general sparse LU (SuperLU) took 0.4 s a solve on test
+    16's 1,812 unknowns; this takes milliseconds.
+
+    Without ``strict``, a block that is not numerically positive definite is solved by LU
+    instead (as GTSAM's Marginals go on through a pivot that is barely positive).
+
+    Raises:
+        numpy.linalg.LinAlgError: A is not positive definite (``strict``), or singular.
+    """
+    import scipy.linalg
+
+    k = H.shape[0] - POSE_DIM * frames
     B = H[k:, :k].toarray()
+    ab = _banded(H[k:, k:])
+    right = np.column_stack([B, g[k:]])
     try:
-        factor = scipy.linalg.cholesky_banded(ab, lower=True)
-        X = scipy.linalg.cho_solve_banded((factor, True), np.column_stack([B, g[k:]]))
-        S = H[:k, :k].toarray() - B.T @ X[:, :k]
-        delta_c = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), g[:k] - B.T @ X[:, k])
+        X = scipy.linalg.cho_solve_banded(
+            (scipy.linalg.cholesky_banded(ab, lower=True), True), right
+        )
+    except np.linalg.LinAlgError:
+        if strict:
+            raise
+        full = np.zeros((2 * ab.shape[0] - 1, ab.shape[1]))  # solve_banded's form: both halves
+        full[ab.shape[0] - 1 :] = ab
+        for u in range(1, ab.shape[0]):
+            full[ab.shape[0] - 1 - u, u:] = ab[u, : ab.shape[1] - u]
+        X = scipy.linalg.solve_banded((ab.shape[0] - 1, ab.shape[0] - 1), full, right)
+    S = H[:k, :k].toarray() - B.T @ X[:, :k]
+    return S, g[:k] - B.T @ X[:, k], X
+
+
+def _solve(
+    H: scipy.sparse.csr_matrix, g: NDArray[np.float64], frames: int
+) -> NDArray[np.float64] | None:
+    """The damped normal equations ``H delta = g`` solved through the rig poses' Schur
+    complement (:func:`_schur`), None where a factorisation fails (GTSAM's indeterminate
+    system: the step is refused and lambda raised)."""
+    import scipy.linalg
+
+    try:
+        S, rhs, X = _schur(H, g, frames)
+        delta_c = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), rhs)
     except np.linalg.LinAlgError:
         return None
-    delta = np.concatenate([delta_c, X[:, k] - X[:, :k] @ delta_c])
+    delta = np.concatenate([delta_c, X[:, -1] - X[:, :-1] @ delta_c])
     return delta if np.all(np.isfinite(delta)) else None
+
+
+class Covariances:
+    """The tags' and mounts' marginal covariances at a solution (GTSAM's ``Marginals``
+    ``marginalCovariance`` for those keys): the inverse of the Schur complement that the rig
+    poses leave, in the tangent space GTSAM uses (rotation first)."""
+
+    def __init__(self, covariance: NDArray[np.float64], keys: list[int]) -> None:
+        self.covariance = covariance
+        self.at = {key: i for i, key in enumerate(keys)}
+
+    def marginalCovariance(self, key: int) -> NDArray[np.float64]:
+        """The (6, 6) covariance of a tag or mount.
+
+        Raises:
+            RuntimeError: a key that is not a tag's or a mount's (as GTSAM raises).
+        """
+        if key not in self.at:
+            raise RuntimeError(f"no covariance kept for key {gtsam.DefaultKeyFormatter(key)}")
+        i = POSE_DIM * self.at[key]
+        return self.covariance[i : i + POSE_DIM, i : i + POSE_DIM].copy()
+
+
+def covariances(
+    corners: CornerViews, builtin: gtsam.NonlinearFactorGraph, values: gtsam.Values
+) -> Covariances:
+    """The tags' and mounts' marginal covariances at ``values``.
+
+    Raises:
+        numpy.linalg.LinAlgError: the system is indeterminate or barely determined (a pose the
+            factors do not fix, or an eigenvalue at rounding's level: test 24's shallow tags).
+    """
+    import scipy.linalg
+
+    problem = _Problem(corners, builtin, values)
+    J, b = problem.linearise(values)
+    Jt = J.T.tocsr()
+    S, _, _ = _schur((Jt @ J).tocsr(), Jt @ b, problem.frames, strict=False)
+    inverse = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), np.eye(len(S)))
+    if not np.all(np.isfinite(inverse)):
+        raise np.linalg.LinAlgError("the marginal covariances are not finite")
+    k = len(problem.keys) - problem.frames
+    return Covariances(inverse, [int(key) for key in problem.keys[:k]])
+
+
+def corner_residuals(corners: CornerViews, values: gtsam.Values) -> NDArray[np.float64]:
+    """Each view's corner residuals (n, 8) at ``values`` (normalised image coordinates)."""
+    problem = _Problem(corners, gtsam.NonlinearFactorGraph(), values)
+    return problem.residuals(values, False)[0]
 
 
 def solve_lm(
