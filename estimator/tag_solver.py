@@ -97,6 +97,25 @@ class CornerViews:
         )
 
 
+@dataclass(frozen=True)
+class _Linear:
+    """The system linearised at a point: each view's whitened (n, 8, 6) Jacobians with respect
+    to its rig pose, tag and camera (the last used only where the mount is estimated), b
+    (n, 8), the built-in factors' sparse rows and b, and the normal equations."""
+
+    J_rig: NDArray[np.float64]
+    J_tag: NDArray[np.float64]
+    J_camera: NDArray[np.float64]
+    b: NDArray[np.float64]
+    J_builtin: scipy.sparse.csr_matrix
+    b_builtin: NDArray[np.float64]
+    normal: _Normal
+
+    def error_at_zero(self) -> float:
+        """Half the squared norm of b."""
+        return 0.5 * (float(np.sum(self.b * self.b)) + float(self.b_builtin @ self.b_builtin))
+
+
 class _Problem:
     """The poses as arrays, indexed as the ``Values`` orders its keys."""
 
@@ -156,14 +175,9 @@ class _Problem:
             corner = float(np.sum(0.5 * k * k * np.log1p(squared / (k * k))))
         return corner + float(self.builtin.error(values))
 
-    def linearise(
-        self, values: gtsam.Values
-    ) -> tuple[scipy.sparse.csr_matrix, NDArray[np.float64], _Normal]:
-        """The whitened Jacobian J (rows, n), right-hand side b (the negated whitened errors,
-        reweighted by the kernel as GTSAM's ``Robust::WhitenSystem`` does) and the normal
-        equations J^T J, J^T b."""
-        import scipy.sparse  # heavy: imported when a 3-D map is solved, not at start-up
-
+    def linearise(self, values: gtsam.Values) -> _Linear:
+        """The whitened Jacobians, right-hand side b (the negated whitened errors, reweighted
+        by the kernel as GTSAM's ``Robust::WhitenSystem`` does) and the normal equations."""
         e, J_camera, J_tag, mounts = self.residuals(values, True)
         e = e * self.corners.inverse_sigmas
         assert J_camera is not None and J_tag is not None  # asked for
@@ -175,25 +189,19 @@ class _Problem:
             weight = np.sqrt(k * k / (k * k + np.sum(e * e, axis=1)))[:, None]
             e = e * weight
             J_rig, J_camera, J_tag = (J * weight[:, :, None] for J in (J_rig, J_camera, J_tag))
-        views = len(e)
-        rows = np.arange(8 * views).reshape(views, 8, 1)
-        blocks = [(J_rig, self.rig), (J_tag, self.tag)]
-        if self.estimated.any():
-            blocks.append((J_camera[self.estimated], self.mount[self.estimated]))
-        r, cidx, data = [], [], []
-        for J, at in blocks:
-            chosen = rows if len(J) == views else rows[self.estimated]
-            r.append(np.broadcast_to(chosen, J.shape).ravel())
-            cidx.append((POSE_DIM * at[:, None, None] + np.arange(POSE_DIM)).repeat(8, 1).ravel())
-            data.append(J.ravel())
         builtin_J, builtin_b = self._builtin(values)
-        J_corner = scipy.sparse.csr_matrix(
-            (np.concatenate(data), (np.concatenate(r), np.concatenate(cidx))),
-            shape=(8 * views, self.n),
-        )
-        J_all = scipy.sparse.vstack([J_corner, builtin_J], format="csr")
         normal = self._normal(J_rig, J_tag, J_camera, -e, builtin_J, builtin_b)
-        return J_all, np.concatenate([-e.ravel(), builtin_b]), normal
+        return _Linear(J_rig, J_tag, J_camera, -e, builtin_J, builtin_b, normal)
+
+    def linear_error(self, linear: _Linear, delta: NDArray[np.float64]) -> float:
+        """Half the squared norm of J delta - b: the linearised system's error at ``delta``."""
+        step = delta.reshape(-1, POSE_DIM, 1)
+        r = linear.J_rig @ step[self.rig] + linear.J_tag @ step[self.tag] - linear.b[:, :, None]
+        m = self.estimated
+        if m.any():
+            r[m] += linear.J_camera[m] @ step[self.mount[m]]
+        rest = linear.J_builtin @ delta - linear.b_builtin
+        return 0.5 * (float(np.sum(r * r)) + float(rest @ rest))
 
     def _normal(
         self,
@@ -410,8 +418,7 @@ def covariances(
     import scipy.linalg
 
     problem = _Problem(corners, builtin, values)
-    _, _, normal = problem.linearise(values)
-    S, _, _ = _schur(normal, 0.0, strict=False)
+    S, _, _ = _schur(problem.linearise(values).normal, 0.0, strict=False)
     inverse = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), np.eye(len(S)))
     if not np.all(np.isfinite(inverse)):
         raise np.linalg.LinAlgError("the marginal covariances are not finite")
@@ -465,14 +472,13 @@ def _iterate(
 ) -> tuple[gtsam.Values, float, float, int]:
     """One outer iteration (``LevenbergMarquardtOptimizer::iterate``): lambda raised until a
     step is good, or the search stops. Returns (values, error, lambda, 1 if a step was taken)."""
-    J, b, normal = problem.linearise(values)
-    old_linear = 0.5 * float(b @ b)
+    linear = problem.linearise(values)
+    old_linear = linear.error_at_zero()
     while True:
-        delta = _solve(normal, lam)
+        delta = _solve(linear.normal, lam)
         successful, stop = False, False
         if delta is not None:
-            r = J @ delta - b
-            linear_change = old_linear - 0.5 * float(r @ r)
+            linear_change = old_linear - problem.linear_error(linear, delta)
             if linear_change >= 0:
                 new_values = problem.retract(values, delta)
                 new_error = problem.error(new_values)
