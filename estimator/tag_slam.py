@@ -36,7 +36,7 @@ class Solver(Enum):
 
     VECTORISED = "vectorised"
     """Every corner view linearised in one numpy call, GTSAM's step rules (:mod:`.tag_solver`):
-    the default, tens of times faster on TagSLAM's tests."""
+    the default; the whole estimator 2-11x faster on TagSLAM's tests (docs/benchmarks.md)."""
     GTSAM = "gtsam"
     """GTSAM's optimiser over one Python factor a frame (a view in the first solve): the
     reference the vectorised solve is checked against."""

@@ -442,7 +442,7 @@ def solve_lm(
     the solution and the iterations taken (as ``LevenbergMarquardtOptimizer.iterations()``).
 
     Raises:
-        RuntimeError: the first error is not finite (as GTSAM's optimiser would).
+        RuntimeError: GTSAM could not evaluate or linearise one of its built-in factors.
     """
     problem = _Problem(corners, builtin, values)
     error = problem.error(values)
