@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from markergraph.estimator.tags3d import tag_corners
 
-__all__ = ["FrameViews", "frame_errors", "frame_factor", "residuals"]
+__all__ = ["FrameViews", "adjoint_inverse", "frame_factor", "residuals"]
 
 
 MIN_DEPTH_M = 1e-3
@@ -38,7 +38,7 @@ def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
-def _adjoint_inverse(T: NDArray[np.float64]) -> NDArray[np.float64]:
+def adjoint_inverse(T: NDArray[np.float64]) -> NDArray[np.float64]:
     """(n, 4, 4) poses to the (n, 6, 6) adjoints of their inverses (rotation first)."""
     R_t = np.swapaxes(T[:, :3, :3], 1, 2)
     out = np.zeros((len(T), 6, 6))
@@ -64,8 +64,10 @@ def residuals(
     """
     Ra, ta = T_map_camera[:, :3, :3], T_map_camera[:, :3, 3]
     Rb, tb = T_map_tag[:, :3, :3], T_map_tag[:, :3, 3]
-    q = np.einsum("nij,nkj->nki", Rb, corners) + (tb - ta)[:, None, :]
-    p = np.einsum("nji,nkj->nki", Ra, q)  # the corners in the camera: Ra^T (Rb c + tb - ta)
+    # The corners in the camera, Ra^T (Rb c + tb - ta), as batched products (a tenth of
+    # einsum's time on these small matrices).
+    q = corners @ np.swapaxes(Rb, 1, 2) + (tb - ta)[:, None, :]
+    p = q @ Ra
     inverse_z = 1.0 / np.maximum(p[..., 2], MIN_DEPTH_M)  # a corner behind: large, not infinite
     residual = (p[..., :2] * inverse_z[..., None] - rays).reshape(len(p), 8)
     if not jacobians:
@@ -120,15 +122,6 @@ def _mounts_now(views: FrameViews, values: gtsam.Values) -> NDArray[np.float64]:
     return mounts
 
 
-def frame_errors(views: FrameViews, values: gtsam.Values) -> NDArray[np.float64]:
-    """Each view's residuals (n, 8) at ``values``."""
-    mounts = _mounts_now(views, values)
-    rig = values.atPose3(views.rig_key).matrix()
-    tags = np.array([values.atPose3(k).matrix() for k in views.tag_keys])
-    residual, _, _ = residuals(rig @ mounts, tags, views.corners(), views.rays)
-    return residual
-
-
 def _error(
     views: FrameViews,
     corners: NDArray[np.float64],
@@ -142,7 +135,7 @@ def _error(
     residual, J_camera, J_tag = residuals(rig @ mounts, tags, corners, views.rays, H is not None)
     if H is not None and J_camera is not None and J_tag is not None:
         n = len(views.tag_keys)
-        J_rig = J_camera @ _adjoint_inverse(mounts)  # the rig moves each camera through its mount
+        J_rig = J_camera @ adjoint_inverse(mounts)  # the rig moves each camera through its mount
         H[0] = J_rig.reshape(8 * n, 6)
         for slot, key in enumerate(this.keys()[1:], start=1):
             block = np.zeros((n, 8, 6))

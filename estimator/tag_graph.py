@@ -14,8 +14,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.corner_factor import FrameViews, frame_errors, frame_factor
+from markergraph.estimator.corner_factor import FrameViews, frame_factor
 from markergraph.estimator.tag_init import Placed
+from markergraph.estimator.tag_solver import CornerViews, corner_residuals
 from markergraph.estimator.tags3d import TagScene
 
 __all__ = ["TagGraph", "camera_key", "rig_key", "tag_key", "view_errors_px"]
@@ -143,10 +144,8 @@ class TagGraph:
             values.insert(camera_key(i), self.placed.cameras[i])
         return values
 
-    def graph(self, robust_k: float | None = None) -> gtsam.NonlinearFactorGraph:
-        """The whole graph; with ``robust_k``, one factor a view under a Cauchy kernel (a first
-        solve that outliers cannot drag; a frame's factor would share one weight among its
-        views), else one factor a frame."""
+    def builtin_graph(self) -> gtsam.NonlinearFactorGraph:
+        """GTSAM's built-in factors: the priors and the steps between frames."""
         graph = gtsam.NonlinearFactorGraph()
         for tag_id in self.placed.tags:
             prior = self.tag_prior(tag_id)
@@ -158,6 +157,32 @@ class TagGraph:
                 graph.add(camera_prior)
         for a, b in itertools.pairwise(sorted(self.placed.frames)):
             graph.add(self.step(a, b))
+        return graph
+
+    def corner_views(self, robust_k: float | None = None) -> CornerViews:
+        """Every view's corners laid out for the vectorised solve (:mod:`.tag_solver`)."""
+        eye = np.eye(4)
+        return CornerViews.of(
+            [
+                (
+                    rig_key(v.frame),
+                    tag_key(v.tag_id),
+                    camera_key(v.camera) if v.camera in self.estimated else None,
+                    eye if v.camera in self.estimated else self.placed.cameras[v.camera].matrix(),
+                    self.scene.tag_sizes[v.tag_id],
+                    np.asarray(v.rays),
+                    np.asarray(v.sigma),
+                )
+                for v in self.views
+            ],
+            robust_k,
+        )
+
+    def graph(self, robust_k: float | None = None) -> gtsam.NonlinearFactorGraph:
+        """The whole graph; with ``robust_k``, one factor a view under a Cauchy kernel (a first
+        solve that outliers cannot drag; a frame's factor would share one weight among its
+        views), else one factor a frame."""
+        graph = self.builtin_graph()
         if robust_k is not None:
             for k in range(len(self.views)):
                 graph.add(frame_factor(self.layout([k]), robust_k))
@@ -169,9 +194,8 @@ class TagGraph:
 
 def view_errors_px(problem: TagGraph, values: gtsam.Values) -> NDArray[np.float64]:
     """Each view's RMS corner reprojection error [px]."""
-    errors = np.empty(len(problem.views))
-    for indices, views in problem.frame_views():
-        residual = frame_errors(views, values)
-        per_px = np.array([problem.views[k].ray_per_px for k in indices])
-        errors[indices] = np.sqrt(np.mean((residual / per_px) ** 2, axis=1))
-    return errors
+    if not problem.views:
+        return np.empty(0)
+    residual = corner_residuals(problem.corner_views(), values)
+    per_px = np.array([v.ray_per_px for v in problem.views]).reshape(-1, 8)
+    return np.sqrt(np.mean((residual / per_px) ** 2, axis=1))

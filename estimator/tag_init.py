@@ -164,6 +164,20 @@ class Consensus:
             self.by_camera[view.camera].append(view)
         self.corners = {i: tag_corners(s) for i, s in scene.tag_sizes.items()}
         self.fixed_tags = {k.tag_id for k in scene.known_tags}
+        # Each view's arrays stacked once (a pose is chosen thousands of times over).
+        self.row = {id(v): k for k, v in enumerate(scene.views)}
+        self.view_corners = np.array([self.corners[v.tag_id] for v in scene.views]).reshape(
+            -1, 4, 3
+        )
+        self.view_rays = np.array([v.rays for v in scene.views]).reshape(-1, 4, 2)
+        self.view_sigmas = np.array([v.sigma for v in scene.views]).reshape(-1, 8)
+        self.depth = np.array(
+            [float(np.linalg.norm(v.T_camera_tag.translation())) for v in scene.views]
+        )
+
+    def rows(self, views: list[TagView]) -> NDArray[np.int64]:
+        """The views' places in the scene's list."""
+        return np.array([self.row[id(v)] for v in views], dtype=np.int64)
 
     allowed: Callable[[TagView], bool] | None = None
     """Where set, only the views it allows are weighed (iSAM2: those already entered)."""
@@ -186,15 +200,16 @@ class Consensus:
     ) -> NDArray[np.float64]:
         """Mean squared errors (k candidates, n views) for (k, n, 4, 4) poses, capped."""
         k, n = rigs.shape[:2]
-        corners = np.broadcast_to(np.array([self.corners[v.tag_id] for v in views]), (k, n, 4, 3))
-        rays = np.broadcast_to(np.array([v.rays for v in views]), (k, n, 4, 2))
+        rows = self.rows(views)
+        corners = np.broadcast_to(self.view_corners[rows], (k, n, 4, 3))
+        rays = np.broadcast_to(self.view_rays[rows], (k, n, 4, 2))
         residual, _, _ = residuals(
             (rigs @ mounts).reshape(-1, 4, 4),
             tags.reshape(-1, 4, 4),
             corners.reshape(-1, 4, 3),
             rays.reshape(-1, 4, 2),
         )
-        sigma = np.array([v.sigma for v in views])  # (n, 8)
+        sigma = self.view_sigmas[rows]  # (n, 8)
         chi2 = np.mean((residual.reshape(k, n, 8) / sigma) ** 2, axis=2)
         return np.minimum(np.nan_to_num(chi2, nan=cap), cap)
 
@@ -231,7 +246,7 @@ class Consensus:
         return [s for s in (view.T_camera_tag, view.T_camera_tag_alt) if s is not None]
 
     def _nearest(self, views: list[TagView]) -> list[TagView]:
-        depth = [float(np.linalg.norm(v.T_camera_tag.translation())) for v in views]
+        depth = self.depth[self.rows(views)]
         return [views[i] for i in np.argsort(depth)[:MAX_CANDIDATES]]
 
     def frame(self, frame: int) -> None:

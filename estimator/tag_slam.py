@@ -11,6 +11,7 @@ far from the solution (a PnP flip, a misdetection) are dropped and the graph sol
 from __future__ import annotations
 
 from collections import Counter
+from enum import Enum
 from typing import Any
 
 import gtsam
@@ -24,9 +25,22 @@ from markergraph.estimator.tag_frames import map_framing
 from markergraph.estimator.tag_graph import TagGraph, camera_key, rig_key, tag_key, view_errors_px
 from markergraph.estimator.tag_incremental import solve_incremental
 from markergraph.estimator.tag_init import agree, place
+from markergraph.estimator.tag_solver import LmSettings, covariances, solve_lm
 from markergraph.estimator.tags3d import Camera3d, Tag3d, TagMap3d, TagScene
 
-__all__ = ["map_tags"]
+__all__ = ["Solver", "map_tags"]
+
+
+class Solver(Enum):
+    """How the batch solve's Levenberg-Marquardt is driven (the same steps, the same answer)."""
+
+    VECTORISED = "vectorised"
+    """Every corner view linearised in one numpy call, GTSAM's step rules (:mod:`.tag_solver`):
+    the default; the whole estimator 2-11x faster on TagSLAM's tests (docs/benchmarks.md)."""
+    GTSAM = "gtsam"
+    """GTSAM's optimiser over one Python factor a frame (a view in the first solve): the
+    reference the vectorised solve is checked against."""
+
 
 OUTLIER_PX = 3.0
 """A view whose corners stay farther than this (RMS) from the solution, and farther than
@@ -76,37 +90,63 @@ def _mounts(scene: TagScene, notes: list[Note]) -> tuple[dict[int, gtsam.Pose3],
 
 
 def _optimise(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, tolerance: float, iterations: int
+    problem: TagGraph, robust_k: float | None, tolerance: float, iterations: int, solver: Solver
 ) -> tuple[gtsam.Values, bool]:
+    """Levenberg-Marquardt from where ``problem`` stands: the solution and whether it
+    converged (within ``iterations``)."""
     params = lm_params()
+    if solver is Solver.VECTORISED:
+        settings = LmSettings(tolerance, params.getAbsoluteErrorTol(), iterations)
+        try:
+            values, taken = solve_lm(
+                problem.corner_views(robust_k), problem.builtin_graph(), problem.values(), settings
+            )
+        except RuntimeError as error:
+            raise EstimationError(
+                f"the 3-D graph could not be solved: {first_line(error)}"
+            ) from None
+        return values, taken < iterations
     params.setRelativeErrorTol(tolerance)
     params.setMaxIterations(iterations)
     try:
-        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        optimizer = gtsam.LevenbergMarquardtOptimizer(
+            problem.graph(robust_k), problem.values(), params
+        )
         result = optimizer.optimize()
     except RuntimeError as error:
         raise EstimationError(f"the 3-D graph could not be solved: {first_line(error)}") from None
     return result, optimizer.iterations() < iterations
 
 
-def _first_solve(problem: TagGraph) -> gtsam.Values:
+def _first_solve(problem: TagGraph, solver: Solver) -> gtsam.Values:
     """A robust solve from the first guess, far enough to tell the outliers (not to the end:
     a Cauchy kernel's last steps are slow and change nothing the final solve does not)."""
-    values, _ = _optimise(problem.graph(ROBUST_K), problem.values(), FIRST_TOLERANCE,
-                          FIRST_ITERATIONS)  # fmt: skip
+    values, _ = _optimise(problem, ROBUST_K, FIRST_TOLERANCE, FIRST_ITERATIONS, solver)
     return values
 
 
-def _final_solve(problem: TagGraph, notes: list[Note]) -> tuple[gtsam.Values, bool, Any]:
+def _final_solve(
+    problem: TagGraph, notes: list[Note], solver: Solver
+) -> tuple[gtsam.Values, bool, Any]:
     """The plain solve from where the problem stands, whether it converged, and its marginals
     (None when they cannot be had)."""
-    graph = problem.graph()
-    values, converged = _optimise(graph, problem.values(), FINAL_TOLERANCE, MAX_ITERATIONS)
-    return values, converged, marginals_or_note(graph, values, notes)
+    values, converged = _optimise(problem, None, FINAL_TOLERANCE, MAX_ITERATIONS, solver)
+    if solver is Solver.GTSAM:
+        return values, converged, marginals_or_note(problem.graph(), values, notes)
+    try:  # only the tags' and mounts' covariances are written: the rig poses are eliminated
+        marginals = covariances(problem.corner_views(), problem.builtin_graph(), values)
+    except np.linalg.LinAlgError:
+        # Indeterminate or barely determined: GTSAM's Marginals decide as they always have
+        # (a note and no covariances, or huge ones past a pivot that is barely positive).
+        return values, converged, marginals_or_note(problem.graph(), values, notes)
+    return values, converged, marginals
 
 
-def map_tags(scene: TagScene, incremental: bool = False) -> TagMap3d:
-    """The 3-D tag map of ``scene``, solved in batch or (``incremental``) by iSAM2.
+def map_tags(
+    scene: TagScene, incremental: bool = False, solver: Solver = Solver.VECTORISED
+) -> TagMap3d:
+    """The 3-D tag map of ``scene``, solved in batch (driven as ``solver`` says) or
+    (``incremental``) by iSAM2.
 
     Raises:
         EstimationError: no views, a home tag never seen, or a graph that cannot be solved.
@@ -126,13 +166,13 @@ def map_tags(scene: TagScene, incremental: bool = False) -> TagMap3d:
         )
     if incremental:
         return _incremental(scene, problem, notes)
-    values = _first_solve(problem)
+    values = _first_solve(problem, solver)
     errors = view_errors_px(problem, values)
     limit = max(OUTLIER_PX, OUTLIER_SHARE * float(np.median(errors)))
     dropped = int(np.sum(errors > limit))
     problem.views = [v for v, e in zip(problem.views, errors, strict=True) if e <= limit]
     problem.warm(values)
-    values, converged, marginals = _final_solve(problem, notes)
+    values, converged, marginals = _final_solve(problem, notes, solver)
     errors = view_errors_px(problem, values)
     if dropped:
         notes.append(
