@@ -133,7 +133,7 @@ _MOUNT_SETTINGS = (
 )
 
 
-def _settings_used(run: MapRun) -> dict[str, Any]:
+def _settings_used(run: MapRun | LocalizationRun) -> dict[str, Any]:
     """Every setting as the run used it: a mount read from the log's static transforms
     replaces the configured one (``camera_mount`` says where it came from)."""
     values = dict(run.config.values)
@@ -145,7 +145,7 @@ def _settings_used(run: MapRun) -> dict[str, Any]:
     return values
 
 
-def _mount_entry(run: MapRun) -> dict[str, Any]:
+def _mount_entry(run: MapRun | LocalizationRun) -> dict[str, Any]:
     """The camera's mount used and where it came from (report.json's ``camera_mount``)."""
     mount = run.extraction.mount
     return {
