@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common.errors import SettingsError
-from markergraph.frontend.detect import Detection, edge_refined, load_dictionary
+from markergraph.frontend.detect import Detection, allowed_in, edge_refined
 
 __all__ = ["APRILTAG3_FAMILIES", "AprilTag3Detector", "apriltag3_available"]
 
@@ -97,14 +97,7 @@ class AprilTag3Detector:
             ) from None
         self.dictionary_name = dictionary
         self.subpixel = subpixel
-        self.allowed_ids = None if allowed_ids is None else frozenset(allowed_ids)
-        size = len(load_dictionary(dictionary).bytesList)
-        outside = sorted(i for i in self.allowed_ids or () if i >= size)
-        if outside:
-            raise SettingsError(
-                f"--ids {', '.join(map(str, outside))}: not in {dictionary}, whose ids are "
-                f"0-{size - 1}"
-            )
+        self.allowed_ids = allowed_in(dictionary, allowed_ids)
         self.left_out: Counter[int] = Counter()  # detections of ids outside ``allowed_ids``
         self._max_hamming = MAX_HAMMING[family]
         self._detector = pupil_apriltags.Detector(

@@ -19,6 +19,7 @@ __all__ = [
     "Detection",
     "Detector",
     "DetectorMode",
+    "allowed_in",
     "detection_agreement",
     "edge_refined",
     "load_dictionary",
@@ -82,6 +83,18 @@ def load_dictionary(name_or_path: str) -> cv2.aruco.Dictionary:
     return dictionary
 
 
+def allowed_in(dictionary: str, allowed_ids: Collection[int] | None) -> frozenset[int] | None:
+    """``allowed_ids`` as a set, checked to lie in ``dictionary`` (``None``: every id)."""
+    allowed = None if allowed_ids is None else frozenset(allowed_ids)
+    size = len(load_dictionary(dictionary).bytesList)
+    outside = sorted(i for i in allowed or () if i >= size)
+    if outside:
+        raise SettingsError(
+            f"--ids {', '.join(map(str, outside))}: not in {dictionary}, whose ids are 0-{size - 1}"
+        )
+    return allowed
+
+
 # FAST mode: above this share of the image covered by candidate windows, one whole-image pass
 # costs less than the windows and the candidate pass together.
 FAST_MAX_WINDOW_SHARE = 0.5
@@ -133,15 +146,8 @@ class Detector:
         self.dictionary_name = dictionary
         self.mode = mode
         self.subpixel = subpixel
-        self.allowed_ids = None if allowed_ids is None else frozenset(allowed_ids)
+        self.allowed_ids = allowed_in(dictionary, allowed_ids)
         loaded = load_dictionary(dictionary)
-        size = len(loaded.bytesList)
-        outside = sorted(i for i in self.allowed_ids or () if i >= size)
-        if outside:
-            raise SettingsError(
-                f"--ids {', '.join(map(str, outside))}: not in {dictionary}, whose ids are "
-                f"0-{size - 1}"
-            )
         self.left_out: Counter[int] = Counter()  # detections of ids outside ``allowed_ids``
         parameters = _parameters(subpixel)
         if mode is DetectorMode.ARUCO3:

@@ -7,18 +7,16 @@ tests/benchmarks/bench_rig3d.py prints them."""
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import gtsam
 import numpy as np
 import pytest
+from tagslam_helpers import DATA, recorded_scene
 
 from markergraph.datasets.scene3d import detections, make_scene3d, odometry3d, tag_scene
 from markergraph.estimator.tag_slam import Solver, map_tags
 from markergraph.estimator.tag_solver import CornerViews, LmSettings, solve_lm
 from markergraph.estimator.tags3d import TagMap3d, TagScene
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "tagslam-test" / "tests"
 
 SAME_M = 1e-6
 """The fast and reference solves' largest difference in any position [m] ..."""
@@ -157,24 +155,5 @@ def test_one_step_rule_matches_gtsam_on_a_robust_graph():
 def test_fast_solve_matches_gtsam_on_tagslam_recordings(test, tmp_path):
     """TagSLAM's test 1 (one fisheye) and test 7 (four fisheyes, three mounts estimated): the
     same map both ways."""
-    from markergraph.datasets.tagslam import unpacked
-    from markergraph.frontend import open_log
-    from markergraph.frontend.survey import read_survey
-    from markergraph.frontend.tag_scene import read_tag_scene
-    from markergraph.frontend.topics import choose_topics
-    from markergraph.settings import MapConfig
-
-    folder = DATA / test
-    config = MapConfig.from_values(
-        {
-            "dictionary": "DICT_APRILTAG_36h11",
-            "rig.cameras": str(folder / "cameras.yaml"),
-            "rig.camera_poses": str(folder / "camera_poses.yaml"),
-            "rig.tagslam": str(folder / "tagslam.yaml"),
-        }
-    )
-    log = open_log(unpacked(folder, "tag_detections", tmp_path))
-    choice = choose_topics(log.path, log.topics, config.frontend)
-    survey = read_survey(folder / "tagslam.yaml")
-    scene = read_tag_scene(log, config.frontend, choice, list(survey.tags)).scene
+    scene = recorded_scene(DATA / test, tmp_path)
     _assert_same(scene)

@@ -9,11 +9,11 @@ import json
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import gtsam
 import numpy as np
 import pytest
+from tagslam_helpers import DATA, recorded_scene
 
 from markergraph.datasets.scene3d import (
     detections,
@@ -27,8 +27,6 @@ from markergraph.estimator.corner_factor import FrameViews, frame_factor
 from markergraph.estimator.metrics import align_rigid_3d
 from markergraph.estimator.tag_slam import map_tags
 from markergraph.estimator.tags3d import TagMap3d
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "tagslam-test" / "tests"
 
 
 def _angle_deg(a: gtsam.Rot3, b: gtsam.Rot3) -> float:
@@ -235,24 +233,8 @@ def test_tagslam_recordings_match_tagslam(test, incremental, tmp_path):
     if not folder.exists():
         pytest.skip("../shared/data/tagslam-test is not here")
     from markergraph.datasets.tagslam import aligned_errors_3d, reference_tags_3d, unpacked
-    from markergraph.frontend import open_log
-    from markergraph.frontend.survey import read_survey
-    from markergraph.frontend.tag_scene import read_tag_scene
-    from markergraph.frontend.topics import choose_topics
-    from markergraph.settings import MapConfig
 
-    config = MapConfig.from_values(
-        {
-            "dictionary": "DICT_APRILTAG_36h11",
-            "rig.cameras": str(folder / "cameras.yaml"),
-            "rig.camera_poses": str(folder / "camera_poses.yaml"),
-            "rig.tagslam": str(folder / "tagslam.yaml"),
-        }
-    )
-    log = open_log(unpacked(folder, "tag_detections", tmp_path))
-    choice = choose_topics(log.path, log.topics, config.frontend)
-    survey = read_survey(folder / "tagslam.yaml")
-    scene = read_tag_scene(log, config.frontend, choice, list(survey.tags)).scene
+    scene = recorded_scene(folder, tmp_path)
     tag_map = map_tags(scene, incremental=incremental)
     reference = reference_tags_3d(unpacked(folder, "reference", tmp_path))
     assert set(tag_map.tags) == set(reference)
