@@ -39,10 +39,11 @@ __all__ = [
     "store_entry",
 ]
 
-CACHE_VERSION = 1
-"""Raised whenever what an entry holds changes shape: older entries are then ignored."""
-MAX_CACHE_BYTES = 1 << 30
-"""The folder's bound (1 GiB): least recently used entries go first."""
+CACHE_VERSION = 2
+"""Raised whenever what an entry holds changes (its shape, or the wording of the notes it keeps):
+older entries are then ignored."""
+MAX_CACHE_BYTES = 10**9
+"""The folder's bound (1 GB of 10^9 bytes): least recently used entries go first."""
 NO_CACHE_ENV = "MARKERGRAPH_NO_CACHE"
 EDGE_BYTES = 1 << 20  # the first and last MB: a rewritten log differs there (MCAP's summary)
 SUFFIX = ".extraction"
