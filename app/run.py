@@ -120,8 +120,9 @@ def _read(
         assert entry is not None  # every miss was just read
         before = dict(entry.searches)
         extraction = entry.extraction
-        if entry.hit:
-            extraction = replace(extraction, notes=[*extraction.notes, _cache_note(entry)])
+        if entry.hit:  # said first; how many processes read the log was the earlier run's
+            kept = [note for note in extraction.notes if not note.kind.startswith("workers.")]
+            extraction = replace(extraction, notes=[_cache_note(entry), *kept])
         prepared = prepare(log, extraction, config, stage, home, entry.searches)
         if entry.key and (not entry.hit or entry.searches != before):
             store_entry(entry)

@@ -78,8 +78,11 @@ def test_second_run_reads_no_image_and_gives_the_same_map(
     _map(log, tmp_path / "two")
     assert len(decoded) == read_first
     assert _map_document_text(tmp_path / "one") == _map_document_text(tmp_path / "two")
-    report = json.loads((tmp_path / "two" / "report.json").read_text())
-    assert "observations from the cache" in json.dumps(report)
+    first_notes = json.loads((tmp_path / "one" / "report.json").read_text())["notes"]
+    notes = json.loads((tmp_path / "two" / "report.json").read_text())["notes"]
+    assert any(note.startswith("workers: ") for note in first_notes)  # the log was read
+    assert notes[0].startswith("observations from the cache")  # said first, and then
+    assert not any(note.startswith("workers: ") for note in notes)  # no reading is described
     changed = _map(log, tmp_path / "three", "--odometry-noise", "0.2")
     assert len(decoded) == read_first
     a, b = _positions(first), _positions(changed)
