@@ -4,6 +4,7 @@ comparison itself: :mod:`markergraph.compare`)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -12,9 +13,17 @@ from numpy.typing import NDArray
 from markergraph.common.numbers import shown
 from markergraph.compare import Comparison, Figures, Scored
 
-__all__ = ["COMPARE_SCHEMA", "comparison_document", "comparison_lines", "summary"]
+__all__ = ["COMPARE_SCHEMA", "comparison_document", "comparison_lines", "plot_title", "summary"]
 
 COMPARE_SCHEMA = "markergraph.compare/1"
+
+
+def plot_title(map_path: Path, reference: Path) -> str:
+    """``"map vs reference"`` by file name, or by folder and name where the names are the same
+    (two ``map.json`` files)."""
+    if map_path.name != reference.name:
+        return f"{map_path.name} vs {reference.name}"
+    return f"{map_path.parent.name}/{map_path.name} vs {reference.parent.name}/{reference.name}"
 
 
 def _ids(ids: tuple[int, ...]) -> str:

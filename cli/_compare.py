@@ -8,7 +8,7 @@ from pathlib import Path
 from markergraph.cli._commands import summary
 from markergraph.common.files import check_output_file
 from markergraph.compare import compare, map_points, read_reference
-from markergraph.compare_text import comparison_document, comparison_lines
+from markergraph.compare_text import comparison_document, comparison_lines, plot_title
 from markergraph.markermap import MarkerMap, write_json
 
 COMPARE = summary("compare")
@@ -65,6 +65,6 @@ def run(args: argparse.Namespace) -> int:
     if args.plot is not None:
         from markergraph.compare_plot import plot_comparison
 
-        plot_comparison(result, args.plot, f"{args.map.name} vs {args.reference.name}")
+        plot_comparison(result, args.plot, plot_title(args.map, args.reference))
         print(f"wrote {args.plot}")
     return 0

@@ -422,3 +422,13 @@ def test_the_plot_exaggerates_errors_by_a_round_factor() -> None:
     assert exaggeration(np.array([0.024]), 15.0) * 0.024 >= SHOWN_ERROR * 15.0
     assert exaggeration(np.array([1.0]), 15.0) == 1.0
     assert exaggeration(np.zeros(3), 15.0) == 1.0
+
+
+def test_plot_title_tells_two_files_of_one_name_apart() -> None:
+    """Two map.json files are named by their folders in the plot's title; other names alone."""
+    from markergraph.compare_text import plot_title
+
+    assert plot_title(Path("a/room-map/map.json"), Path("b/ref/map.json")) == (
+        "room-map/map.json vs ref/map.json"
+    )
+    assert plot_title(Path("room-map/map.json"), Path("truth.csv")) == "map.json vs truth.csv"
