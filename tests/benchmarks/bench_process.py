@@ -14,7 +14,11 @@ The log: ``--log PATH``, else the corridor loop rendered once by ``markergraph s
 at 15 Hz, 640x480 JPEG, the D435i preset: 1,500 frames; about 5 minutes on an idle core, kept in
 the temporary folder).
 
-Usage: python tests/benchmarks/bench_process.py [--log PATH] [--rounds N] [--workers N]
+``detect`` runs with its default workers (auto), ``--workers 1`` and each ``--workers N`` given;
+``--detect-only`` leaves out ``map`` and start-up.
+
+Usage: python tests/benchmarks/bench_process.py [--log PATH] [--rounds N] [--workers N ...]
+    [--detect-only]
 Targets (issue 30): both commands at >= 1.5x the plain loop's frames/s at >= 99 % recall;
 start-up under 0.25 s.
 """
@@ -98,27 +102,28 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--log", type=Path, help="a 640x480 JPEG log (default: rendered once)")
     parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--workers", type=int, default=None, help="detect's --workers (default: "
-                        "the command's own default)")  # fmt: skip
+    parser.add_argument("--workers", type=int, action="append", default=[],
+                        help="detect also with this --workers (repeatable)")  # fmt: skip
+    parser.add_argument("--detect-only", action="store_true", help="no map, no start-up")
     args = parser.parse_args()
     log = args.log or rendered_log()
     jpegs = [bytes(m.decoded.data) for m in open_log(log).messages([TOPIC])]
     frames = len(jpegs)
     print(f"log {log}: {frames} frames, {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}")
-    workers = [] if args.workers is None else ["--workers", str(args.workers)]
-    runs = {
-        "detect": ["detect", str(log), "--out", "o.jsonl", "--force", "--quiet", *workers],
-        "detect --workers 1": ["detect", str(log), "--out", "o.jsonl", "--force", "--quiet",
-                               "--workers", "1"],
-        "map --method slam": ["map", str(log), "--method", "slam", "--no-cache", "--no-plots",
-                              "--out", "m", "--force", "--quiet"],
-    }  # fmt: skip
-    starts = {
-        "python -c pass": [sys.executable, "-c", "pass"],
-        "markergraph --help": [*COMMAND, "--help"],
-        "markergraph detect --help": [*COMMAND, "detect", "--help"],
-        "markergraph info LOG": [*COMMAND, "info", str(log)],
-    }
+    detect = ["detect", str(log), "--out", "o.jsonl", "--force", "--quiet"]
+    runs = {"detect (auto workers)": detect}
+    for n in sorted({1, *args.workers}):
+        runs[f"detect --workers {n}"] = [*detect, "--workers", str(n)]
+    starts: dict[str, list[str]] = {}
+    if not args.detect_only:
+        runs["map --method slam"] = ["map", str(log), "--method", "slam", "--no-cache",
+                                     "--no-plots", "--out", "m", "--force", "--quiet"]  # fmt: skip
+        starts = {
+            "python -c pass": [sys.executable, "-c", "pass"],
+            "markergraph --help": [*COMMAND, "--help"],
+            "markergraph detect --help": [*COMMAND, "detect", "--help"],
+            "markergraph info LOG": [*COMMAND, "info", str(log)],
+        }
     best: dict[str, float] = {}
     work = Path(tempfile.mkdtemp(prefix="bench-process-"))
     reference: list[list[Detection]] = []
@@ -143,7 +148,8 @@ def main() -> None:
         rate = frames / best[name]
         print(f"{name:28}{best[name]:9.2f}{rate:10.0f}{rate / plain_rate:9.2f}")
     print(f"recall: the default detector finds {recall:.1%} of the plain loop's {total} detections")
-    print("\nstart-up (whole process, seconds)")
+    if starts:
+        print("\nstart-up (whole process, seconds)")
     for name in starts:
         print(f"  {name:30}{best[name]:6.3f}")
 
