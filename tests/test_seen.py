@@ -365,13 +365,22 @@ def test_readme_api_example_prints_the_aligned_error(monkeypatch, capsys) -> Non
         map_error=SimpleNamespace(rmse_position_m=0.190),
         marker_map=SimpleNamespace(markers={0: None, 1: None}),
     )
-    monkeypatch.setattr(mg, "map_log", lambda *a, **k: SimpleNamespace(results=[method]))
+    from markergraph.common import Note
+    from markergraph.verdicts import Judgement, Verdict
+
+    result = SimpleNamespace(
+        results=[method],
+        notes=[Note("camera.delay_chosen", "camera stamps +0.0 ms against /odom")],
+        judgement=Judgement(Verdict.OK),
+    )
+    monkeypatch.setattr(mg, "map_log", lambda *a, **k: result)
     monkeypatch.setattr(mg, "write_results", lambda *a, **k: [])
     monkeypatch.setattr(mg, "MarkerMap", SimpleNamespace(load=lambda path: None))
     exec(compile(block, "README.md", "exec"), {})
     printed = capsys.readouterr().out
     assert "0.034 m aligned" in printed and "0.190 m home-fixed" in printed, printed
     assert "MapError" not in printed
+    assert "note: camera stamps +0.0 ms against /odom" in printed and "verdict: ok" in printed
 
 
 def test_sizes_are_said_in_mb() -> None:
