@@ -14,18 +14,20 @@ a wall in between hides them). Depth is the optical-axis distance (Z) in millime
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.datasets.route import drive
+from markergraph.datasets.scenarios import scenario
 from markergraph.datasets.simulate import SIMULATED_MOUNT, MarkerGeometry
 from markergraph.datasets.world import World
 from markergraph.frontend.camera import Camera, CameraMount
 
-__all__ = ["DepthNoise", "ImageEffects", "RenderedFrame", "Renderer"]
+__all__ = ["DepthNoise", "ImageEffects", "RenderedFrame", "Renderer", "frames_with_true_corners"]
 
 _AZIMUTH_SAMPLES = 4096  # table resolution across the field of view (~0.02 px at 640 wide)
 _MARKER_LEVELS = (24, 48, 96, 192, 384)  # pre-drawn marker sizes [px]; warps shrink at most 2x
@@ -397,3 +399,32 @@ def _square_corners(border: int, n: int) -> NDArray[np.float32]:
         ],
         dtype=np.float32,
     )
+
+
+def frames_with_true_corners(
+    scene: str, dictionary: str, seconds: float, blur_px: float = 0.7, frame_hz: float = 2.0
+) -> list[tuple[NDArray[np.uint8], dict[int, NDArray[np.float64]]]]:
+    """A scenario driven for ``seconds`` with every marker in ``dictionary``, each frame as the
+    log writer encodes it (JPEG 90) and the front end decodes it (grey), with the true corners
+    (4, 2) in OpenCV's order of every marker drawn in it, by id."""
+    world, route = scenario(scene)
+    markers = tuple(replace(m, dictionary=dictionary) for m in world.markers)
+    world = replace(world, markers=markers)
+    renderer = Renderer(world, effects=ImageEffects(blur_sigma_px=blur_px))
+    rng = np.random.default_rng(0)
+    frames = []
+    for pose in drive(world, route, rng, frame_hz=frame_hz, duration_s=seconds).frame_poses:
+        T_world_base = gtsam.Pose2(*pose)
+        frame = renderer.render(T_world_base, rng)
+        _, jpeg = cv2.imencode(
+            ".jpg", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
+        )
+        grey = np.asarray(cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE), dtype=np.uint8)
+        truth = {
+            i: renderer.camera.project(
+                renderer.mount.world_to_optical(T_world_base, world.marker_corners(i))
+            )
+            for i in frame.drawn_ids
+        }
+        frames.append((grey, truth))
+    return frames

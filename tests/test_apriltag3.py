@@ -10,7 +10,6 @@ import sys
 from pathlib import Path
 
 import cv2
-import gtsam
 import numpy as np
 import pytest
 from numpy.typing import NDArray
@@ -18,8 +17,7 @@ from numpy.typing import NDArray
 from markergraph import MapConfig
 from markergraph.common.errors import SettingsError
 from markergraph.datasets import scenario
-from markergraph.datasets.render import Renderer
-from markergraph.datasets.route import drive
+from markergraph.datasets.render import frames_with_true_corners
 from markergraph.datasets.write import write_log
 from markergraph.frontend import FrontendConfig, extract
 from markergraph.frontend import detectors as detectors_module
@@ -107,38 +105,10 @@ def test_pixel_convention_is_opencvs() -> None:
     assert np.all(np.abs(np.mean(offsets, axis=(0, 1))) < RAW_MEAN_OFFSET_PX)
 
 
-def rendered_office(
-    dictionary: str, seconds: float
-) -> list[tuple[NDArray[np.uint8], dict[int, NDArray[np.float64]]]]:
-    """The office with its markers in ``dictionary``, at 2 Hz, as the log writer encodes frames
-    (JPEG 90) and the front end decodes them; each with its drawn tags' true corners."""
-    world, route = scenario("office")
-    markers = tuple(dataclasses.replace(m, dictionary=dictionary) for m in world.markers)
-    world = dataclasses.replace(world, markers=markers)
-    renderer = Renderer(world)
-    rng = np.random.default_rng(0)
-    frames = []
-    for pose in drive(world, route, rng, frame_hz=2.0, duration_s=seconds).frame_poses:
-        T_world_base = gtsam.Pose2(*pose)
-        frame = renderer.render(T_world_base, rng)
-        _, jpeg = cv2.imencode(
-            ".jpg", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
-        )
-        grey = np.asarray(cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE), np.uint8)
-        truth = {
-            i: renderer.camera.project(
-                renderer.mount.world_to_optical(T_world_base, world.marker_corners(i))
-            )
-            for i in frame.drawn_ids
-        }
-        frames.append((grey, truth))
-    return frames
-
-
 @pytest.fixture(scope="module")
 def office_36h11() -> list[tuple[NDArray[np.uint8], dict[int, NDArray[np.float64]]]]:
     """Half a minute of the rendered office in AprilTag 36h11."""
-    return rendered_office("DICT_APRILTAG_36h11", 30.0)
+    return frames_with_true_corners("office", "DICT_APRILTAG_36h11", 30.0)
 
 
 def in_view(corners: NDArray[np.float64]) -> bool:

@@ -42,14 +42,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 import cv2
-import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 import markergraph as mg
 from markergraph.datasets import scenario
-from markergraph.datasets.render import ImageEffects, Renderer
-from markergraph.datasets.route import drive
+from markergraph.datasets.render import frames_with_true_corners
 from markergraph.datasets.write import write_log
 from markergraph.frontend.apriltag3 import AprilTag3Detector
 from markergraph.frontend.detect import Detection, Detector, DetectorMode
@@ -68,34 +66,6 @@ SCENES = [
 ]
 
 Frame = tuple[NDArray[np.uint8], dict[int, NDArray[np.float64]]]  # grey image, true corners
-
-
-def rendered_frames(
-    scene: str, dictionary: str, blur_px: float, seconds: float, frame_hz: float = 2.0
-) -> list[Frame]:
-    """A scenario's frames with every marker in ``dictionary``: (grey image as the front end
-    decodes it, {id: (4, 2) true corners in OpenCV's order} of the tags drawn)."""
-    world, route = scenario(scene)
-    markers = tuple(dataclasses.replace(m, dictionary=dictionary) for m in world.markers)
-    world = dataclasses.replace(world, markers=markers)
-    renderer = Renderer(world, effects=ImageEffects(blur_sigma_px=blur_px))
-    rng = np.random.default_rng(0)
-    frames = []
-    for pose in drive(world, route, rng, frame_hz=frame_hz, duration_s=seconds).frame_poses:
-        T_world_base = gtsam.Pose2(*pose)
-        frame = renderer.render(T_world_base, rng)
-        _, jpeg = cv2.imencode(
-            ".jpg", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
-        )
-        grey = np.asarray(cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE), dtype=np.uint8)
-        truth = {
-            i: renderer.camera.project(
-                renderer.mount.world_to_optical(T_world_base, world.marker_corners(i))
-            )
-            for i in frame.drawn_ids
-        }
-        frames.append((grey, truth))
-    return frames
 
 
 def in_view(corners: NDArray[np.float64], shape: tuple[int, ...]) -> bool:
@@ -227,7 +197,7 @@ def main() -> None:
     for family in args.families:
         dictionary = f"DICT_APRILTAG_{family}"
         for scene, scenario_name, blur_px in SCENES:
-            frames = rendered_frames(scenario_name, dictionary, blur_px, args.seconds)
+            frames = frames_with_true_corners(scenario_name, dictionary, args.seconds, blur_px)
             times, found = timed(detectors(dictionary), [g for g, _ in frames], args.repeats)
             for name, detections in found.items():
                 s = score(frames, detections)
