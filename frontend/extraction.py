@@ -77,7 +77,7 @@ class Extraction:
     """The camera's mount used."""
     mount_source: str | None = field(metadata=_FIRST_SET, default=None, kw_only=True)
     """Where ``mount`` came from when the log gave it: its static transforms (naming the topic
-    and frames); None where the settings gave it, or not recorded (see :meth:`mount_origin`)."""
+    and frames) or detect's output; None where the settings gave it."""
     topics: TopicChoice = field(metadata=_FIRST)
     """The topics read."""
     frames: int = field(metadata=_SUM, default=0)
@@ -164,14 +164,8 @@ class Extraction:
     None for odometry from /tf."""
 
     def mount_origin(self) -> str:
-        """Where ``mount`` came from, in words: ``mount_source``, else the settings when a
-        note says the log gave none, else the log's static transforms (an extraction kept
-        before ``mount_source`` was)."""
-        if self.mount_source is not None:
-            return self.mount_source
-        if any(note.kind.startswith("mount.") for note in self.notes):
-            return MOUNT_FROM_SETTINGS
-        return "/tf_static" if self.topics.tf_static else MOUNT_FROM_SETTINGS
+        """Where ``mount`` came from, in words: ``mount_source``, else the settings."""
+        return self.mount_source or MOUNT_FROM_SETTINGS
 
     def input_evidence(self) -> dict[str, Any]:
         """What the front end judged of its inputs, JSON-ready (report.json's ``inputs``): what

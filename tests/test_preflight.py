@@ -13,6 +13,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
+from trust_helpers import as_sqlite_bag
 
 from markergraph.cli import main
 from markergraph.cli._frontend import EXIT_CANNOT_MAP
@@ -184,19 +185,8 @@ def test_long_type_names_do_not_break_the_columns(tmp_path: Path, capsys) -> Non
 
 def test_sqlite_bag_reports_as_its_mcap_twin(complete: Path, tmp_path: Path, capsys) -> None:
     """A rosbag2 SQLite folder of the same messages: the same report, line for line."""
-    from rosbags.rosbag2 import Writer as BagWriter
-    from rosbags.typesys import Stores, get_typestore
-
     bag = tmp_path / "room_bag"
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    with open(complete, "rb") as stream, BagWriter(bag, version=8) as bag_writer:
-        connections: dict[str, Any] = {}
-        for schema, channel, message in make_reader(stream).iter_messages():
-            if channel.topic not in connections:
-                connections[channel.topic] = bag_writer.add_connection(
-                    channel.topic, schema.name, typestore=store
-                )
-            bag_writer.write(connections[channel.topic], message.log_time, message.data)
+    as_sqlite_bag(complete, bag)
     code_mcap, from_mcap = info(capsys, complete)
     code_bag, from_bag = info(capsys, bag)
     assert any(bag.glob("*.db3")) and code_bag == code_mcap == 0

@@ -231,6 +231,10 @@ def test_detect_output_maps_to_the_same_markers_as_the_log(
     assert a.keys() == b.keys() and len(a) == 3
     for i in a:
         np.testing.assert_allclose(b[i], a[i], atol=SAME_MAP_M)
+    mounts = [json.loads((tmp_path / d / "report.json").read_text())["camera_mount"]
+              for d in ("log", "file")]  # fmt: skip
+    assert mounts[1]["source"] == f"{obs} (detect's output)"  # not "the settings"
+    assert mounts[1]["height_m"] == pytest.approx(mounts[0]["height_m"], abs=1e-9)
 
 
 def test_detect_output_without_odometry_fails_in_one_line(

@@ -247,6 +247,7 @@ def extraction_of_file(path: Path) -> Extraction:
         odometry=read.odometry,
         camera=None,
         mount=read.mount or CameraMount(),
+        mount_source=f"{path} (detect's output)" if read.mount is not None else None,
         topics=TopicChoice(None, None, None, read.odom_topic, None),
         frames=read.frames if read.frames is not None else len(stamps),
         notes=notes,
