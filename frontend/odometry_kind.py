@@ -17,7 +17,7 @@ from markergraph.frontend.tf import rotation_of
 if TYPE_CHECKING:  # settings read this module's choices without opening a log
     from markergraph.frontend.logs import Log
 
-__all__ = ["OdometryEvidence", "choose_odometry_source", "odometry_evidence"]
+__all__ = ["OdometryEvidence", "OdometryJudge", "choose_odometry_source", "odometry_evidence"]
 
 SAMPLES_JUDGED = 600  # the first samples read (12 s at 50 Hz): enough to see a rig's tilt
 # A planar estimate keeps z, roll and pitch at zero; a wheel base's own odometry does so exactly,
@@ -60,30 +60,77 @@ class OdometryEvidence:
         return self.max_tilt_rad <= PLANAR_TILT_RAD and self.z_span_m <= PLANAR_Z_M
 
 
+class OdometryJudge:
+    """Gathers a topic's first :data:`SAMPLES_JUDGED` nav_msgs/Odometry messages, as a log is
+    read in order, for their :class:`OdometryEvidence`."""
+
+    def __init__(self) -> None:
+        self.stamps: list[int] = []
+        self.z: list[float] = []
+        self.tilt: list[float] = []
+        self.position: list[tuple[float, float]] = []
+        self.variance: list[float] = []
+        self.not_odometry = False
+
+    @property
+    def wants_more(self) -> bool:
+        """Whether the next message of the topic would be judged."""
+        return not self.not_odometry and len(self.stamps) < SAMPLES_JUDGED
+
+    def add(self, log_time_ns: int, decoded: object) -> None:
+        """One message of the topic (decoded), in log order."""
+        pose_with_covariance = getattr(decoded, "pose", None)
+        pose = getattr(pose_with_covariance, "pose", None)
+        if pose is None:
+            self.not_odometry = True  # odometry from /tf, or another type
+            return
+        R = rotation_of(pose.orientation)
+        p = pose.position
+        if R is None or not all(math.isfinite(float(v)) for v in (p.x, p.y, p.z)):
+            return
+        self.stamps.append(log_time_ns)
+        self.z.append(float(p.z))
+        self.tilt.append(math.acos(max(-1.0, min(1.0, float(R[2, 2])))))
+        self.position.append((float(p.x), float(p.y)))
+        covariance = np.asarray(
+            getattr(pose_with_covariance, "covariance", ()), dtype=np.float64
+        ).ravel()
+        self.variance.append(covariance[[0, 7]].sum() if covariance.size == 36 else 0.0)
+
+    def evidence(self) -> OdometryEvidence | None:
+        """The evidence of the messages gathered; None where they are not nav_msgs/Odometry or
+        fewer than two were usable."""
+        if self.not_odometry or len(self.stamps) < 2:
+            return None
+        steps = np.diff(np.array(self.stamps, dtype=np.float64)) * 1e-9
+        rate_hz = 1.0 / float(np.median(steps)) if np.median(steps) > 0 else math.inf
+        variances = np.array(self.variance)
+        if not np.all(np.isfinite(variances)) or not np.any(variances):
+            kind, per_m = "unset", None
+        elif np.ptp(variances) <= 1e-12 * max(1.0, float(np.max(np.abs(variances)))):
+            kind, per_m = "constant", None
+        else:
+            kind = "varying"
+            steps_m = np.hypot(*np.diff(self.position, axis=0).T)
+            travelled = np.concatenate([[0.0], np.cumsum(steps_m)])
+            per_m = None
+            if travelled[-1] > 0.5:  # a slope over half a metre or more
+                slope = float(np.polyfit(travelled, variances / 2.0, 1)[0])
+                per_m = slope if slope > 0 else None
+        tilt, z_span = float(max(self.tilt)), float(np.ptp(self.z))
+        return OdometryEvidence(len(self.stamps), rate_hz, z_span, tilt, kind, per_m)
+
+
 def odometry_evidence(log: Log, topic: str) -> OdometryEvidence | None:
-    """The evidence of a topic's first :data:`SAMPLES_JUDGED` messages; None where they are not
-    nav_msgs/Odometry (odometry from /tf) or fewer than two decode."""
-    stamps, z, tilt, position, variance = [], [], [], [], []
+    """The evidence of a topic's first :data:`SAMPLES_JUDGED` messages (:class:`OdometryJudge`),
+    read on their own; None where they are not nav_msgs/Odometry (odometry from /tf) or fewer
+    than two decode."""
+    judge = OdometryJudge()
     stream = log.messages([topic], DecodeFailures())
     try:
         for message in stream:
-            pose_with_covariance = getattr(message.decoded, "pose", None)
-            pose = getattr(pose_with_covariance, "pose", None)
-            if pose is None:
-                return None  # not nav_msgs/Odometry
-            R = rotation_of(pose.orientation)
-            p = pose.position
-            if R is None or not all(math.isfinite(float(v)) for v in (p.x, p.y, p.z)):
-                continue
-            stamps.append(message.log_time_ns)
-            z.append(float(p.z))
-            tilt.append(math.acos(max(-1.0, min(1.0, float(R[2, 2])))))
-            position.append((float(p.x), float(p.y)))
-            covariance = np.asarray(
-                getattr(pose_with_covariance, "covariance", ()), dtype=np.float64
-            ).ravel()
-            variance.append(covariance[[0, 7]].sum() if covariance.size == 36 else 0.0)
-            if len(stamps) >= SAMPLES_JUDGED:
+            judge.add(message.log_time_ns, message.decoded)
+            if not judge.wants_more:
                 break
     except LogError:
         return None
@@ -91,23 +138,7 @@ def odometry_evidence(log: Log, topic: str) -> OdometryEvidence | None:
         close = getattr(stream, "close", None)  # a generator: its file closed now, not at gc
         if close is not None:
             close()
-    if len(stamps) < 2:
-        return None
-    steps = np.diff(np.array(stamps, dtype=np.float64)) * 1e-9
-    rate_hz = 1.0 / float(np.median(steps)) if np.median(steps) > 0 else math.inf
-    variances = np.array(variance)
-    if not np.all(np.isfinite(variances)) or not np.any(variances):
-        kind, per_m = "unset", None
-    elif np.ptp(variances) <= 1e-12 * max(1.0, float(np.max(np.abs(variances)))):
-        kind, per_m = "constant", None
-    else:
-        kind = "varying"
-        travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(position, axis=0).T))])
-        per_m = None
-        if travelled[-1] > 0.5:  # a slope over half a metre or more
-            slope = float(np.polyfit(travelled, variances / 2.0, 1)[0])
-            per_m = slope if slope > 0 else None
-    return OdometryEvidence(len(stamps), rate_hz, float(np.ptp(z)), float(max(tilt)), kind, per_m)
+    return judge.evidence()
 
 
 def choose_odometry_source(evidence: OdometryEvidence | None, topic: str | None) -> tuple[str, str]:

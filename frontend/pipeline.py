@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from markergraph.common.notes import Note
-from markergraph.common.pool import choose_workers, process_pool
+from markergraph.common.pool import available_cores, choose_workers, process_pool
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.frontend.camera import CameraMount
 from markergraph.frontend.cleaning import clean_path, drop_frames_by_stamp
@@ -171,11 +171,12 @@ def _extract_once(
     if choice.detections:
         part = _from_detections(read_detection_log(log, config, choice), choice)
     elif workers <= 1:
-        part = SpanReader(log, config, choice, counts).read(Span(), progress)
+        part = SpanReader(log, config, choice, counts, available_cores()).read(Span(), progress)
     else:
         part = _read_in_workers(log, config, choice, counts, workers, progress)
     result = part.extraction
-    if choice.odom and counts.get(choice.odom):
+    if choice.odom and counts.get(choice.odom) and result.odometry_evidence is None:
+        # Workers, or a log of detections, did not judge it while reading.
         result.odometry_evidence = odometry_evidence(log, choice.odom)
     if judgement is not None:
         notes += _camera_judged(result, judgement, choice)
@@ -202,7 +203,8 @@ def _read_in_workers(
     spans = [Span(int(a), int(b)) for a, b in itertools.pairwise(edges)]
     parts = []
     with process_pool(workers, one_opencv_thread) as pool:
-        jobs = [(log, config, choice, counts, span) for span in spans]
+        threads = max(1, available_cores() // workers)
+        jobs = [(log, config, choice, counts, span, threads) for span in spans]
         for done, piece in enumerate(pool.map(read_span, jobs), start=1):
             parts.append(piece)
             if progress is not None:  # in frames, as one process counts them

@@ -9,8 +9,9 @@ costs its frame, not the run.
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
-from collections.abc import Callable, Iterator
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,7 +25,6 @@ from markergraph.estimator.types import OdometrySample
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import (
     decode_depth,
-    decode_image,
     frame_id,
     odometry_sample,
     stamp_ns,
@@ -34,6 +34,7 @@ from markergraph.frontend.detectors import DetectorChoice, MarkerDetector, make_
 from markergraph.frontend.extraction import Extraction, Part
 from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message, read_ahead
 from markergraph.frontend.observe import Flags, observe_detections
+from markergraph.frontend.odometry_kind import OdometryJudge
 from markergraph.frontend.posed import (
     MAX_ATTITUDE_GAP_NS,
     LevelledCamera,
@@ -41,6 +42,7 @@ from markergraph.frontend.posed import (
     observe_levelled_frame,
 )
 from markergraph.frontend.ros2 import yaw_from_quaternion
+from markergraph.frontend.seeing import SeeingPool, Seen
 from markergraph.frontend.tf import (
     mount_from_transforms,
     odometry_from_tf,
@@ -60,16 +62,19 @@ __all__ = [
 ]
 
 MAX_ATTITUDES = 64  # the latest odometry attitudes kept to level frames with
+# Frames paired with their depth wait this many a thread for the pool to see them before the
+# reader waits: the pool keeps working while the reader pairs and observes.
+IN_FLIGHT_PER_THREAD = 4
 
 
 @dataclass(frozen=True, slots=True)
 class ColourFrame:
-    """A colour message with its grey image, or why the image does not decode."""
+    """A colour message and what its image shows, once the pool has seen it."""
 
     message: Message
     """The colour message as read."""
-    image: NDArray[np.uint8] | LogError
-    """Its grey image, or why it does not decode."""
+    seen: Future[Seen]
+    """Its image decoded and its markers detected, in the pool (:class:`SeeingPool`)."""
 
 
 _Job = tuple[int, ColourFrame, "NDArray | None"]  # (stamp, colour frame, paired depth)
@@ -137,37 +142,31 @@ class Span:
         )
 
 
-def _with_images(
-    stream: Iterator[Message],
-    color: str | None,
-    span: Span,
-    camera_size: tuple[int, int] | None = None,
-) -> Iterator[Message | ColourFrame]:
-    """The stream, its colour messages inside ``span`` as frames with their images decoded.
-    Run in the reading thread (:func:`read_ahead`), so decoding JPEG (0.6 ms a 640x480 frame,
-    which releases the GIL) overlaps detection in the main thread: on bench_frontend's log the
-    reading thread then spends 1.3-1.6 ms of CPU a frame and the main thread 1.8-2.0 ms.
-    Closing it closes ``stream`` (and the log's file) in the thread that closes it."""
-    try:
-        for message in stream:
-            if message.topic == color and span.holds(message.log_time_ns):
-                try:
-                    yield ColourFrame(message, decode_image(message, camera_size))
-                except LogError as error:
-                    yield ColourFrame(message, error)
-            else:
-                yield message
-    finally:
-        close = getattr(stream, "close", None)
-        if close is not None:
-            close()
+@dataclass(frozen=True, slots=True)
+class _Paired:
+    """A colour frame with its depth and the levelled camera at its stamp, to be observed once
+    the pool has seen it."""
+
+    t_ns: int
+    frame: ColourFrame
+    depth: NDArray | None
+    view: LevelledCamera | None
 
 
 class SpanReader:
-    """One process's work: observations, odometry and ground truth of one stretch of the log."""
+    """One process's work: observations, odometry and ground truth of one stretch of the log.
+
+    Three kinds of thread share it: one reads the log ahead (:func:`read_ahead`: file reads,
+    zstd), the pool's decode images and detect markers (:class:`SeeingPool`), and the caller's
+    pairs frames with depth and odometry and observes them, in log order."""
 
     def __init__(
-        self, log: Log, config: FrontendConfig, choice: TopicChoice, counts: dict[str, int]
+        self,
+        log: Log,
+        config: FrontendConfig,
+        choice: TopicChoice,
+        counts: dict[str, int],
+        threads: int = 1,
     ) -> None:
         self.log, self.path = log, log.path
         self.config, self.choice, self.counts = config, choice, counts
@@ -180,15 +179,17 @@ class SpanReader:
         self.odometry_frame: str | None = None
         self.mount_known = config.mount is not None
         self.pairing = Pairing(config.pair_tolerance_ns)
-        self.detector = detector_for(config)
+        self.threads = max(1, threads)
+        self.odometry_judge: OdometryJudge | None = None  # set while reading from the log's start
+        self.paired: deque[_Paired] = deque()
         self.model = config.observation_model
         self.attitudes: deque[tuple[int, NDArray[np.float64]]] = deque(maxlen=MAX_ATTITUDES)
 
     def read(self, span: Span, progress: Callable[[int, int], None] | None) -> Part:
         """The stretch's observations, odometry and truth; ``progress`` called with (colour
         frames read, frames in all)."""
-        left_out_before = Counter(self.detector.left_out)
         self._read_once_topics()
+        self.odometry_judge = OdometryJudge() if span.start_ns is None else None
         streamed = [
             t
             for t in (self.choice.color, self.choice.depth, self.choice.odom, TRUE_POSE)
@@ -201,23 +202,26 @@ class SpanReader:
         start = None if span.start_ns is None else span.start_ns - margin
         end = None if span.end_ns is None else span.end_ns + margin
         stream = self.log.messages(streamed, self.read_failures, start, end)
-        stream_with_images = _with_images(stream, color, span, self._camera_size())
-        for item in read_ahead(stream_with_images):
-            if isinstance(item, ColourFrame):
-                done += 1
-                if progress is not None and done % 10 == 0:
-                    progress(done, total)
-                self._take_frame(item)
-            else:
-                self._take(item, span.holds(item.log_time_ns))
-        self._drain(0, flush=True)
+        with SeeingPool(self.config, self.threads, self._camera_size()) as pool:
+            for message in read_ahead(stream):
+                if message.topic == color and span.holds(message.log_time_ns):
+                    done += 1
+                    if progress is not None and done % 10 == 0:
+                        progress(done, total)
+                    self._take_frame(ColourFrame(message, pool.submit(message)))
+                else:
+                    self._take(message, span.holds(message.log_time_ns))
+            self._drain(0, flush=True)
+            left_out = pool.left_out()
         if progress is not None:
             progress(total, total)
         result = self.part.extraction
         # Both readers meet the same damaged index: its note is said once.
         result.read_failures = DecodeFailures.merged([self.read_failures, self.failures])
         result.warnings = result.read_failures.warnings()
-        result.ids_left_out = self.detector.left_out - left_out_before
+        result.ids_left_out = left_out
+        if self.odometry_judge is not None:
+            result.odometry_evidence = self.odometry_judge.evidence()
         return self.part
 
     def _camera_size(self) -> tuple[int, int] | None:
@@ -274,6 +278,8 @@ class SpanReader:
                 self.failures.add(self.path, topic, str(error))
             self._drain(stamp_ns(decoded))
         elif topic == choice.odom:
+            if self.odometry_judge is not None and self.odometry_judge.wants_more:
+                self.odometry_judge.add(message.log_time_ns, decoded)
             if message.schema.endswith("TFMessage"):
                 if inside:
                     samples = odometry_from_tf(decoded, self.config.base_frame)
@@ -296,12 +302,17 @@ class SpanReader:
             self.part.true_pose_log_ns.append(message.log_time_ns)
 
     def _drain(self, latest_ns: int, flush: bool = False) -> None:
-        """The colour frames paired (or past waiting for depth) observed."""
+        """The colour frames paired (or past waiting for depth) observed, in order, as the pool
+        sees them: the reader waits only with too many in flight, or to finish."""
         ready = self.pairing.ready(latest_ns, flush)
         if ready:
             self._settle_mount()
-        for job in ready:
-            self._observe(*job)
+        for t_ns, frame, depth in ready:
+            # Levelled now, while the odometry's attitudes about its stamp are at hand.
+            self.paired.append(_Paired(t_ns, frame, depth, self._levelled_view(t_ns)))
+        limit = 0 if flush else IN_FLIGHT_PER_THREAD * self.threads
+        while self.paired and (len(self.paired) > limit or self.paired[0].frame.seen.done()):
+            self._observe(self.paired.popleft())
 
     def _settle_mount(self) -> None:
         """The camera's mount from /tf_static, once, else the configured one (with a note)."""
@@ -338,28 +349,29 @@ class SpanReader:
             nearest = (t_ns, np.eye(3))  # no attitude: a level base
         return levelled_view(result.camera, result.mount, nearest[1])
 
-    def _observe(self, t_ns: int, frame: ColourFrame, depth: NDArray | None) -> None:
+    def _observe(self, paired: _Paired) -> None:
         """One colour frame with its depth (if any) to observations; a bad frame costs itself."""
-        result, choice, image = self.part.extraction, self.choice, frame.image
+        result, choice = self.part.extraction, self.choice
+        t_ns, depth, view = paired.t_ns, paired.depth, paired.view
         assert result.camera is not None  # extract judged it before reading
-        key = (t_ns, frame.message.log_time_ns)
-        if isinstance(image, LogError):
+        key = (t_ns, paired.frame.message.log_time_ns)
+        seen = paired.frame.seen.result()
+        shape, detections = seen.shape, seen.detections
+        if isinstance(shape, LogError):
             result.undecodable_frames += 1
-            result.skipped[f"colour image does not decode ({image})"] += 1
+            result.skipped[f"colour image does not decode ({shape})"] += 1
             return
-        if depth is not None and depth.shape[:2] != image.shape[:2]:
+        if depth is not None and depth.shape[:2] != shape[:2]:
             result.unusable_depth += 1
             result.skipped[
                 f"depth on {choice.depth} is {depth.shape[1]}x{depth.shape[0]}, colour "
-                f"{image.shape[1]}x{image.shape[0]}: not aligned (used without depth)"
+                f"{shape[1]}x{shape[0]}: not aligned (used without depth)"
             ] += 1
             depth = None
         elif depth is not None:
             result.frames_with_depth += 1
         elif choice.depth:
             result.skipped["no depth within the pairing tolerance (used without)"] += 1
-        detections = self.detector.detect(image)
-        view = self._levelled_view(t_ns)
         if view is not None:
             # A tilted base (a ramp, a hand-held rig) or a rolled camera: each marker's full
             # pose from its corners, turned into the level frame.
@@ -382,12 +394,12 @@ class SpanReader:
 
 
 def read_span(
-    arguments: tuple[Log, FrontendConfig, TopicChoice, dict[str, int], Span],
+    arguments: tuple[Log, FrontendConfig, TopicChoice, dict[str, int], Span, int],
 ) -> Part:
     """One worker's stretch (:class:`SpanReader`), its arguments in one tuple for
     ``pool.map``."""
-    log, config, choice, counts, span = arguments
-    return SpanReader(log, config, choice, counts).read(span, None)
+    log, config, choice, counts, span, threads = arguments
+    return SpanReader(log, config, choice, counts, threads).read(span, None)
 
 
 def one_opencv_thread() -> None:

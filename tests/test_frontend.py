@@ -666,8 +666,8 @@ def test_shared_real_mcap_files_read_as_mcaps_own_reader_reads_them() -> None:
             theirs = sorted((c.topic, m.log_time, m.data) for _, c, m in reader.iter_messages())
             topics = sorted({c.topic for c in summary.channels.values()})
             stream.seek(0)
-            ours = sorted(
-                (c.topic, m.log_time, m.data)
+            ours = sorted(  # our messages are views into their chunk's bytes
+                (c.topic, m.log_time, bytes(m.data))
                 for _, c, m in chunks.raw_messages(path, stream, topics, None, None, None)
             )
         assert ours == theirs, path

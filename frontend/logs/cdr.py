@@ -48,12 +48,13 @@ class _Reader:
         self.offset = end
         return text
 
-    def byte_array(self) -> bytes:
+    def byte_array(self) -> memoryview:
+        """A view of the bytes in the message's (images are most of a log: never copied)."""
         length = self.uint32()
         end = self.offset + length
         if end > len(self.data):
             raise ValueError("a byte array runs past the end of the message")
-        data = bytes(self.data[self.offset : end])
+        data = self.data[self.offset : end]
         self.offset = end
         return data
 
@@ -71,7 +72,7 @@ class _Reader:
         )
 
 
-def _image(data: bytes) -> SimpleNamespace:
+def _image(data: bytes | memoryview) -> SimpleNamespace:
     reader = _Reader(data)
     header = reader.header()
     height, width = reader.uint32(), reader.uint32()
@@ -89,13 +90,13 @@ def _image(data: bytes) -> SimpleNamespace:
     )
 
 
-def _compressed_image(data: bytes) -> SimpleNamespace:
+def _compressed_image(data: bytes | memoryview) -> SimpleNamespace:
     reader = _Reader(data)
     header = reader.header()
     return SimpleNamespace(header=header, format=reader.string(), data=reader.byte_array())
 
 
-def _odometry(data: bytes) -> SimpleNamespace:
+def _odometry(data: bytes | memoryview) -> SimpleNamespace:
     reader = _Reader(data)
     header = reader.header()
     child = reader.string()
@@ -108,13 +109,13 @@ def _odometry(data: bytes) -> SimpleNamespace:
     )
 
 
-def _pose_stamped(data: bytes) -> SimpleNamespace:
+def _pose_stamped(data: bytes | memoryview) -> SimpleNamespace:
     reader = _Reader(data)
     header = reader.header()
     return SimpleNamespace(header=header, pose=reader.pose())
 
 
-FAST_DECODERS: dict[str, Callable[[bytes], SimpleNamespace]] = {
+FAST_DECODERS: dict[str, Callable[[bytes | memoryview], SimpleNamespace]] = {
     "sensor_msgs/msg/Image": _image,
     "sensor_msgs/msg/CompressedImage": _compressed_image,
     "nav_msgs/msg/Odometry": _odometry,

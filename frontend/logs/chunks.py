@@ -165,6 +165,9 @@ def chunk_messages(chunk: Chunk, wanted: Collection[int]) -> list[McapMessage]:
         zstandard.ZstdError, RuntimeError (lz4), struct.error: damaged data.
     """
     data, found = decompress(chunk), []
+    # Each message's bytes a view into the chunk's, not a copy: a frame's raw depth image is
+    # most of a chunk (copying it cost a third of reading one).
+    view = memoryview(data)
     for opcode, start, end in records_in(data):
         if opcode != _MESSAGE_OPCODE:
             continue
@@ -173,7 +176,7 @@ def chunk_messages(chunk: Chunk, wanted: Collection[int]) -> list[McapMessage]:
         channel, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, start)
         if channel in wanted:
             found.append(
-                McapMessage(channel, log_time, data[start + _MESSAGE.size : end],
+                McapMessage(channel, log_time, view[start + _MESSAGE.size : end],
                             publish_time, sequence)
             )  # fmt: skip
     return found

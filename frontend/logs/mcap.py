@@ -150,7 +150,7 @@ def mcap_messages(
         if file.recovered and failures is not None:
             failures.note(file.path, file.recovered)
         with open(file.path, "rb") as stream:
-            decoders: dict[int, Callable[[bytes], Any]] = {}
+            decoders: dict[int, Callable[[bytes | memoryview], Any]] = {}
             for schema, channel, message in summary_records(
                 file.path, stream, file.summary, topics, start_ns, end_ns, failures
             ):
@@ -180,7 +180,7 @@ def _undecodable(schema: Any) -> str:
 
 def _decoder_for(
     file: Path, channel: Any, schema: Any, factory: DecoderFactory
-) -> Callable[[bytes], Any]:
+) -> Callable[[bytes | memoryview], Any]:
     """The fast reader for the channel's type if there is one, else mcap-ros2-support's."""
     if channel.message_encoding not in ("cdr", "protobuf"):
         raise LogError(
@@ -202,4 +202,5 @@ def _decoder_for(
             f"{file}: no decoder for topic {channel.topic} "
             f"(schema {schema.name if schema else None!r})"
         )
-    return decoder
+    found: Callable[[bytes | memoryview], Any] = decoder
+    return lambda data: found(bytes(data))  # a chunk's message is a view; these want bytes
