@@ -29,10 +29,11 @@ def truth_in_home_frame(
 ) -> tuple[dict[int, gtsam.Pose2], Trajectory | None]:
     """A log's ground truth (markers, path) in the frame of the map's home marker, when it
     carries both; ``({}, None)`` otherwise."""
-    if home_id not in extraction.true_markers:
+    true_markers = extraction.true_markers
+    if home_id not in true_markers:
         return {}, None
-    T_home_world = extraction.true_markers[home_id].inverse()
-    truth = {i: T_home_world.compose(T) for i, T in extraction.true_markers.items()}
+    T_home_world = true_markers[home_id].inverse()
+    truth = {i: T_home_world.compose(T) for i, T in true_markers.items()}
     path = extraction.true_path.in_frame(T_home_world, "map") if len(extraction.true_path) else None
     return truth, path
 

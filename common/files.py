@@ -20,7 +20,6 @@ import errno
 import json
 import os
 import re
-import secrets
 import shutil
 import signal
 import sys
@@ -47,7 +46,7 @@ _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<kind>partial|old)-(?P<pid>\d+)-[0
 
 
 def _temporary_name(target: Path, kind: str) -> Path:
-    return target.with_name(f".{target.name}.{kind}-{os.getpid()}-{secrets.token_hex(4)}")
+    return target.with_name(f".{target.name}.{kind}-{os.getpid()}-{os.urandom(4).hex()}")
 
 
 def _alive(pid: int) -> bool:

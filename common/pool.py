@@ -4,12 +4,14 @@ per stretch of a log) and the application (a process per log) share it, and so i
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # multiprocessing's 25 ms of imports wait for a pool
+    from concurrent.futures import ProcessPoolExecutor
 
 from markergraph.common.notes import Note
 
@@ -55,6 +57,9 @@ def start_worker(parent_pid: int, setup: Callable[[], None] | None = None) -> No
 def process_pool(workers: int, setup: Callable[[], None] | None = None) -> ProcessPoolExecutor:
     """``workers`` ``spawn``ed processes (forking after OpenCV has run can deadlock), each
     started by :func:`start_worker` with ``setup``."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
     return ProcessPoolExecutor(
         workers,
         mp_context=multiprocessing.get_context("spawn"),

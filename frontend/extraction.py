@@ -97,8 +97,11 @@ class Extraction:
     warnings: list[str] = field(metadata=_LATER, default_factory=list)
     """Damaged stretches skipped (unreadable messages, per file and topic), each said once:
     ``read_failures`` in words, set once the stretches are joined."""
-    true_markers: dict[int, gtsam.Pose2] = field(metadata=_FIRST, default_factory=dict)
-    """Ground truth ``T_map_marker`` when the log carries it (simulated logs)."""
+    true_marker_poses: dict[int, tuple[float, float, float]] = field(
+        metadata=_FIRST, default_factory=dict
+    )
+    """Ground truth (x, y, yaw) of each marker in ``map`` when the log carries it (simulated
+    logs): :attr:`true_markers` as numbers, which reading a log needs no GTSAM for."""
     true_path: Trajectory = field(
         metadata=_LATER, default_factory=lambda: Trajectory.from_samples([], "map")
     )
@@ -162,6 +165,13 @@ class Extraction:
     odometry_evidence: OdometryEvidence | None = field(metadata=_EVIDENCE, default=None)
     """What the odometry's first messages show of its kind (3-D motion, rate, covariance);
     None for odometry from /tf."""
+
+    @property
+    def true_markers(self) -> dict[int, gtsam.Pose2]:
+        """Ground truth ``T_map_marker`` when the log carries it (simulated logs)."""
+        import gtsam  # a simulated log's truth alone needs it: real logs have none
+
+        return {i: gtsam.Pose2(*pose) for i, pose in self.true_marker_poses.items()}
 
     def mount_origin(self) -> str:
         """Where ``mount`` came from, in words: ``mount_source``, else the settings."""

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 
 from markergraph.frontend.logs.records import DecodeFailures, LogError
 from markergraph.frontend.tf import rotation_of
@@ -115,10 +116,17 @@ class OdometryJudge:
             travelled = np.concatenate([[0.0], np.cumsum(steps_m)])
             per_m = None
             if travelled[-1] > 0.5:  # a slope over half a metre or more
-                slope = float(np.polyfit(travelled, variances / 2.0, 1)[0])
+                slope = _slope(travelled, variances / 2.0)
                 per_m = slope if slope > 0 else None
         tilt, z_span = float(max(self.tilt)), float(np.ptp(self.z))
         return OdometryEvidence(len(self.stamps), rate_hz, z_span, tilt, kind, per_m)
+
+
+def _slope(x: NDArray[np.float64], y: NDArray[np.float64]) -> float:
+    """The least-squares line's slope through (x, y) (``np.polyfit``'s degree 1, without the
+    numpy.ma it imports)."""
+    dx = x - x.mean()
+    return float(np.dot(dx, y - y.mean()) / np.dot(dx, dx))
 
 
 def odometry_evidence(log: Log, topic: str) -> OdometryEvidence | None:

@@ -250,10 +250,8 @@ class SpanReader:
                             )
                         )
                         continue
-                    import gtsam  # the simulator's truth alone needs it: real logs read none
-
                     marker_id = int(transform.child_frame_id[6:])
-                    self.part.extraction.true_markers[marker_id] = gtsam.Pose2(*pose)
+                    self.part.extraction.true_marker_poses[marker_id] = pose
 
     def _take_frame(self, frame: ColourFrame) -> None:
         """A colour frame inside the span."""

@@ -7,9 +7,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from markergraph.frontend.logs.bags import BagSummary, bag_messages, bag_summary, bag_topic_spans
 from markergraph.frontend.logs.files import LogKind, log_kind, mcap_files
 from markergraph.frontend.logs.mcap import (
     McapFile,
@@ -20,6 +19,9 @@ from markergraph.frontend.logs.mcap import (
 )
 from markergraph.frontend.logs.records import DecodeFailures, LogError, LogTopic, Message
 from markergraph.frontend.logs.times import mcap_topic_spans
+
+if TYPE_CHECKING:  # bags' readers (rosbags, ROS 1 records) load where a bag is opened
+    from markergraph.frontend.logs.bags import BagSummary
 
 __all__ = ["Log", "open_log"]
 
@@ -98,6 +100,8 @@ class Log:
         if self.kind is LogKind.MCAP:
             found = [s for f in self.mcap for s in mcap_topic_spans(f.path, f.summary, f.error)]
         else:
+            from markergraph.frontend.logs.bags import bag_topic_spans
+
             found = bag_topic_spans(self.path)
         spans: dict[str, list[int]] = {}
         for topic, first, last in found:  # a topic may span several files
@@ -128,11 +132,15 @@ class Log:
         """
         if self.kind is LogKind.MCAP:
             return mcap_messages(self.mcap, topics, failures, start_ns, end_ns)
+        from markergraph.frontend.logs.bags import bag_messages
+
         return bag_messages(self.path, topics, failures, start_ns, end_ns)
 
     @cached_property
     def _bag(self) -> BagSummary:
         """A ROS 1 or SQLite bag's topics, message count and time range, read once."""
+        from markergraph.frontend.logs.bags import bag_summary
+
         return bag_summary(self.path)
 
 

@@ -10,7 +10,6 @@ from typing import Any
 
 from mcap.exceptions import McapError
 from mcap.summary import Summary
-from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 from mcap_ros2.decoder import DecoderFactory
 
 from markergraph.frontend.logs.cdr import FAST_DECODERS
@@ -189,7 +188,12 @@ def _decoder_for(
         )
     if channel.message_encoding == "cdr" and schema is not None and schema.name in FAST_DECODERS:
         return FAST_DECODERS[schema.name]
-    chosen = factory if channel.message_encoding == "cdr" else ProtobufDecoderFactory()
+    if channel.message_encoding == "cdr":
+        chosen: Any = factory
+    else:  # Foxglove's schemas alone: protobuf's 30 ms of imports wait for one
+        from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
+
+        chosen = ProtobufDecoderFactory()
     try:
         decoder = chosen.decoder_for(channel.message_encoding, schema)
     except Exception as error:  # the vendored rosidl parser raises its own types
