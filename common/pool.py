@@ -29,9 +29,9 @@ __all__ = [
 # A worker costs 0.3-0.7 s to spawn and import, and a few hundred frames a second repay it: below
 # this many frames each, one process is as fast.
 MIN_FRAMES_PER_WORKER = 1500
-# Cores one process keeps busy: its main thread, and its reading thread's zstd and JPEG decoding
-# (bench_frontend: about 1.3 and 1.75 ms of CPU a frame in 2.1 ms).
-CORES_PER_PROCESS = 1.5
+# Cores one process keeps busy: its reading thread (zstd), its pool's threads decoding JPEG and
+# detecting (which release the GIL), and its main thread (bench_process: 1.7-1.8 cores of 2).
+CORES_PER_PROCESS = 2.0
 WATCH_INTERVAL_S = 0.5  # how often a worker checks that its parent lives
 
 
@@ -119,10 +119,9 @@ def choose_workers(frames: int, asked: int | None) -> tuple[int, Note | None]:
     why. A number asked for is used, capped at the cores there are. ``None`` (auto) gives more
     than one only where each has :data:`MIN_FRAMES_PER_WORKER` frames and
     :data:`CORES_PER_PROCESS` idle cores now, measured over a fifth of a second
-    (:func:`busy_cores`; elsewhere the 1-minute load average): a process's reading thread
-    already keeps a second core busy, so on this 2-core machine a second process ran 0.81-1.33x
-    one a round on bench_frontend's 3-minute log (slower whenever the host held part of a core)
-    and 1.17x on a 10-minute log."""
+    (:func:`busy_cores`; elsewhere the 1-minute load average): one process's threads already
+    keep two cores busy (on a 2-core machine a second process, before they did, ran 0.81-1.33x
+    one on bench_frontend's 3-minute log)."""
     cores = available_cores()
     if asked is not None:
         if asked <= cores:
@@ -134,7 +133,7 @@ def choose_workers(frames: int, asked: int | None) -> tuple[int, Note | None]:
         return 1, Note(
             "workers.auto",
             f"workers: 1 (auto: {frames} frames, {cores} cores; a process keeps about "
-            f"{CORES_PER_PROCESS} busy, and each worker wants {MIN_FRAMES_PER_WORKER} frames)",
+            f"{CORES_PER_PROCESS:g} busy, and each worker wants {MIN_FRAMES_PER_WORKER} frames)",
             figure=1,
         )
     busy = busy_cores()
@@ -149,6 +148,6 @@ def choose_workers(frames: int, asked: int | None) -> tuple[int, Note | None]:
         "workers.auto",
         f"workers: {chosen} (auto: {frames} frames, one worker per {MIN_FRAMES_PER_WORKER}; "
         f"{idle:.1f} of {cores} cores idle, {measured}; a process keeps about "
-        f"{CORES_PER_PROCESS} busy)",
+        f"{CORES_PER_PROCESS:g} busy)",
         figure=chosen,
     )

@@ -891,7 +891,7 @@ def test_theta_sigma_gradient_is_theta_differentiated() -> None:
 
 
 def test_workers_auto_uses_a_second_process_only_where_it_helps(monkeypatch) -> None:
-    """Auto: a process per 1.5 idle cores (its reading thread keeps a second core busy) and per
+    """Auto: a process per 2 idle cores (its reading and detecting threads keep two busy) and per
     1,500 frames: one on a 2-core machine, a short log or a busy machine (by the load average
     where busy cores cannot be measured); a number asked for is kept, capped at the cores."""
     from markergraph.common import pool
@@ -902,11 +902,14 @@ def test_workers_auto_uses_a_second_process_only_where_it_helps(monkeypatch) -> 
     assert workers == 1 and note is not None and note.kind == "workers.auto"
     assert note.figure == 1 and "2 cores" in note.text
     monkeypatch.setattr(pool, "available_cores", lambda: 4)
-    assert pool.choose_workers(9000, None)[0] == 2  # 3.8 idle cores
+    assert pool.choose_workers(9000, None)[0] == 1  # 3.8 idle cores: one process's worth
+    monkeypatch.setattr(pool, "busy_cores", lambda: 0.0)
+    assert pool.choose_workers(9000, None)[0] == 2  # 4 idle cores
     assert pool.choose_workers(2000, None)[0] == 1  # 2,000 frames: one worker's worth
+    monkeypatch.setattr(pool, "busy_cores", lambda: 0.2)
     monkeypatch.setattr(pool, "available_cores", lambda: 8)
-    assert pool.choose_workers(9000, None)[0] == 5  # 7.8 idle cores
-    assert pool.choose_workers(4500, None)[0] == 3  # 1,500 frames each
+    assert pool.choose_workers(9000, None)[0] == 3  # 7.8 idle cores
+    assert pool.choose_workers(3000, None)[0] == 2  # 1,500 frames each
     monkeypatch.setattr(pool, "busy_cores", lambda: 6.2)
     workers, note = pool.choose_workers(9000, None)
     assert workers == 1 and note is not None and note.kind == "workers.auto"
@@ -914,8 +917,8 @@ def test_workers_auto_uses_a_second_process_only_where_it_helps(monkeypatch) -> 
     monkeypatch.setattr(pool, "busy_cores", lambda: None)
     monkeypatch.setattr(pool.os, "getloadavg", lambda: (3.5, 3.5, 3.5))
     workers, note = pool.choose_workers(9000, None)
-    assert workers == 3 and note is not None and note.kind == "workers.auto"
-    assert note.figure == 3 and "load average 3.5" in note.text
+    assert workers == 2 and note is not None and note.kind == "workers.auto"
+    assert note.figure == 2 and "load average 3.5" in note.text
     assert pool.choose_workers(100, 2) == (2, None)
     assert pool.choose_workers(100, 9)[0] == 8
 

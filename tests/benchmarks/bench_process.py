@@ -10,9 +10,11 @@ share of the plain loop's detections over every frame (``detection_agreement``: 
 within 5 px). Start-up: ``--help``, ``info LOG`` and ``detect --help`` as processes, beside
 ``python -c pass`` (the interpreter alone).
 
-The log: ``--log PATH``, else the corridor loop rendered once by ``markergraph simulate`` (100 s
+The logs: ``--log PATH``, else the corridor loop rendered once by ``markergraph simulate`` (100 s
 at 15 Hz, 640x480 JPEG, the D435i preset: 1,500 frames; about 5 minutes on an idle core, kept in
-the temporary folder).
+the temporary folder), and its twin without depth (:func:`without_depth`). The D435i's raw depth
+is 0.6 MB a frame: zstd alone takes 1.2-1.5 s of CPU to read past it, a floor the plain loop,
+which reads nothing, never meets.
 
 ``detect`` runs with its default workers (auto), ``--workers 1`` and each ``--workers N`` given;
 ``--detect-only`` leaves out ``map`` and start-up.
@@ -36,6 +38,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
 
 from markergraph.frontend import open_log
 from markergraph.frontend.detect import Detection, Detector, detection_agreement
@@ -106,18 +110,57 @@ def main() -> None:
                         help="detect also with this --workers (repeatable)")  # fmt: skip
     parser.add_argument("--detect-only", action="store_true", help="no map, no start-up")
     args = parser.parse_args()
-    log = args.log or rendered_log()
+    logs = [args.log] if args.log else [rendered_log(), without_depth(rendered_log())]
+    for i, log in enumerate(logs):
+        bench_log(log, args.rounds, args.workers, args.detect_only, start_up=i == 0)
+        print()
+
+
+def without_depth(log: Path) -> Path:
+    """``log``'s twin without its depth topics (a camera with no depth, or depth left out of
+    the recording), written once beside it: every other message as it was, zstd chunks."""
+    twin = log.with_name(log.stem + "-no-depth.mcap")
+    if twin.exists():
+        return twin
+    partial = twin.with_suffix(".partial")
+    with open(log, "rb") as source, open(partial, "wb") as out:
+        reader = make_reader(source)
+        summary = reader.get_summary()
+        assert summary is not None
+        writer = Writer(out, compression=CompressionType.ZSTD)
+        writer.start()
+        for schema in summary.schemas.values():
+            writer.register_schema(schema.name, schema.encoding, schema.data)
+        kept = {
+            c.id: writer.register_channel(c.topic, c.message_encoding, c.schema_id, c.metadata)
+            for c in summary.channels.values()
+            if "depth" not in c.topic
+        }
+        for _, channel, m in reader.iter_messages():
+            if channel.id in kept:
+                writer.add_message(kept[channel.id], m.log_time, m.data, m.publish_time,
+                                   m.sequence)  # fmt: skip
+        writer.finish()
+    partial.rename(twin)
+    return twin
+
+
+def bench_log(
+    log: Path, rounds: int, workers: list[int], detect_only: bool, start_up: bool
+) -> None:
+    """The table for one log: the plain loop, detect (and map), start-up."""
     jpegs = [bytes(m.decoded.data) for m in open_log(log).messages([TOPIC])]
     frames = len(jpegs)
     print(f"log {log}: {frames} frames, {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}")
     detect = ["detect", str(log), "--out", "o.jsonl", "--force", "--quiet"]
     runs = {"detect (auto workers)": detect}
-    for n in sorted({1, *args.workers}):
+    for n in sorted({1, *workers}):
         runs[f"detect --workers {n}"] = [*detect, "--workers", str(n)]
     starts: dict[str, list[str]] = {}
-    if not args.detect_only:
+    if not detect_only:
         runs["map --method slam"] = ["map", str(log), "--method", "slam", "--no-cache",
                                      "--no-plots", "--out", "m", "--force", "--quiet"]  # fmt: skip
+    if not detect_only and start_up:
         starts = {
             "python -c pass": [sys.executable, "-c", "pass"],
             "markergraph --help": [*COMMAND, "--help"],
@@ -128,7 +171,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="bench-process-"))
     reference: list[list[Detection]] = []
     try:
-        for r in range(args.rounds):
+        for r in range(rounds):
             seconds, reference = plain_loop(jpegs)
             best["plain loop"] = min(best.get("plain loop", np.inf), seconds)
             for name, argv in runs.items():
@@ -142,7 +185,7 @@ def main() -> None:
         shutil.rmtree(work, ignore_errors=True)
     total, recall, _ = detection_agreement(reference, default_detections(jpegs))
     plain_rate = frames / best["plain loop"]
-    print(f"\nbest of {args.rounds} rounds, load {os.getloadavg()[0]:.2f} at the end")
+    print(f"\nbest of {rounds} rounds, load {os.getloadavg()[0]:.2f} at the end")
     print(f"{'':28}{'seconds':>9}{'frames/s':>10}{'x plain':>9}")
     for name in ("plain loop", *runs):
         rate = frames / best[name]
