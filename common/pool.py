@@ -115,9 +115,9 @@ def core_ticks(proc_stat: str) -> dict[int, tuple[int, int]]:
 
 
 def choose_workers(frames: int, asked: int | None) -> tuple[int, Note | None]:
-    """How many processes to read a log of ``frames`` colour frames with, and a note saying
-    why. A number asked for is used, capped at the cores there are. ``None`` (auto) gives more
-    than one only where each has :data:`MIN_FRAMES_PER_WORKER` frames and
+    """How many processes to read a log of ``frames`` colour frames with, and a note where it
+    is more than one. A number asked for is used, capped at the cores there are. ``None``
+    (auto) gives more than one only where each has :data:`MIN_FRAMES_PER_WORKER` frames and
     :data:`CORES_PER_PROCESS` idle cores now, measured over a fifth of a second
     (:func:`busy_cores`; elsewhere the 1-minute load average): one process's threads already
     keep two cores busy (on a 2-core machine a second process, before they did, ran 0.81-1.33x
@@ -130,24 +130,17 @@ def choose_workers(frames: int, asked: int | None) -> tuple[int, Note | None]:
         return cores, Note("workers.capped", text, figure=cores)
     by_length = max(1, frames // MIN_FRAMES_PER_WORKER)
     if by_length == 1 or cores < 2 * CORES_PER_PROCESS:
-        return 1, Note(
-            "workers.auto",
-            f"workers: 1 (auto: {frames} frames, {cores} cores; a process keeps about "
-            f"{CORES_PER_PROCESS:g} busy, and each worker wants {MIN_FRAMES_PER_WORKER} frames)",
-            figure=1,
-        )
+        return 1, None  # the usual case: nothing to say
     busy = busy_cores()
-    if busy is not None:
-        measured = f"{busy:.1f} busy over 0.2 s"
-    else:
+    if busy is None:
         busy = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
-        measured = f"by the load average {busy:.1f}"
     idle = max(0.0, cores - busy)
     chosen = max(1, min(by_length, int(idle / CORES_PER_PROCESS)))
+    if chosen == 1:
+        return 1, None
     return chosen, Note(
         "workers.auto",
-        f"workers: {chosen} (auto: {frames} frames, one worker per {MIN_FRAMES_PER_WORKER}; "
-        f"{idle:.1f} of {cores} cores idle, {measured}; a process keeps about "
-        f"{CORES_PER_PROCESS:g} busy)",
+        f"read in {chosen} processes at once ({frames:,} frames; {idle:.1f} of {cores} cores "
+        "were idle; --workers sets how many)",
         figure=chosen,
     )

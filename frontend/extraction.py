@@ -122,9 +122,13 @@ class Extraction:
     rather than as level."""
     levelled: list[LevelledFrame] = field(metadata=_CONCAT, default_factory=list, repr=False)
     """Those frames' detections, kept and dropped, until they are tallied."""
+    level_detections: Counter[int] = field(metadata=_SUM, default_factory=Counter)
+    """Detections in level frames, by marker id, until they are tallied."""
+    level_no_yaw: Counter[int] = field(metadata=_SUM, default_factory=Counter)
+    """Of them, those whose yaw had no solution (no PnP pose, or none of the yaw method's)."""
     marker_detections: dict[int, MarkerDetections] = field(metadata=_LATER, default_factory=dict)
-    """Per marker observed from its full pose, its detections and how many were dropped (off a
-    wall, no pose) or read with their corners reversed."""
+    """Per marker, its detections in every frame and how many were dropped (off a wall, no
+    pose or yaw), or read with their corners reversed (frames levelled from its full pose)."""
     depth_ratios: list[tuple[int, float, float]] = field(metadata=_CONCAT, default_factory=list)
     """Each well-placed marker's stamp, depth and PnP distance."""
     size_ratios: list[tuple[int, float]] = field(metadata=_CONCAT, default_factory=list)

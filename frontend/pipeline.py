@@ -28,7 +28,12 @@ from markergraph.frontend.inputs import CameraJudgement, judge_camera_info
 from markergraph.frontend.logs import DecodeFailures, Log, LogError, open_log
 from markergraph.frontend.marker_size import SizeByDepth, marker_sizes_by_depth
 from markergraph.frontend.odometry_kind import odometry_evidence
-from markergraph.frontend.posed import LEVEL_TOLERANCE_RAD, drop_notes, tally_detections
+from markergraph.frontend.posed import (
+    LEVEL_TOLERANCE_RAD,
+    MarkerDetections,
+    drop_notes,
+    tally_detections,
+)
 from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.spans import (
     Span,
@@ -240,6 +245,17 @@ def _clean(part: Part, choice: TopicChoice) -> None:
     result.notes += truth.notes
 
 
+def _marker_detections(result: Extraction) -> dict[int, MarkerDetections]:
+    """Each marker's detections over the levelled frames and the level ones, and their drops."""
+    levelled = tally_detections(result.levelled)
+    level, no_yaw = result.level_detections, result.level_no_yaw
+    counts = {}
+    for i in sorted(set(levelled) | set(level)):
+        c = levelled.get(i, MarkerDetections(i, 0, 0, 0, 0, math.nan))
+        counts[i] = replace(c, detections=c.detections + level[i], no_pose=c.no_pose + no_yaw[i])
+    return counts
+
+
 def _tally(result: Extraction, choice: TopicChoice) -> None:
     """The log's counts said once it is read: depth missed, detections dropped, frames
     levelled, ids left out."""
@@ -251,8 +267,8 @@ def _tally(result: Extraction, choice: TopicChoice) -> None:
             " the marker's pose (PnP)"
         )
         result.notes.append(Note("depth.no_valid_pixel", text, choice.depth, result.depth_misses))
-    if result.levelled:
-        result.marker_detections = tally_detections(result.levelled)
+    if result.levelled or result.level_detections:  # a log of detections tallied its own
+        result.marker_detections = _marker_detections(result)
         result.notes += drop_notes(result.marker_detections)
         result.levelled = []
     if result.levelled_frames:

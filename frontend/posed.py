@@ -364,7 +364,7 @@ def drop_notes(counts: dict[int, MarkerDetections]) -> list[Note]:
                 + (" (median)" if c.off_wall > 1 else "")
             )
         if c.no_pose:
-            parts.append(f"{c.no_pose:,} without a PnP pose")
+            parts.append(f"{c.no_pose:,} with no pose or yaw found")
         if c.left_out:
             text = (
                 f"marker {c.marker_id} left out of the 2-D map: every one of its "

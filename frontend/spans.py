@@ -9,7 +9,7 @@ costs its frame, not the run.
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
@@ -387,6 +387,9 @@ class SpanReader:
         if depth is not None:
             result.depth_tries += len(observations)
             result.depth_misses += sum(Flags.NO_DEPTH in o.flags for o in observations)
+        seen = Counter(d.marker_id for d in detections)
+        result.level_detections += seen
+        result.level_no_yaw += seen - Counter(o.marker_id for o in observations)
         result.observations += observations
         self.part.observation_frames += [key] * len(observations)
 
