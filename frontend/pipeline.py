@@ -122,8 +122,9 @@ def _size_notes(size: SizeByDepth, config: FrontendConfig) -> list[Note]:
             f" m would put every range {abs(short):.0f} % {'short' if short > 0 else 'long'}; "
             f"depth over PnP's range in {size.sightings} sightings, "
             f"{100 * size.ratio_sigma:.2f} % error): using {size.size_m:.3f} m. A depth camera "
-            "is not this far off, a marker size can be: --marker-size sets the size, "
-            "--depth-scale K says depth reads K per true metre"
+            f"is seldom this far off, a marker size often is; if {given_m:g} m is right, "
+            f"--depth-scale {size.ratio * (config.depth_scale or 1.0):.3f} (depth reads that "
+            "much per true metre) keeps it"
         )
         notes.append(Note("marker_size.measured", text, figure=size.size_m))
     for marker_id, size_m in sorted(size.sizes_m.items()):

@@ -4,6 +4,7 @@ log's own evidence, checked against the simulator's ground truth."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -285,6 +286,25 @@ def test_a_wrong_marker_size_is_measured_by_depth(log: Path, clean: MapRun) -> N
     assert moved_m(run, clean) < SAME_MAP_M
     assert clean.extraction.marker_size_m_by_depth == pytest.approx(0.2, rel=5e-3)
     assert clean.extraction.marker_sizes_used.default_m == 0.2
+
+
+def test_the_size_note_says_how_to_keep_the_given_size(log: Path) -> None:
+    """The note's --depth-scale, given, keeps the given size: depth is then the side that is
+    off, and the front end reads the log at 0.15 m without measuring the markers again."""
+    from markergraph.frontend import extract
+
+    wrong = extract(log, MapConfig.from_values({"marker_size": 0.15}).frontend)
+    note = next(n for n in wrong.notes if n.kind == "marker_size.measured")
+    found = re.search(r"if 0.15 m is right, --depth-scale ([0-9.]+) \(depth reads", note.text)
+    assert found is not None
+    scale = float(found.group(1))
+    assert scale == pytest.approx(4 / 3, rel=1e-2)  # 0.20 m markers read with 0.15 m
+    kept = extract(log, MapConfig.from_values({"marker_size": 0.15,
+                                               "noise.depth_scale": scale}).frontend)  # fmt: skip
+    assert kept.marker_sizes_used.default_m == 0.15
+    assert not any(
+        n.kind.startswith("marker_size.") for n in kept.notes if n.kind != "marker_size.given"
+    )
 
 
 def test_one_marker_of_another_size_is_measured(clean: MapRun, tmp_path: Path) -> None:
