@@ -165,9 +165,12 @@ class LocalizationRun:
         localization: trajectory, pose covariances, moved and new markers.
         ate_m: the trajectory's RMS error against the logged truth, if any, home-fixed (the
             truth carried into the map frame by the home marker's true pose) [m].
-        true_path: the logged truth at the trajectory's stamps, in the map frame.
+        true_path: the logged truth at ``path``'s stamps, in the map frame.
         notes: what a person should read.
         ate_aligned_m: the same error after a rigid 2-D alignment, if any [m].
+        path: the robot's path at the odometry's rate: the localised poses at the frames with
+            markers, the odometry between them (:func:`~markergraph.estimator.corrected_odometry`);
+            None: the localised poses alone.
     """
 
     log: Path
@@ -180,6 +183,7 @@ class LocalizationRun:
     true_path: Trajectory | None
     notes: list[Note]
     ate_aligned_m: float | None = None
+    path: Trajectory | None = None
 
     def document(self) -> dict[str, Any]:
         """``localization.json``: every pose with its covariance, the moved and new markers,

@@ -317,8 +317,9 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
 def write_localization(
     run: LocalizationRun, out: Path, *, force: bool = False, plots: bool = True
 ) -> list[Path]:
-    """A localisation's result folder, whole or not at all: ``trajectory.tum`` (the map
-    frame), ``localization.json`` (every pose with its covariance, moved and new markers),
+    """A localisation's result folder, whole or not at all: ``trajectory.tum`` (the path in
+    the map frame at the odometry's rate: the localised poses, the odometry between them),
+    ``localization.json`` (every pose with its covariance, moved and new markers),
     ``overlay.mcap`` (the saved map, the path and map -> odom) with ``overlay.layout.json`` (its
     Foxglove layout), ``ground_truth.tum`` when the log carries it, ``map.png`` (the map, the
     path, moved markers as arrows; unless not
@@ -326,7 +327,7 @@ def write_localization(
     page)."""
     with result_folder(Path(out), force=force) as folder:
         loc = run.localization
-        write_tum(folder / "trajectory.tum", loc.trajectory)
+        write_tum(folder / "trajectory.tum", run.path if run.path is not None else loc.trajectory)
         if run.true_path is not None:
             write_tum(folder / "ground_truth.tum", run.true_path)
         write_json(folder / "localization.json", run.document())
@@ -370,6 +371,7 @@ def _localize_report(run: LocalizationRun, files: list[str]) -> dict[str, Any]:
     return {
         "schema": REPORT_SCHEMA, MANIFEST_KEY: files, "command": "localize",
         "log": str(run.log), "map": str(run.map_path), "poses": len(loc.trajectory),
+        "trajectory_poses": len(run.path if run.path is not None else loc.trajectory),
         "moved": [m.marker_id for m in loc.moved], "new": sorted(loc.new),
         "moved_markers": [
             {"id": m.marker_id, "displacement_m": m.displacement_m,

@@ -368,12 +368,17 @@ def localize_log(
             "placed by this log (see localization.json)",
             figure=len(localization.new),
         ))  # fmt: skip
-    _, path = truth_in_home_frame(extraction, saved.home_id)
-    error, true_path = path_error(localization.trajectory, path)
+    _, truth = truth_in_home_frame(extraction, saved.home_id)
+    # The ATE is the localised poses' (each has its covariance); the path adds the odometry
+    # between them, as map's trajectory.tum does.
+    error, _ = path_error(localization.trajectory, truth)
     ate_m = error.ate_rmse_m if error is not None else None
     ate_aligned_m = error.ate_aligned_rmse_m if error is not None else None
     far = ate_note(accuracy_of(localization, ate_m, ate_aligned_m))
+    odometry = extraction.odometry.scaled(read.prepared.odometry_scale)
+    path = corrected_odometry(localization.trajectory, odometry)
+    true_path = truth.at_stamps(path.t_ns) if truth is not None else None
     return LocalizationRun(
         Path(log), Path(map_path), saved, config, extraction, localization, ate_m, true_path,
-        [*notes, *([far] if far is not None else [])], ate_aligned_m,
+        [*notes, *([far] if far is not None else [])], ate_aligned_m, path,
     )  # fmt: skip

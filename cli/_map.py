@@ -119,7 +119,11 @@ def run_localize(args: argparse.Namespace) -> int:
     written = write_localization(run, args.out, force=args.force, plots=not args.no_plots)
     stages.close()
     loc = run.localization
-    print(f"{len(loc.trajectory)} poses in the map of {args.map}")
+    path = len(run.path) if run.path is not None else len(loc.trajectory)
+    print(
+        f"{len(loc.trajectory)} poses localised in the map of {args.map} (the frames with its "
+        f"markers); {path} in trajectory.tum with the odometry between them"
+    )
     for line in accuracy_lines(accuracy_of(loc, run.ate_m, run.ate_aligned_m)):
         print(line)
     for m in loc.moved:

@@ -232,16 +232,20 @@ def test_the_moved_marker_is_in_the_report_from_its_old_to_its_new_place(
 
 
 def test_localize_says_what_its_sigma_and_its_ate_are(localized: tuple[Path, str]) -> None:
-    """stdout names the sigma as the localisation's own uncertainty given the map and the ATE
-    as the error against the truth with its alignment; the figures are report.json's."""
+    """stdout names the sigma as the localisation's own uncertainty given the map and each ATE
+    (home-fixed, then aligned) a line of its own with its alignment, then what both are; the
+    figures are report.json's."""
     folder, stdout = localized
     accuracy = json.loads((folder / "loc" / "report.json").read_text())["accuracy"]
     sigma_line = next(line for line in stdout.splitlines() if "position sigma" in line)
-    ate_line = next(line for line in stdout.splitlines() if line.startswith("ATE"))
+    ate_line, aligned_line = (line for line in stdout.splitlines() if line.startswith("ATE"))
+    means_line = next(line for line in stdout.splitlines() if line.startswith("each ATE is"))
     assert "uncertainty given the map" in sigma_line
     assert f"{100 * accuracy['median_position_sigma_m']:.1f} cm" in sigma_line
-    assert "alignment" in ate_line and "ground truth" in ate_line and "map's own error" in ate_line
+    assert "no alignment" in ate_line and "home marker's true pose" in ate_line
     assert f"ATE {100 * accuracy['ate_m']:.1f} cm" in ate_line
+    assert f"ATE {100 * accuracy['ate_aligned_m']:.1f} cm after a rigid 2-D" in aligned_line
+    assert "ground truth" in means_line and "map's own error" in means_line
     assert accuracy["ate_m"] < 3 * accuracy["rms_position_sigma_m"] or "note" in stdout
 
 
