@@ -35,7 +35,7 @@ def odometry_scale_by_residuals(
     def cost(scale: float, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
         return replace(sampled, odometry=sampled.odometry.scaled(scale)).cost(near)
 
-    # From 1 outwards, so that each solve starts near the last.
-    middle = len(SCALES) // 2
-    first = sorted(range(0, len(SCALES), COARSE_STRIDE), key=lambda i: abs(i - middle))
-    return cheapest_on_grid(SCALES, cost, first, COARSE_STRIDE, near)
+    # From the coarse scale nearest 1: each solve starts near the last.
+    coarse = range(0, len(SCALES), COARSE_STRIDE)
+    start = min(coarse, key=lambda i: abs(SCALES[i] - 1.0))
+    return cheapest_on_grid(SCALES, cost, coarse, start, near)

@@ -21,7 +21,9 @@ from markergraph.estimator.graph import (
 )
 from markergraph.estimator.links import components, link_counts, measure_links
 from markergraph.estimator.solution import (
+    SEARCH_RELATIVE_ERROR_TOL,
     disconnected_notes,
+    lm_params,
     not_converged_note,
     optimise,
     solved_estimate,
@@ -106,11 +108,12 @@ def slam_cost(
     """
     builder = build_slam_graph(frames, T_base_camera, robust)
     keys = builder.values.keys()  # a gtsam KeyVector
+    params = lm_params(SEARCH_RELATIVE_ERROR_TOL)
     if near is not None and near.size() == len(keys) and all(near.exists(k) for k in keys):
         builder.values = near
-        result, _ = optimise(builder, {}, warm=False)
+        result, _ = optimise(builder, {}, warm=False, params=params)
     else:
-        result, _ = optimise(builder, {})
+        result, _ = optimise(builder, {}, params=params)
     return float(builder.graph.error(result)), result
 
 
