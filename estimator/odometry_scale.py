@@ -14,6 +14,7 @@ from dataclasses import replace
 import gtsam
 import numpy as np
 
+from markergraph.estimator.graph import FactorMemo
 from markergraph.estimator.residual_search import GridMinimum, SlamInputs, cheapest_on_grid
 
 __all__ = ["odometry_scale_by_residuals"]
@@ -31,9 +32,10 @@ def odometry_scale_by_residuals(
     5 %). A long log is searched on the frames the camera delay's search uses; ``near``, the
     delay search's solution on them, is where the first solve starts."""
     sampled = inputs.sampled()
+    memo: FactorMemo = {}  # a scale changes the odometry's factors alone
 
     def cost(scale: float, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
-        return replace(sampled, odometry=sampled.odometry.scaled(scale)).cost(near)
+        return replace(sampled, odometry=sampled.odometry.scaled(scale)).cost(near, memo)
 
     # From the coarse scale nearest 1: each solve starts near the last.
     coarse = range(0, len(SCALES), COARSE_STRIDE)

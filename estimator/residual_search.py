@@ -12,7 +12,7 @@ import gtsam
 
 from markergraph.common.errors import EstimationError
 from markergraph.estimator.frames import build_frames
-from markergraph.estimator.graph import Robust
+from markergraph.estimator.graph import FactorMemo, Robust
 from markergraph.estimator.slam import slam_cost
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Observation, OdometryNoise
@@ -78,14 +78,17 @@ class SlamInputs:
         """The same problem on :func:`search_sample`'s frames."""
         return replace(self, observations=search_sample(self.observations, self.home_id))
 
-    def cost(self, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
-        """Batch SLAM's final cost, and its solution (started from ``near``); infinite where
-        GTSAM cannot solve the graph."""
+    def cost(
+        self, near: gtsam.Values | None, memo: FactorMemo | None = None
+    ) -> tuple[float, gtsam.Values | None]:
+        """Batch SLAM's final cost, and its solution (started from ``near``; ``memo``: the
+        search's observation factors, :class:`~markergraph.estimator.graph.GraphBuilder`);
+        infinite where GTSAM cannot solve the graph."""
         try:
             frames = build_frames(self.observations, self.odometry, self.home_id,
                                   odometry_noise=self.odometry_noise,
                                   odometry_breaks=self.odometry_breaks)  # fmt: skip
-            return slam_cost(frames, self.T_base_camera, self.robust, near)
+            return slam_cost(frames, self.T_base_camera, self.robust, near, memo)
         except EstimationError:
             return math.inf, near
 

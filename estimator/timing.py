@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
+from markergraph.estimator.graph import FactorMemo
 from markergraph.estimator.residual_search import SlamInputs, cheapest_on_grid
 from markergraph.estimator.trajectory import Trajectory, turn_rate
 from markergraph.estimator.types import Observation
@@ -98,10 +99,11 @@ def camera_delay_by_residuals(
     10-minute log cost 23 s; ten cost-only solves, each from the last one's solution, 3-4 s.
     """
     sampled = inputs.sampled()
+    memo: FactorMemo = {}  # a delay moves the frames' stamps, not what they measured
 
     def cost(delay_ns: float, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
         moved = retimed(sampled.observations, round(delay_ns), readout_ns, image_height)
-        return replace(sampled, observations=moved).cost(near)
+        return replace(sampled, observations=moved).cost(near, memo)
 
     delays = [round(d * 1e9) for d in DELAYS_S]
     # Every third delay of the grid first: the cost is smooth over tens of milliseconds. From
