@@ -6,9 +6,10 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
-from tqdm import tqdm
+if TYPE_CHECKING:  # loaded with the first bar drawn: a run off a terminal draws none
+    from tqdm import tqdm
 
 __all__ = ["ProgressBar", "Stages"]
 
@@ -35,6 +36,8 @@ class ProgressBar:
         if not self.enabled or self.closed or total <= 0:
             return
         if self.bar is None:
+            from tqdm import tqdm
+
             self.bar = tqdm(total=total, desc=self.label, unit="frame", file=self.stream,
                             leave=True)  # fmt: skip
         self.bar.total = max(total, done)
