@@ -15,7 +15,9 @@ at 15 Hz, 640x480 JPEG, the D435i preset: 1,500 frames; about 5 minutes on an id
 the temporary folder).
 
 ``detect`` runs with its default workers (auto), ``--workers 1`` and each ``--workers N`` given;
-``--detect-only`` leaves out ``map`` and start-up.
+``map --method slam`` runs on the log and on ``detect``'s output (``o.jsonl``, written earlier in
+the same round): the second is everything ``map`` does besides reading the log. ``--detect-only``
+leaves out ``map`` and start-up.
 
 Usage: python tests/benchmarks/bench_process.py [--log PATH] [--rounds N] [--workers N ...]
     [--detect-only]
@@ -118,6 +120,9 @@ def main() -> None:
     if not args.detect_only:
         runs["map --method slam"] = ["map", str(log), "--method", "slam", "--no-cache",
                                      "--no-plots", "--out", "m", "--force", "--quiet"]  # fmt: skip
+        runs["map o.jsonl (no log read)"] = ["map", "o.jsonl", "--method", "slam", "--no-cache",
+                                             "--no-plots", "--out", "m", "--force",
+                                             "--quiet"]  # fmt: skip
         starts = {
             "python -c pass": [sys.executable, "-c", "pass"],
             "markergraph --help": [*COMMAND, "--help"],
