@@ -101,9 +101,10 @@ def cheapest_on_grid(
     near: gtsam.Values | None = None,
 ) -> GridMinimum:
     """The grid value of least cost, found by walking downhill: from ``start`` (one of the
-    increasing indices ``coarse``) to the coarse neighbour that costs least, on along the
-    coarse indices while the next grid value still costs less, then on the whole grid until
-    both neighbours cost more; a parabola through that point and its neighbours.
+    increasing indices ``coarse``) to a coarse neighbour that costs less (the one above first,
+    the one below only where that one costs more), on along the coarse indices while the next
+    grid value still costs less, then on the whole grid until both neighbours cost more; a
+    parabola through that point and its neighbours.
 
     On a cost with one minimum over the grid (SLAM's cost over a delay or a scale is smooth and
     bowl-shaped) this is the grid value that solving every one would choose, with the same
@@ -121,10 +122,14 @@ def cheapest_on_grid(
             costs[i], solutions[i] = cost(grid[i], begin)
         return costs[i]
 
-    place = coarse.index(start)
-    sides = [p for p in (place - 1, place, place + 1) if 0 <= p < len(coarse)]
-    best = min(sides, key=lambda p: solve(coarse[p]))
-    step = best - place
+    best, step = coarse.index(start), 0
+    solve(start)
+    # Past a single minimum one falling side tells the way: the other is solved only where
+    # the first rises.
+    for side in (1, -1):
+        if 0 <= best + side < len(coarse) and solve(coarse[best + side]) < costs[start]:
+            best, step = best + side, side
+            break
     # Onward while the next grid value still falls: one value beyond costs less to solve than
     # the next coarse one, and, past a single minimum, tells as much.
     while step and 0 <= best + step < len(coarse) and 0 <= coarse[best] + step < len(grid):
@@ -148,7 +153,7 @@ def _refined(
     grid or at an infinite cost)."""
     while True:
         around = [i for i in (best - 1, best, best + 1) if 0 <= i < len(grid)]
-        lowest = min(around, key=solve)
+        lowest = min(around, key=lambda i: (solve(i), i != best))  # a tie stays put
         if lowest == best:
             break
         best = lowest
