@@ -130,12 +130,16 @@ def cheapest_on_grid(
         if 0 <= best + side < len(coarse) and solve(coarse[best + side]) < costs[start]:
             best, step = best + side, side
             break
-    # Onward while the next grid value still falls: one value beyond costs less to solve than
-    # the next coarse one, and, past a single minimum, tells as much.
-    while step and 0 <= best + step < len(coarse) and 0 <= coarse[best] + step < len(grid):
-        if solve(coarse[best] + step) >= costs[coarse[best]]:
+    # On along the coarse values while the costs fall: first a value back (lower, it brackets
+    # the minimum behind), then one onward (higher, it brackets it here), then the next coarse
+    # one; a value onward costs less to solve than the next coarse one and tells as much.
+    while step:
+        at = coarse[best]
+        if solve(at - step) < costs[at]:
             break
-        if solve(coarse[best + step]) >= costs[coarse[best]]:
+        if not 0 <= at + step < len(grid) or solve(at + step) >= costs[at]:
+            break
+        if not 0 <= best + step < len(coarse) or solve(coarse[best + step]) >= costs[at + step]:
             break
         best += step
     return _refined(grid, solve, costs, solutions, min(costs, key=costs.__getitem__))
@@ -150,13 +154,22 @@ def _refined(
 ) -> GridMinimum:
     """From grid index ``best``, downhill on the whole grid until both neighbours cost more;
     that value refined by a parabola through it and its neighbours (None at either end of the
-    grid or at an infinite cost)."""
+    grid or at an infinite cost). A neighbour already solved is looked at first, then the one
+    nearer another solved value (the side the minimum is bracketed on); the first that costs
+    less is the way, and the other is not solved."""
+
+    def nearest_other(i: int) -> tuple[float, float]:
+        """How far the nearest other solved value lies, and its cost (the lower, the likelier
+        the minimum lies that way)."""
+        return min(((abs(i - j), costs[j]) for j in costs if j != best), default=(math.inf, 0.0))
+
     while True:
-        around = [i for i in (best - 1, best, best + 1) if 0 <= i < len(grid)]
-        lowest = min(around, key=lambda i: (solve(i), i != best))  # a tie stays put
-        if lowest == best:
+        around = [i for i in (best - 1, best + 1) if 0 <= i < len(grid)]
+        around.sort(key=lambda i: (i not in costs, *nearest_other(i)))
+        lower = next((i for i in around if solve(i) < costs[best]), None)  # a tie stays put
+        if lower is None:
             break
-        best = lowest
+        best = lower
     tried = sorted(costs)
     values, tried_costs = tuple(grid[i] for i in tried), tuple(costs[i] for i in tried)
     if best in (0, len(grid) - 1) or not math.isfinite(costs[best]):
