@@ -102,13 +102,13 @@ def cheapest_on_grid(
 ) -> GridMinimum:
     """The grid value of least cost, found by walking downhill: from ``start`` (one of the
     increasing indices ``coarse``) to a coarse neighbour that costs less (the one above first,
-    the one below only where that one costs more), on along the coarse indices while the next
-    grid value still costs less, then on the whole grid until both neighbours cost more; a
-    parabola through that point and its neighbours.
+    the one below only where that one costs more), on along the coarse indices while the grid
+    value back costs more and the one on less, then on the whole grid until both neighbours
+    cost more; a parabola through that point and its neighbours.
 
     On a cost with one minimum over the grid (SLAM's cost over a delay or a scale is smooth and
     bowl-shaped) this is the grid value that solving every one would choose, with the same
-    neighbours, at about half the solves; the values far off, whose solves need the most
+    neighbours, at a third to a half of the solves; the values far off, whose solves need the most
     iterations, are never solved. Each solve starts from the solution of the nearest grid value
     solved before it (the first from ``near``, else from scratch): fewer iterations than from
     the last one solved, which may lie across the grid."""
