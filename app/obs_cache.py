@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 from markergraph.common.files import written_whole
-from markergraph.datasets.samples import cache_dir
 from markergraph.frontend import Extraction, FrontendConfig
 
 __all__ = [
@@ -79,6 +78,10 @@ def cache_enabled() -> bool:
 def cache_folder() -> Path:
     """``extractions/`` in markergraph's cache folder (``$MARKERGRAPH_CACHE``, else
     ``$XDG_CACHE_HOME/markergraph`` or ``~/.cache/markergraph``)."""
+    # Here, not at the top: the samples' module brings the simulator's writer, which a map of a
+    # recorded log never uses.
+    from markergraph.datasets.samples import cache_dir
+
     return cache_dir() / "extractions"
 
 

@@ -8,7 +8,7 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, TextIO
 
-if TYPE_CHECKING:  # imported where a bar is drawn: off a terminal its 60 ms buy nothing
+if TYPE_CHECKING:  # loaded with the first bar drawn: a run off a terminal draws none
     from tqdm import tqdm
 
 __all__ = ["ProgressBar", "Stages"]

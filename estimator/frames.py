@@ -152,28 +152,20 @@ def _frames_on(
 ) -> tuple[list[Frame], int, int]:
     """The frames within the odometry's time span, each with the motion's covariance since the
     previous; (frames, how many were skipped, how many steps were released across a jump)."""
-    frames: list[Frame] = []
-    skipped = released = 0
-    for t_ns in sorted(by_stamp):
-        T_odom_base = path.at(t_ns)
-        if T_odom_base is None:
-            skipped += 1
-            continue
-        if frames:
-            previous = frames[-1]
-            first = int(np.searchsorted(path.t_ns, previous.t_ns, "right"))
-            last = int(np.searchsorted(path.t_ns, t_ns, "left"))
-            along = np.vstack(
-                [_xyt(previous.T_odom_base), path.poses[first:last], _xyt(T_odom_base)]
-            )
-            covariance = motion_covariance(along, odometry_noise)
-            if any(previous.t_ns < t <= t_ns for t in odometry_breaks):
-                covariance = covariance + RELEASED_MOTION_COVARIANCE
-                released += 1
-        else:
-            covariance = np.zeros((3, 3))
-        frames.append(Frame(t_ns, T_odom_base, tuple(by_stamp[t_ns].values()), covariance))
-    return frames, skipped, released
+    stamps = np.array(sorted(by_stamp), dtype=np.int64)
+    poses = path.xy_yaw_at(stamps)
+    kept = ~np.isnan(poses[:, 0])
+    stamps, poses = stamps[kept], poses[kept]
+    covariances = motion_covariances(path, stamps, poses, odometry_noise)
+    breaks = np.sort(np.fromiter(odometry_breaks, dtype=np.int64))
+    passed = np.searchsorted(breaks, stamps, "right")  # breaks at or before each stamp
+    across = np.concatenate([[False], np.diff(passed) > 0])  # a break in (previous, this]
+    covariances[across] += RELEASED_MOTION_COVARIANCE
+    frames = [
+        Frame(int(t_ns), gtsam.Pose2(*pose), tuple(by_stamp[int(t_ns)].values()), covariance)
+        for t_ns, pose, covariance in zip(stamps, poses, covariances, strict=True)
+    ]
+    return frames, int((~kept).sum()), int(across.sum())
 
 
 def _home(frames: list[Frame], home_id: int | None) -> tuple[int, int]:
@@ -191,10 +183,6 @@ def _home(frames: list[Frame], home_id: int | None) -> tuple[int, int]:
     if home is None or home_frame is None:
         raise MarkerGraphError(f"the home marker {home} is never observed: no map frame")
     return home, home_frame
-
-
-def _xyt(T: gtsam.Pose2) -> list[float]:
-    return [T.x(), T.y(), T.theta()]
 
 
 def motion_covariance(poses: NDArray[np.float64], noise: OdometryNoise) -> NDArray[np.float64]:
@@ -219,3 +207,50 @@ def motion_covariance(poses: NDArray[np.float64], noise: OdometryNoise) -> NDArr
         [-(b @ (qx * qy)), a.sum() + b @ (qx * qx), -bx],
         [by, -bx, b.sum()],
     ])  # fmt: skip
+
+
+def motion_covariances(
+    path: Trajectory,
+    stamps_ns: NDArray[np.int64],
+    poses: NDArray[np.float64],
+    noise: OdometryNoise,
+) -> NDArray[np.float64]:
+    """:func:`motion_covariance` of the odometry between each pair of consecutive frames, all
+    at once: (K, 3, 3), the first zero.
+
+    Args:
+        path: the odometry.
+        stamps_ns: (K,) the frames' stamps, increasing [ns].
+        poses: (K, 3) the odometry's poses at them (x, y, yaw).
+    """
+    covariances = np.zeros((len(stamps_ns), 3, 3))
+    if len(stamps_ns) < 2:
+        return covariances
+    # Each gap's path: the pose before, the samples strictly between, the pose after; its
+    # steps laid end to end, every gap at least one step long.
+    first = np.searchsorted(path.t_ns, stamps_ns[:-1], "right")
+    inside = np.searchsorted(path.t_ns, stamps_ns[1:], "left") - first
+    counts = inside + 1
+    gap = np.repeat(np.arange(len(counts)), counts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    j = np.arange(len(gap)) - starts[gap]  # each step's place in its gap
+    sample = np.minimum(first[gap] + j, len(path) - 1)
+    ends = np.where((j < inside[gap])[:, None], path.poses[sample], poses[1:][gap])
+    begins = np.where((j == 0)[:, None], poses[:-1][gap], path.poses[np.maximum(sample - 1, 0)])
+    steps = ends - begins
+    turn = np.abs(np.remainder(steps[:, 2] + np.pi, 2 * np.pi) - np.pi)
+    a, b = noise.variances(np.hypot(steps[:, 0], steps[:, 1]), turn)
+    last = poses[1:][gap]  # each gap's end
+    c, s = np.cos(last[:, 2]), np.sin(last[:, 2])
+    dx, dy = ends[:, 0] - last[:, 0], ends[:, 1] - last[:, 1]
+    qx, qy = c * dx + s * dy, -s * dx + c * dy
+    sums = np.add.reduceat(
+        np.stack([a, b, b * qx, b * qy, b * qx * qx, b * qy * qy, b * qx * qy], axis=1), starts
+    ).reshape(-1, 7)
+    a_sum, b_sum, bx, by, bxx, byy, bxy = sums.T
+    covariances[1:] = np.stack([
+        np.stack([a_sum + byy, -bxy, by], axis=1),
+        np.stack([-bxy, a_sum + bxx, -bx], axis=1),
+        np.stack([by, -bx, b_sum], axis=1),
+    ], axis=1)  # fmt: skip
+    return covariances

@@ -13,6 +13,7 @@ on ideal logs with marker yaws 5.6-6.8 deg off; the polar factors: 1.0-2.6 cm an
 
 from __future__ import annotations
 
+from functools import cache
 from typing import Any
 
 import gtsam
@@ -26,6 +27,7 @@ from markergraph.estimator.types import FactorResidual, Observation, Robust
 
 __all__ = [
     "HOME_PRIOR_NOISE",
+    "FactorMemo",
     "GraphBuilder",
     "Robust",
     "base_covariance",
@@ -52,15 +54,20 @@ DOWNWEIGHTED_BELOW = 0.25
 _KERNEL_WIDTH = {Robust.HUBER: 1.345, Robust.CAUCHY: 2.3849}
 
 
-def _with_kernel(model: gtsam.noiseModel.Base, robust: Robust) -> gtsam.noiseModel.Base:
-    if robust is Robust.NONE:
-        return model
-    kernel = (
+@cache
+def _kernel(robust: Robust) -> gtsam.noiseModel.mEstimator.Base:
+    """The robust kernel, made once: it holds only its width, and factors share it."""
+    return (
         gtsam.noiseModel.mEstimator.Huber
         if robust is Robust.HUBER
         else gtsam.noiseModel.mEstimator.Cauchy
     ).Create(_KERNEL_WIDTH[robust])
-    return gtsam.noiseModel.Robust.Create(kernel, model)
+
+
+def _with_kernel(model: gtsam.noiseModel.Base, robust: Robust) -> gtsam.noiseModel.Base:
+    if robust is Robust.NONE:
+        return model
+    return gtsam.noiseModel.Robust.Create(_kernel(robust), model)
 
 
 def gaussian(
@@ -121,17 +128,31 @@ def base_covariance(
     return ad @ camera_covariance @ ad.T
 
 
+FactorMemo = dict[tuple[Any, ...], list[tuple[gtsam.NoiseModelFactor, str]]]
+"""An observation's factors by camera pose, kernel and measurement: a search solves the same
+frames under many delays or scales, where only the odometry's factors change (GTSAM's factors
+are immutable, so graphs share them)."""
+
+
 class GraphBuilder:
     """A factor graph and its initial values, grown frame by frame (batch SLAM, iSAM2) or link
     by link (the marker graph): the one place factors are made.
 
     ``graph``, ``values`` and ``kinds`` hold everything added; :meth:`take_new` hands out what
     was added since its last call (iSAM2's increments). ``T_base_camera`` is the mount of the
-    frames added next (sessions may differ).
+    frames added next (sessions may differ). ``memo``: observation factors made by earlier
+    builders of the same frames, reused and added to.
     """
 
-    def __init__(self, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE) -> None:
-        self.T_base_camera, self.robust = T_base_camera, robust
+    def __init__(
+        self,
+        T_base_camera: gtsam.Pose2,
+        robust: Robust = Robust.NONE,
+        memo: FactorMemo | None = None,
+    ) -> None:
+        self.T_base_camera, self.robust, self._memo = T_base_camera, robust, memo
+        # The mount last used, its inverse and the inverse's adjoint: the same for every frame.
+        self._mount: tuple[gtsam.Pose2, gtsam.Pose2, NDArray[np.float64]] | None = None
         self.graph, self.values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         self.kinds: list[str] = []
         # Each camera pose's mount, and what the pose-graph form needs (pose_graph).
@@ -181,20 +202,36 @@ class GraphBuilder:
         if k > 0:
             step = frames.frames[k - 1].T_odom_base.between(frame.T_odom_base)
             self._steps.append((key - 1, key, step, frame.odometry_covariance))
-            to_camera = mount.inverse().AdjointMap()
+            if self._mount is None or self._mount[0] is not mount:
+                inverse = mount.inverse()
+                self._mount = mount, inverse, inverse.AdjointMap()
+            _, inverse, to_camera = self._mount
             self._add(
                 gtsam.BetweenFactorPose2(
-                    key - 1, key, mount.inverse().compose(step).compose(mount),
+                    key - 1, key, inverse.compose(step).compose(mount),
                     gaussian(to_camera @ frame.odometry_covariance @ to_camera.T),
                 ),
                 "odometry",
             )  # fmt: skip
         for obs in frame.observations:
-            for factor, kind in observation_factors(offset + k, obs, self.robust):
+            for factor, kind in self._observation_factors(offset + k, obs):
                 self._add(factor, kind)
             self._sightings.append((key, obs))
             if not self.values.exists(L(obs.marker_id)):
                 self._initial(L(obs.marker_id), T_map_camera.compose(observation_pose(obs)))
+
+    def _observation_factors(
+        self, k: int, obs: Observation
+    ) -> list[tuple[gtsam.NoiseModelFactor, str]]:
+        """:func:`observation_factors`, from the memo where an earlier builder made them."""
+        if self._memo is None:
+            return observation_factors(k, obs, self.robust)
+        measured = (k, self.robust, obs.marker_id, obs.bearing, obs.range_m, obs.theta,
+                    obs.sigma_bearing, obs.sigma_range, obs.sigma_theta)  # fmt: skip
+        made = self._memo.get(measured)
+        if made is None:
+            made = self._memo[measured] = observation_factors(k, obs, self.robust)
+        return made
 
     def add_link(
         self, marker_a: int, marker_b: int, T_a_b: gtsam.Pose2, covariance: NDArray[np.float64]

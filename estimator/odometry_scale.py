@@ -14,6 +14,7 @@ from dataclasses import replace
 import gtsam
 import numpy as np
 
+from markergraph.estimator.graph import FactorMemo
 from markergraph.estimator.residual_search import GridMinimum, SlamInputs, cheapest_on_grid
 
 __all__ = ["odometry_scale_by_residuals"]
@@ -31,11 +32,12 @@ def odometry_scale_by_residuals(
     5 %). A long log is searched on the frames the camera delay's search uses; ``near``, the
     delay search's solution on them, is where the first solve starts."""
     sampled = inputs.sampled()
+    memo: FactorMemo = {}  # a scale changes the odometry's factors alone
 
     def cost(scale: float, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
-        return replace(sampled, odometry=sampled.odometry.scaled(scale)).cost(near)
+        return replace(sampled, odometry=sampled.odometry.scaled(scale)).cost(near, memo)
 
-    # From 1 outwards, so that each solve starts near the last.
-    middle = len(SCALES) // 2
-    first = sorted(range(0, len(SCALES), COARSE_STRIDE), key=lambda i: abs(i - middle))
-    return cheapest_on_grid(SCALES, cost, first, COARSE_STRIDE, near)
+    # From the coarse scale nearest 1: each solve starts near the last.
+    coarse = range(0, len(SCALES), COARSE_STRIDE)
+    start = min(coarse, key=lambda i: abs(SCALES[i] - 1.0))
+    return cheapest_on_grid(SCALES, cost, coarse, start, near)

@@ -5,14 +5,14 @@ scale (:mod:`markergraph.estimator.odometry_scale`) are chosen."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import gtsam
 
 from markergraph.common.errors import EstimationError
 from markergraph.estimator.frames import build_frames
-from markergraph.estimator.graph import Robust
+from markergraph.estimator.graph import FactorMemo, Robust
 from markergraph.estimator.slam import slam_cost
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Observation, OdometryNoise
@@ -78,14 +78,17 @@ class SlamInputs:
         """The same problem on :func:`search_sample`'s frames."""
         return replace(self, observations=search_sample(self.observations, self.home_id))
 
-    def cost(self, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
-        """Batch SLAM's final cost, and its solution (started from ``near``); infinite where
-        GTSAM cannot solve the graph."""
+    def cost(
+        self, near: gtsam.Values | None, memo: FactorMemo | None = None
+    ) -> tuple[float, gtsam.Values | None]:
+        """Batch SLAM's final cost, and its solution (started from ``near``; ``memo``: the
+        search's observation factors, :class:`~markergraph.estimator.graph.GraphBuilder`);
+        infinite where GTSAM cannot solve the graph."""
         try:
             frames = build_frames(self.observations, self.odometry, self.home_id,
                                   odometry_noise=self.odometry_noise,
                                   odometry_breaks=self.odometry_breaks)  # fmt: skip
-            return slam_cost(frames, self.T_base_camera, self.robust, near)
+            return slam_cost(frames, self.T_base_camera, self.robust, near, memo)
         except EstimationError:
             return math.inf, near
 
@@ -93,30 +96,80 @@ class SlamInputs:
 def cheapest_on_grid(
     grid: Sequence[float],
     cost: Cost,
-    first: Iterable[int],
-    stride: int,
+    coarse: Sequence[int],
+    start: int,
     near: gtsam.Values | None = None,
 ) -> GridMinimum:
-    """The grid value of least cost: first at the indices ``first`` (every ``stride``-th), then
-    at the grid about the best of them, then at the best point's neighbours, and a parabola
-    through the best point and its neighbours. Each solve starts from the solution of the
-    nearest grid value solved before it (the first from ``near``, else from scratch): fewer
-    iterations than from the last one solved, which may lie across the grid."""
+    """The grid value of least cost, found by walking downhill: from ``start`` (one of the
+    increasing indices ``coarse``) to a coarse neighbour that costs less (the one above first,
+    the one below only where that one costs more), on along the coarse indices while the grid
+    value back costs more and the one on less, then on the whole grid until both neighbours
+    cost more; a parabola through that point and its neighbours.
+
+    On a cost with one minimum over the grid (SLAM's cost over a delay or a scale is smooth and
+    bowl-shaped) this is the grid value that solving every one would choose, with the same
+    neighbours, at a third to a half of the solves; the values far off, whose solves need the most
+    iterations, are never solved. Each solve starts from the solution of the nearest grid value
+    solved before it (the first from ``near``, else from scratch): fewer iterations than from
+    the last one solved, which may lie across the grid."""
     costs: dict[int, float] = {}  # grid index -> cost
     solutions: dict[int, gtsam.Values | None] = {}
 
-    def solve(indices: Iterable[int]) -> None:
-        for i in indices:
-            if 0 <= i < len(grid) and i not in costs:
-                nearest = min(solutions, key=lambda j: abs(j - i), default=None)
-                start = near if nearest is None else solutions[nearest]
-                costs[i], solutions[i] = cost(grid[i], start)
+    def solve(i: int) -> float:
+        if i not in costs:
+            nearest = min(solutions, key=lambda j: abs(j - i), default=None)
+            begin = near if nearest is None else solutions[nearest]
+            costs[i], solutions[i] = cost(grid[i], begin)
+        return costs[i]
 
-    solve(first)
-    coarse_best = min(costs, key=costs.__getitem__)
-    solve(range(coarse_best - stride + 1, coarse_best + stride))
-    best = min(costs, key=costs.__getitem__)
-    solve([best - 1, best + 1])
+    best, step = coarse.index(start), 0
+    solve(start)
+    # Past a single minimum one falling side tells the way: the other is solved only where
+    # the first rises.
+    for side in (1, -1):
+        if 0 <= best + side < len(coarse) and solve(coarse[best + side]) < costs[start]:
+            best, step = best + side, side
+            break
+    # On along the coarse values while the costs fall: first a value back (lower, it brackets
+    # the minimum behind), then one onward (higher, it brackets it here), then the next coarse
+    # one; a value onward costs less to solve than the next coarse one and tells as much.
+    while step:
+        at = coarse[best]
+        if solve(at - step) < costs[at]:
+            break
+        if not 0 <= at + step < len(grid) or solve(at + step) >= costs[at]:
+            break
+        if not 0 <= best + step < len(coarse) or solve(coarse[best + step]) >= costs[at + step]:
+            break
+        best += step
+    return _refined(grid, solve, costs, solutions, min(costs, key=costs.__getitem__))
+
+
+def _refined(
+    grid: Sequence[float],
+    solve: Callable[[int], float],
+    costs: dict[int, float],
+    solutions: dict[int, gtsam.Values | None],
+    best: int,
+) -> GridMinimum:
+    """From grid index ``best``, downhill on the whole grid until both neighbours cost more;
+    that value refined by a parabola through it and its neighbours (None at either end of the
+    grid or at an infinite cost). A neighbour already solved is looked at first, then the one
+    nearer another solved value (the side the minimum is bracketed on); the first that costs
+    less is the way, and the other is not solved."""
+
+    def nearest_other(i: int) -> tuple[float, float]:
+        """How far the nearest other solved value lies, and its cost (the lower, the likelier
+        the minimum lies that way)."""
+        return min(((abs(i - j), costs[j]) for j in costs if j != best), default=(math.inf, 0.0))
+
+    while True:
+        around = [i for i in (best - 1, best + 1) if 0 <= i < len(grid)]
+        around.sort(key=lambda i: (i not in costs, *nearest_other(i)))
+        lower = next((i for i in around if solve(i) < costs[best]), None)  # a tie stays put
+        if lower is None:
+            break
+        best = lower
     tried = sorted(costs)
     values, tried_costs = tuple(grid[i] for i in tried), tuple(costs[i] for i in tried)
     if best in (0, len(grid) - 1) or not math.isfinite(costs[best]):

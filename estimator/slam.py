@@ -14,6 +14,7 @@ from markergraph.common.notes import Note
 from markergraph.estimator.estimate import Estimate
 from markergraph.estimator.frames import Frames
 from markergraph.estimator.graph import (
+    FactorMemo,
     GraphBuilder,
     Robust,
     base_pose,
@@ -21,7 +22,9 @@ from markergraph.estimator.graph import (
 )
 from markergraph.estimator.links import components, link_counts, measure_links
 from markergraph.estimator.solution import (
+    SEARCH_RELATIVE_ERROR_TOL,
     disconnected_notes,
+    lm_params,
     not_converged_note,
     optimise,
     solved_estimate,
@@ -48,11 +51,14 @@ def _T_map_odom(frames: Frames, T_base_camera: gtsam.Pose2) -> gtsam.Pose2:
 
 
 def build_slam_graph(
-    frames: Frames, T_base_camera: gtsam.Pose2, robust: Robust = Robust.NONE
+    frames: Frames,
+    T_base_camera: gtsam.Pose2,
+    robust: Robust = Robust.NONE,
+    memo: FactorMemo | None = None,
 ) -> GraphBuilder:
     """The full SLAM graph: home prior, odometry chain, one factor per observation, with
-    initial values from odometry anchored on home."""
-    builder = GraphBuilder(T_base_camera, robust)
+    initial values from odometry anchored on home (``memo``: :class:`GraphBuilder`'s)."""
+    builder = GraphBuilder(T_base_camera, robust, memo)
     builder.add_home_prior(frames.home_id)
     T_map_odom = _T_map_odom(frames, T_base_camera)
     for k in range(len(frames.frames)):
@@ -96,21 +102,24 @@ def slam_cost(
     T_base_camera: gtsam.Pose2,
     robust: Robust = Robust.NONE,
     near: gtsam.Values | None = None,
+    memo: FactorMemo | None = None,
 ) -> tuple[float, gtsam.Values]:
     """Batch SLAM's final cost alone (no marginals, residuals or links) and its solution: what
     a search over a setting compares. ``near``: the solution under a nearby setting, to start
-    from when it holds the same variables (else the pose-graph form's solution is the start).
+    from when it holds the same variables (else the pose-graph form's solution is the start);
+    ``memo``: the search's observation factors (:class:`GraphBuilder`).
 
     Raises:
         EstimationError: GTSAM cannot solve the graph.
     """
-    builder = build_slam_graph(frames, T_base_camera, robust)
+    builder = build_slam_graph(frames, T_base_camera, robust, memo)
     keys = builder.values.keys()  # a gtsam KeyVector
+    params = lm_params(SEARCH_RELATIVE_ERROR_TOL)
     if near is not None and near.size() == len(keys) and all(near.exists(k) for k in keys):
         builder.values = near
-        result, _ = optimise(builder, {}, warm=False)
+        result, _ = optimise(builder, {}, warm=False, params=params)
     else:
-        result, _ = optimise(builder, {})
+        result, _ = optimise(builder, {}, params=params)
     return float(builder.graph.error(result)), result
 
 

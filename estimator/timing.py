@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
+from markergraph.estimator.graph import FactorMemo
 from markergraph.estimator.residual_search import SlamInputs, cheapest_on_grid
 from markergraph.estimator.trajectory import Trajectory, turn_rate
 from markergraph.estimator.types import Observation
@@ -91,23 +92,24 @@ def camera_delay_by_residuals(
     inputs: SlamInputs, *, readout_ns: int = 0, image_height: int = 0
 ) -> CameraDelay:
     """The delay, from -50 to +100 ms, under which batch SLAM's solution has the lowest cost:
-    a 30 ms grid, the 10 ms grid about its best point, then a parabola through the best point
-    and its neighbours; None (in ``delay_ns``) when the lowest cost is at either end of the
-    range. A long log is searched on :data:`SEARCH_FRAMES` of its frames, evenly spread
-    (and every frame that sees the home marker): sixteen full solves of a 10-minute log cost
-    23 s; ten cost-only solves, each from the last one's solution, 3-4 s."""
+    downhill on a 30 ms grid, then on the 10 ms grid, then a parabola through the best point
+    and its neighbours (:func:`cheapest_on_grid`); None (in ``delay_ns``) when the lowest cost
+    is at either end of the range. A long log is searched on :data:`SEARCH_FRAMES` of its
+    frames, evenly spread (and every frame that sees the home marker): sixteen full solves of a
+    10-minute log cost 23 s; ten cost-only solves, each from the last one's solution, 3-4 s.
+    """
     sampled = inputs.sampled()
+    memo: FactorMemo = {}  # a delay moves the frames' stamps, not what they measured
 
     def cost(delay_ns: float, near: gtsam.Values | None) -> tuple[float, gtsam.Values | None]:
         moved = retimed(sampled.observations, round(delay_ns), readout_ns, image_height)
-        return replace(sampled, observations=moved).cost(near)
+        return replace(sampled, observations=moved).cost(near, memo)
 
     delays = [round(d * 1e9) for d in DELAYS_S]
-    # Every third delay of the grid, then the grid about the best of them: the cost is smooth
-    # over tens of milliseconds, and the delays far off cost the most iterations. Nearest to
-    # no delay first, then outwards: each solve starts from its neighbour's solution.
-    coarse = [*range(0, len(delays), COARSE_STRIDE), len(delays) - 1]
-    first = sorted(coarse, key=lambda i: abs(delays[i]))
-    found = cheapest_on_grid(delays, cost, first, COARSE_STRIDE)
+    # Every third delay of the grid first: the cost is smooth over tens of milliseconds. From
+    # the one nearest no delay: each solve starts from its neighbour's solution.
+    coarse = sorted({*range(0, len(delays), COARSE_STRIDE), len(delays) - 1})
+    start = min(coarse, key=lambda i: abs(delays[i]))
+    found = cheapest_on_grid(delays, cost, coarse, start)
     chosen = None if found.chosen is None else round(found.chosen)
     return CameraDelay(chosen, tuple(map(int, found.tried)), found.costs, found.solution)

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.estimator.angles import wrap
+from markergraph.estimator.angles import wrap, wrap_array
 from markergraph.estimator.types import OdometrySample
 
 if TYPE_CHECKING:  # GTSAM loads with the first pose asked for: the front end's paths need none
@@ -23,6 +23,7 @@ __all__ = [
     "Trajectory",
     "corrected_odometry",
     "interpolated_xy_yaw",
+    "interpolated_xy_yaws",
     "map_to_odom",
     "odometry_in_map",
     "turn_rate",
@@ -120,6 +121,30 @@ class Trajectory:
             return float(x), float(y), wrap(float(yaw))
         t0, t1 = self.t_ns[i - 1], self.t_ns[i]
         return interpolated_xy_yaw(self.poses[i - 1], self.poses[i], float((t_ns - t0) / (t1 - t0)))
+
+    def xy_yaw_at(
+        self, stamps_ns: NDArray[np.int64], max_extrapolation_ns: int = MAX_EXTRAPOLATION_NS
+    ) -> NDArray[np.float64]:
+        """:meth:`at` at many stamps at once, as (N, 3) rows (x, y, yaw) [m, m, rad]; rows of
+        NaN where the path does not reach. One numpy pass: frames are built many times over
+        in the delay and scale searches."""
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        poses = np.full((len(stamps), 3), np.nan)
+        if not len(self):
+            return poses
+        i = np.searchsorted(self.t_ns, stamps)
+        before, after = i == 0, i == len(self)
+        near = np.where(before, self.t_ns[0] - stamps, stamps - self.t_ns[-1])
+        for ends, row in ((before, 0), (after, -1)):
+            kept = ends & (near <= max_extrapolation_ns)
+            poses[kept] = self.poses[row]
+            poses[kept, 2] = wrap_array(self.poses[row, 2])
+        inside = np.flatnonzero(~before & ~after)
+        k = i[inside]
+        t0, t1 = self.t_ns[k - 1], self.t_ns[k]
+        fraction = (stamps[inside] - t0) / (t1 - t0)
+        poses[inside] = interpolated_xy_yaws(self.poses[k - 1], self.poses[k], fraction)
+        return poses
 
     def at_stamps(self, stamps_ns: Iterable[int]) -> Trajectory:
         """This trajectory at the given stamps (those it does not reach are left out); a stamp
@@ -294,3 +319,29 @@ def interpolated_xy_yaw(
         ox, oy = -vy, vx
         px, py = (ox - (c * ox - s * oy)) / w, (oy - (s * ox + c * oy)) / w
     return x0 + c0 * px - s0 * py, y0 + s0 * px + c0 * py, wrap(yaw0 + w)
+
+
+def interpolated_xy_yaws(
+    poses0: NDArray[np.float64], poses1: NDArray[np.float64], fractions: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """:func:`interpolated_xy_yaw` row by row over (N, 3) poses and (N,) fractions, as (N, 3)."""
+    x0, y0, yaw0 = poses0[:, 0], poses0[:, 1], poses0[:, 2]
+    c0, s0 = np.cos(yaw0), np.sin(yaw0)
+    dx, dy = poses1[:, 0] - x0, poses1[:, 1] - y0
+    tx, ty = c0 * dx + s0 * dy, -s0 * dx + c0 * dy
+    w = wrap_array(poses1[:, 2] - yaw0)
+    straight = np.abs(w) < 1e-10
+    turning = np.where(straight, 1.0, w)  # no division by a zero turn; those rows are replaced
+    c, s = np.cos(turning), np.sin(turning)
+    ux, uy = c * tx + s * ty - tx, -s * tx + c * ty - ty
+    scale = turning / ((c - 1.0) ** 2 + s * s)
+    vx = np.where(straight, tx, -uy * scale) * fractions
+    vy = np.where(straight, ty, ux * scale) * fractions
+    w = w * fractions
+    straight = np.abs(w) < 1e-10
+    turning = np.where(straight, 1.0, w)
+    c, s = np.cos(turning), np.sin(turning)
+    ox, oy = -vy, vx
+    px = np.where(straight, vx, (ox - (c * ox - s * oy)) / turning)
+    py = np.where(straight, vy, (oy - (s * ox + c * oy)) / turning)
+    return np.stack([x0 + c0 * px - s0 * py, y0 + s0 * px + c0 * py, wrap_array(yaw0 + w)], axis=1)

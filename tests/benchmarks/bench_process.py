@@ -17,7 +17,9 @@ is 0.6 MB a frame: zstd alone takes 1.2-1.5 s of CPU to read past it, a floor th
 which reads nothing, never meets.
 
 ``detect`` runs with its default workers (auto), ``--workers 1`` and each ``--workers N`` given;
-``--detect-only`` leaves out ``map`` and start-up.
+``map --method slam`` runs on the log and on ``detect``'s output (``o.jsonl``, written earlier in
+the same round): the second is everything ``map`` does besides reading the log. ``--detect-only``
+leaves out ``map`` and start-up.
 
 Usage: python tests/benchmarks/bench_process.py [--log PATH] [--rounds N] [--workers N ...]
     [--detect-only]
@@ -160,6 +162,9 @@ def bench_log(
     if not detect_only:
         runs["map --method slam"] = ["map", str(log), "--method", "slam", "--no-cache",
                                      "--no-plots", "--out", "m", "--force", "--quiet"]  # fmt: skip
+        runs["map o.jsonl (no log read)"] = ["map", "o.jsonl", "--method", "slam", "--no-cache",
+                                             "--no-plots", "--out", "m", "--force",
+                                             "--quiet"]  # fmt: skip
     if not detect_only and start_up:
         starts = {
             "python -c pass": [sys.executable, "-c", "pass"],
