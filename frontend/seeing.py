@@ -1,10 +1,16 @@
-"""Colour frames decoded and their markers detected in a pool of threads, results in order.
+"""Colour frames decoded, their markers detected and observed in a pool of threads.
 
 JPEG decoding and OpenCV's detection release the GIL, so threads in one process keep every core
 busy without a process's start-up or the copying of images between processes: on
 bench_process.py's 640x480 log, two threads decoded and detected 2.0x as many frames a second as
 one (this machine's 2 cores). Each thread has its own detector: a detector is not safe to share
 (FAST mode sets its window detector's parameters per window; ``left_out`` counts).
+
+A frame is seen (decoded, detected) as soon as it is read, and observed (PnP, depth, sigmas)
+once the reader has paired it with its depth and attitude; the reader, which takes every frame
+in log order, only keeps the books. Observing in the reader's thread made it the bottleneck on
+a log with a marker in most frames: each of the dozen OpenCV calls an observation makes waits
+to take the GIL back from the pool's threads.
 """
 
 from __future__ import annotations
@@ -12,19 +18,23 @@ from __future__ import annotations
 import threading
 from collections import Counter
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import TracebackType
 
 import numpy as np
 from numpy.typing import NDArray
 
+from markergraph.estimator.types import Observation
+from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_image
 from markergraph.frontend.detect import Detection
 from markergraph.frontend.detectors import MarkerDetector, make_detector
 from markergraph.frontend.logs import LogError, Message
+from markergraph.frontend.observe import observe_detections
+from markergraph.frontend.posed import LevelledCamera, LevelledFrame, observe_levelled_frame
 
-__all__ = ["SeeingPool", "Seen"]
+__all__ = ["Observed", "SeeingPool", "Seen"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -35,6 +45,26 @@ class Seen:
     """The grey image's shape, or why it does not decode."""
     detections: list[Detection]
     """The markers found, sorted by id (none where the image does not decode)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Observed:
+    """One frame's observations, and what the reader counts of it."""
+
+    shape: tuple[int, ...] | LogError
+    """The grey image's shape, or why it does not decode (then nothing else is set)."""
+    detections: list[Detection]
+    """The markers found."""
+    observations: list[Observation]
+    """Their observations."""
+    depth_unaligned: bool = False
+    """Depth was paired but is not the colour image's size: observed without it."""
+    levelled: LevelledFrame | None = None
+    """The frame as levelled by the odometry's attitude (its observations are those above)."""
+    depth_ratios: list[tuple[int, float, float]] = field(default_factory=list)
+    """Its well-placed markers' (stamp, depth, PnP distance)."""
+    size_ratios: list[tuple[int, float]] = field(default_factory=list)
+    """Its well-placed markers' (id, depth over PnP distance)."""
 
 
 class SeeingPool:
@@ -54,6 +84,21 @@ class SeeingPool:
     def submit(self, message: Message) -> Future[Seen]:
         """The frame of ``message`` decoded and detected, in a thread of the pool."""
         return self._executor.submit(self._see, message)
+
+    def observe(
+        self,
+        seen: Future[Seen],
+        depth: NDArray | None,
+        view: LevelledCamera | None,
+        t_ns: int,
+        camera: Camera,
+        mount: CameraMount,
+    ) -> Future[Observed]:
+        """The frame ``seen`` observed, with its paired depth, or through ``view`` where the
+        base was tilted, in a thread of the pool. Its seeing was submitted first, so it has
+        started by the time this does (the pool takes work in order): waiting for it cannot
+        hold up the pool."""
+        return self._executor.submit(_observed, seen, depth, view, t_ns, camera, mount, self)
 
     def left_out(self) -> Counter[int]:
         """Detections of ids outside the allowed ones, over every thread's detector."""
@@ -90,3 +135,32 @@ class SeeingPool:
         traceback: TracebackType | None,
     ) -> None:
         self._executor.shutdown(wait=True, cancel_futures=True)
+
+
+def _observed(
+    seen: Future[Seen],
+    depth: NDArray | None,
+    view: LevelledCamera | None,
+    t_ns: int,
+    camera: Camera,
+    mount: CameraMount,
+    pool: SeeingPool,
+) -> Observed:
+    """A seen frame's observations (:meth:`SeeingPool.observe`)."""
+    shape, detections = seen.result().shape, seen.result().detections
+    if isinstance(shape, LogError):
+        return Observed(shape, [], [])
+    unaligned = depth is not None and depth.shape[:2] != shape[:2]
+    model = pool.config.observation_model
+    if view is not None:
+        # A tilted base (a ramp, a hand-held rig) or a rolled camera: each marker's full pose
+        # from its corners, turned into the level frame.
+        levelled = observe_levelled_frame(detections, view, model, t_ns)
+        return Observed(shape, detections, levelled.observations, unaligned, levelled)
+    depth_ratios: list[tuple[int, float, float]] = []
+    size_ratios: list[tuple[int, float]] = []
+    observations = observe_detections(
+        detections, camera, model, depth=None if unaligned else depth, mount=mount, t_ns=t_ns,
+        depth_ratios=depth_ratios, size_ratios=size_ratios,
+    )  # fmt: skip
+    return Observed(shape, detections, observations, unaligned, None, depth_ratios, size_ratios)

@@ -33,16 +33,15 @@ from markergraph.frontend.detect import DetectorMode
 from markergraph.frontend.detectors import DetectorChoice, MarkerDetector, make_detector
 from markergraph.frontend.extraction import Extraction, Part
 from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message, read_ahead
-from markergraph.frontend.observe import Flags, observe_detections
+from markergraph.frontend.observe import Flags
 from markergraph.frontend.odometry_kind import OdometryJudge
 from markergraph.frontend.posed import (
     MAX_ATTITUDE_GAP_NS,
     LevelledCamera,
     levelled_view,
-    observe_levelled_frame,
 )
 from markergraph.frontend.ros2 import yaw_from_quaternion
-from markergraph.frontend.seeing import SeeingPool, Seen
+from markergraph.frontend.seeing import Observed, SeeingPool, Seen
 from markergraph.frontend.tf import (
     mount_from_transforms,
     odometry_from_tf,
@@ -144,21 +143,20 @@ class Span:
 
 @dataclass(frozen=True, slots=True)
 class _Paired:
-    """A colour frame with its depth and the levelled camera at its stamp, to be observed once
-    the pool has seen it."""
+    """A colour frame with its depth, being observed in the pool."""
 
     t_ns: int
     frame: ColourFrame
     depth: NDArray | None
-    view: LevelledCamera | None
+    observed: Future[Observed]
 
 
 class SpanReader:
     """One process's work: observations, odometry and ground truth of one stretch of the log.
 
     Three kinds of thread share it: one reads the log ahead (:func:`read_ahead`: file reads,
-    zstd), the pool's decode images and detect markers (:class:`SeeingPool`), and the caller's
-    pairs frames with depth and odometry and observes them, in log order."""
+    zstd), the pool's decode images, detect markers and observe them (:class:`SeeingPool`), and
+    the caller's pairs frames with depth and odometry and keeps the books, in log order."""
 
     def __init__(
         self,
@@ -182,6 +180,7 @@ class SpanReader:
         self.threads = max(1, threads)
         self.odometry_judge: OdometryJudge | None = None  # set while reading from the log's start
         self.paired: deque[_Paired] = deque()
+        self.pool: SeeingPool | None = None  # while reading
         self.model = config.observation_model
         self.attitudes: deque[tuple[int, NDArray[np.float64]]] = deque(maxlen=MAX_ATTITUDES)
 
@@ -203,6 +202,7 @@ class SpanReader:
         end = None if span.end_ns is None else span.end_ns + margin
         stream = self.log.messages(streamed, self.read_failures, start, end)
         with SeeingPool(self.config, self.threads, self._camera_size()) as pool:
+            self.pool = pool
             for message in read_ahead(stream):
                 if message.topic == color and span.holds(message.log_time_ns):
                     done += 1
@@ -300,16 +300,21 @@ class SpanReader:
             self.part.true_pose_log_ns.append(message.log_time_ns)
 
     def _drain(self, latest_ns: int, flush: bool = False) -> None:
-        """The colour frames paired (or past waiting for depth) observed, in order, as the pool
-        sees them: the reader waits only with too many in flight, or to finish."""
+        """The colour frames paired (or past waiting for depth) sent to be observed, and those
+        observed counted, in order: the reader waits only with too many in flight, or to
+        finish."""
         ready = self.pairing.ready(latest_ns, flush)
         if ready:
             self._settle_mount()
+        result, pool = self.part.extraction, self.pool
+        assert pool is not None and result.camera is not None  # judged before reading
         for t_ns, frame, depth in ready:
             # Levelled now, while the odometry's attitudes about its stamp are at hand.
-            self.paired.append(_Paired(t_ns, frame, depth, self._levelled_view(t_ns)))
+            view = self._levelled_view(t_ns)
+            observed = pool.observe(frame.seen, depth, view, t_ns, result.camera, result.mount)
+            self.paired.append(_Paired(t_ns, frame, depth, observed))
         limit = 0 if flush else IN_FLIGHT_PER_THREAD * self.threads
-        while self.paired and (len(self.paired) > limit or self.paired[0].frame.seen.done()):
+        while self.paired and (len(self.paired) > limit or self.paired[0].observed.done()):
             self._observe(self.paired.popleft())
 
     def _settle_mount(self) -> None:
@@ -348,18 +353,17 @@ class SpanReader:
         return levelled_view(result.camera, result.mount, nearest[1])
 
     def _observe(self, paired: _Paired) -> None:
-        """One colour frame with its depth (if any) to observations; a bad frame costs itself."""
-        result, choice = self.part.extraction, self.choice
-        t_ns, depth, view = paired.t_ns, paired.depth, paired.view
-        assert result.camera is not None  # extract judged it before reading
-        key = (t_ns, paired.frame.message.log_time_ns)
-        seen = paired.frame.seen.result()
-        shape, detections = seen.shape, seen.detections
+        """One frame's observations (made in the pool) and its counts kept; a bad frame costs
+        itself."""
+        result, choice, depth = self.part.extraction, self.choice, paired.depth
+        key = (paired.t_ns, paired.frame.message.log_time_ns)
+        observed = paired.observed.result()
+        shape, observations = observed.shape, observed.observations
         if isinstance(shape, LogError):
             result.undecodable_frames += 1
             result.skipped[f"colour image does not decode ({shape})"] += 1
             return
-        if depth is not None and depth.shape[:2] != shape[:2]:
+        if depth is not None and observed.depth_unaligned:
             result.unusable_depth += 1
             result.skipped[
                 f"depth on {choice.depth} is {depth.shape[1]}x{depth.shape[0]}, colour "
@@ -370,28 +374,20 @@ class SpanReader:
             result.frames_with_depth += 1
         elif choice.depth:
             result.skipped["no depth within the pairing tolerance (used without)"] += 1
-        if view is not None:
-            # A tilted base (a ramp, a hand-held rig) or a rolled camera: each marker's full
-            # pose from its corners, turned into the level frame.
-            levelled = observe_levelled_frame(detections, view, self.model, t_ns)
-            observations = levelled.observations
+        result.observations += observations
+        self.part.observation_frames += [key] * len(observations)
+        if observed.levelled is not None:
             result.levelled_frames += 1
-            result.levelled.append(levelled)  # tallied once the log is read: drop_notes
-            result.observations += observations
-            self.part.observation_frames += [key] * len(observations)
+            result.levelled.append(observed.levelled)  # tallied once the log is read
             return
-        observations = observe_detections(
-            detections, result.camera, self.model, depth=depth, mount=result.mount, t_ns=t_ns,
-            depth_ratios=result.depth_ratios, size_ratios=result.size_ratios,
-        )  # fmt: skip
+        result.depth_ratios += observed.depth_ratios
+        result.size_ratios += observed.size_ratios
         if depth is not None:
             result.depth_tries += len(observations)
             result.depth_misses += sum(Flags.NO_DEPTH in o.flags for o in observations)
-        seen = Counter(d.marker_id for d in detections)
+        seen = Counter(d.marker_id for d in observed.detections)
         result.level_detections += seen
         result.level_no_yaw += seen - Counter(o.marker_id for o in observations)
-        result.observations += observations
-        self.part.observation_frames += [key] * len(observations)
 
 
 def read_span(
