@@ -10,10 +10,12 @@ from __future__ import annotations
 import itertools
 import math
 from array import array
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from markergraph.common.notes import Note
@@ -202,21 +204,45 @@ def _read_in_workers(
     workers: int,
     progress: Callable[[int, int], None] | None,
 ) -> Part:
-    """The log cut into :data:`SPANS_PER_WORKER` stretches of time a worker, each read whole
-    by a worker (:func:`read_span`), joined in log order."""
+    """The log cut into :data:`SPANS_PER_WORKER` stretches of time a process, each read whole
+    (:func:`read_span`), joined in log order. This process is one of the ``workers``: while the
+    others start (a spawned process imports for 0.3-0.7 s) and take stretches from the front,
+    it takes them from the back, each one none of them has begun."""
     first, last = log.time_range
     edges = np.linspace(first, last + 1, SPANS_PER_WORKER * workers + 1).astype(np.int64)
     spans = [Span(int(a), int(b)) for a, b in itertools.pairwise(edges)]
-    parts = []
-    with process_pool(workers, one_opencv_thread) as pool:
-        threads = max(1, available_cores() // workers)
-        jobs = [(log, config, choice, counts, span, threads) for span in spans]
-        for done, piece in enumerate(pool.map(read_span, jobs), start=1):
-            parts.append(piece)
-            if progress is not None:  # in frames, as one process counts them
-                frames = counts.get(choice.color or "", 0)
-                progress(done * frames // len(spans), frames)
-    return merge_parts(parts)
+    threads = max(1, available_cores() // workers)
+    jobs = [(log, config, choice, counts, span, threads) for span in spans]
+    frames = counts.get(choice.color or "", 0)
+    parts: dict[int, Part] = {}
+
+    def done(index: int, part: Part) -> None:
+        parts[index] = part
+        if progress is not None:  # in frames, as one process counts them
+            progress(len(parts) * frames // len(spans), frames)
+
+    with process_pool(workers - 1, one_opencv_thread) as pool, _opencv_threads(1):
+        futures = [pool.submit(read_span, job) for job in jobs]
+        for index in reversed(range(len(jobs))):
+            if not futures[index].cancel():
+                break  # the pool has it, and every stretch before it
+            done(index, read_span(jobs[index]))
+        for index, future in enumerate(futures):
+            if index not in parts:
+                done(index, future.result())
+    return merge_parts([parts[i] for i in range(len(jobs))])
+
+
+@contextmanager
+def _opencv_threads(count: int) -> Iterator[None]:
+    """OpenCV's own threads set to ``count`` for a while: beside the workers, this process's
+    share is one core."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(count)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
 
 
 def _camera_judged(
