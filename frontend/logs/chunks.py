@@ -175,10 +175,8 @@ def chunk_messages(chunk: Chunk, wanted: Collection[int]) -> list[McapMessage]:
             raise McapDamageError(f"a message record of {end - start} bytes")
         channel, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, start)
         if channel in wanted:
-            found.append(
-                McapMessage(channel, log_time, view[start + _MESSAGE.size : end],
-                            publish_time, sequence)
-            )  # fmt: skip
+            data_view = cast(bytes, view[start + _MESSAGE.size : end])  # read as bytes are
+            found.append(McapMessage(channel, log_time, data_view, publish_time, sequence))
     return found
 
 
