@@ -31,10 +31,10 @@ from markergraph.frontend.decode import decode_image
 from markergraph.frontend.detect import Detection
 from markergraph.frontend.detectors import MarkerDetector, make_detector
 from markergraph.frontend.logs import LogError, Message
-from markergraph.frontend.observe import observe_detections
+from markergraph.frontend.observe import ObservationModel, observe_detections
 from markergraph.frontend.posed import LevelledCamera, LevelledFrame, observe_levelled_frame
 
-__all__ = ["Observed", "SeeingPool", "Seen"]
+__all__ = ["Observed", "SeeingPool", "Seen", "ToObserve"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,6 +45,22 @@ class Seen:
     """The grey image's shape, or why it does not decode."""
     detections: list[Detection]
     """The markers found, sorted by id (none where the image does not decode)."""
+
+
+@dataclass(frozen=True, slots=True)
+class ToObserve:
+    """A frame being seen, with what observing it takes besides."""
+
+    seen: Future[Seen]
+    """Its image decoded and its markers detected."""
+    depth: NDArray | None
+    """The depth image paired with it."""
+    view: LevelledCamera | None
+    """The camera levelled by the odometry's attitude, where the base was tilted."""
+    t_ns: int
+    """Its stamp [ns]."""
+    camera: Camera
+    mount: CameraMount
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,20 +101,11 @@ class SeeingPool:
         """The frame of ``message`` decoded and detected, in a thread of the pool."""
         return self._executor.submit(self._see, message)
 
-    def observe(
-        self,
-        seen: Future[Seen],
-        depth: NDArray | None,
-        view: LevelledCamera | None,
-        t_ns: int,
-        camera: Camera,
-        mount: CameraMount,
-    ) -> Future[Observed]:
-        """The frame ``seen`` observed, with its paired depth, or through ``view`` where the
-        base was tilted, in a thread of the pool. Its seeing was submitted first, so it has
-        started by the time this does (the pool takes work in order): waiting for it cannot
-        hold up the pool."""
-        return self._executor.submit(_observed, seen, depth, view, t_ns, camera, mount, self)
+    def observe(self, frame: ToObserve) -> Future[Observed]:
+        """A seen frame observed, in a thread of the pool. Its seeing was submitted first, so
+        it has started by the time this does (the pool takes work in order): waiting for it
+        cannot hold up the pool."""
+        return self._executor.submit(_observed, frame, self.config.observation_model)
 
     def left_out(self) -> Counter[int]:
         """Detections of ids outside the allowed ones, over every thread's detector."""
@@ -137,30 +144,22 @@ class SeeingPool:
         self._executor.shutdown(wait=True, cancel_futures=True)
 
 
-def _observed(
-    seen: Future[Seen],
-    depth: NDArray | None,
-    view: LevelledCamera | None,
-    t_ns: int,
-    camera: Camera,
-    mount: CameraMount,
-    pool: SeeingPool,
-) -> Observed:
+def _observed(frame: ToObserve, model: ObservationModel) -> Observed:
     """A seen frame's observations (:meth:`SeeingPool.observe`)."""
-    shape, detections = seen.result().shape, seen.result().detections
+    seen = frame.seen.result()
+    shape, detections, depth, t_ns = seen.shape, seen.detections, frame.depth, frame.t_ns
     if isinstance(shape, LogError):
         return Observed(shape, [], [])
     unaligned = depth is not None and depth.shape[:2] != shape[:2]
-    model = pool.config.observation_model
-    if view is not None:
+    if frame.view is not None:
         # A tilted base (a ramp, a hand-held rig) or a rolled camera: each marker's full pose
         # from its corners, turned into the level frame.
-        levelled = observe_levelled_frame(detections, view, model, t_ns)
+        levelled = observe_levelled_frame(detections, frame.view, model, t_ns)
         return Observed(shape, detections, levelled.observations, unaligned, levelled)
     depth_ratios: list[tuple[int, float, float]] = []
     size_ratios: list[tuple[int, float]] = []
     observations = observe_detections(
-        detections, camera, model, depth=None if unaligned else depth, mount=mount, t_ns=t_ns,
-        depth_ratios=depth_ratios, size_ratios=size_ratios,
+        detections, frame.camera, model, depth=None if unaligned else depth, mount=frame.mount,
+        t_ns=t_ns, depth_ratios=depth_ratios, size_ratios=size_ratios,
     )  # fmt: skip
     return Observed(shape, detections, observations, unaligned, None, depth_ratios, size_ratios)

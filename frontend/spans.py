@@ -41,7 +41,7 @@ from markergraph.frontend.posed import (
     levelled_view,
 )
 from markergraph.frontend.ros2 import yaw_from_quaternion
-from markergraph.frontend.seeing import Observed, SeeingPool, Seen
+from markergraph.frontend.seeing import Observed, SeeingPool, Seen, ToObserve
 from markergraph.frontend.tf import (
     mount_from_transforms,
     odometry_from_tf,
@@ -311,7 +311,9 @@ class SpanReader:
         for t_ns, frame, depth in ready:
             # Levelled now, while the odometry's attitudes about its stamp are at hand.
             view = self._levelled_view(t_ns)
-            observed = pool.observe(frame.seen, depth, view, t_ns, result.camera, result.mount)
+            observed = pool.observe(
+                ToObserve(frame.seen, depth, view, t_ns, result.camera, result.mount)
+            )
             self.paired.append(_Paired(t_ns, frame, depth, observed))
         limit = 0 if flush else IN_FLIGHT_PER_THREAD * self.threads
         while self.paired and (len(self.paired) > limit or self.paired[0].observed.done()):
