@@ -48,13 +48,12 @@ class _Reader:
         self.offset = end
         return text
 
-    def byte_array(self) -> memoryview:
-        """A view of the bytes in the message's (images are most of a log: never copied)."""
+    def byte_array(self) -> bytes:
         length = self.uint32()
         end = self.offset + length
         if end > len(self.data):
             raise ValueError("a byte array runs past the end of the message")
-        data = self.data[self.offset : end]
+        data = bytes(self.data[self.offset : end])  # bytes, as mcap-ros2-support's decoders give
         self.offset = end
         return data
 
