@@ -159,7 +159,7 @@ def _frames_on(
     covariances = motion_covariances(path, stamps, poses, odometry_noise)
     breaks = np.sort(np.fromiter(odometry_breaks, dtype=np.int64))
     passed = np.searchsorted(breaks, stamps, "right")  # breaks at or before each stamp
-    across = np.concatenate([[False], np.diff(passed) > 0])  # a break in (previous, this]
+    across = np.diff(passed, prepend=passed[:1]) > 0  # a break in (previous, this]; none kept: none
     covariances[across] += RELEASED_MOTION_COVARIANCE
     frames = [
         Frame(int(t_ns), gtsam.Pose2(*pose), tuple(by_stamp[int(t_ns)].values()), covariance)
