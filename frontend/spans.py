@@ -402,7 +402,7 @@ def read_span(
 
 
 def one_opencv_thread() -> None:
-    """A worker's set-up (:func:`~markergraph.common.pool.process_pool`): one OpenCV thread. A
-    worker's reading and main threads already keep about one and a half cores busy; more would
-    only contend."""
+    """A worker's set-up (:func:`~markergraph.common.pool.process_pool`): one OpenCV thread. The
+    workers share the cores among them (each its share of threads, :func:`read_span`); OpenCV's
+    own threads on top would only contend."""
     cv2.setNumThreads(1)
