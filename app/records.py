@@ -79,6 +79,8 @@ class MethodResult:
         odometry_map: the raw odometry placed by the first optimised pose (the map frame).
         inside_95_ellipse: the share of true markers inside the estimate's 95 % ellipses (None
             without covariances or truth): 0.95 when they are honest.
+        yaw_inside_95: the share of true marker yaws inside the estimate's 95 % intervals
+            (None likewise).
         judgement: how far the estimate can be trusted, and why (:mod:`markergraph.verdicts`).
     """
 
@@ -92,6 +94,7 @@ class MethodResult:
     path: Trajectory | None = None
     odometry_map: Trajectory | None = None
     inside_95_ellipse: float | None = None
+    yaw_inside_95: float | None = None
     judgement: Judgement = field(default_factory=lambda: Judgement(Verdict.OK))
 
     @property

@@ -184,6 +184,8 @@ def _method_entry(run: MapRun, result: MethodResult) -> dict[str, Any]:
         entry["marker_rmse_aligned_m"] = result.map_error_aligned.rmse_position_m
     if result.inside_95_ellipse is not None:
         entry["inside_95_ellipse_share"] = result.inside_95_ellipse
+    if result.yaw_inside_95 is not None:
+        entry["yaw_inside_95_share"] = result.yaw_inside_95
     if result.path is not None:
         entry["trajectory_poses"] = len(result.path)  # in trajectory.tum
         entry["optimised_poses"] = len(result.estimate.trajectory)

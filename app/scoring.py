@@ -47,6 +47,7 @@ def score(result: MethodResult, truth: dict[int, gtsam.Pose2], path: Trajectory 
     result.map_error = map_error(estimate, truth)
     coverage = ellipse_coverage(estimate, truth)
     result.inside_95_ellipse = None if math.isnan(coverage.share) else coverage.share
+    result.yaw_inside_95 = None if math.isnan(coverage.yaw_share) else coverage.yaw_share
     if len(estimate.markers) >= 2:
         result.map_error_aligned = map_error(estimate, truth, align=True)
     # At the odometry's rate where the corrected path is known: the whole path, not only the

@@ -69,6 +69,7 @@ if TYPE_CHECKING:
         Placement,
         Robust,
     )
+    from markergraph.estimator.views import shared_over_views
 
 __all__ = [
     "ELLIPSE_95_D2",
@@ -122,6 +123,7 @@ __all__ = [
     "odometry_scale_by_residuals",
     "odometry_stretches",
     "retimed",
+    "shared_over_views",
     "trajectory_error",
     "turn_rate",
     "widened_for_motion",
@@ -185,6 +187,7 @@ lazy_package(
             "estimate",
             "estimate_frames",
         ),
+        "markergraph.estimator.views": ("shared_over_views",),
         "markergraph.estimator.timing": (
             "CameraDelay",
             "camera_delay_by_residuals",

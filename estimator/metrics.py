@@ -205,6 +205,7 @@ def chi2_interval(dof: float, confidence: float = 0.95) -> tuple[float, float]:
 
 # The 95 % quantile of chi-square with 2 dof, -2 ln(0.05): a 2-D Gaussian's 95 % ellipse.
 ELLIPSE_95_D2 = -2.0 * math.log(0.05)
+YAW_95_Z = 1.959963984540054  # the normal's two-sided 95 % bound
 
 
 @dataclass(frozen=True)
@@ -220,16 +221,21 @@ class EllipseCoverage:
             0.95 for honest covariances, over many markers.
         sigma_max_m: (N,) the semi-major axis of each 1-sigma ellipse [m]: with ``share`` it
             tells honest ellipses from ones too wide to be of use.
+        yaw_z: (N,) each one's yaw error over its yaw's sigma.
+        yaw_share: the fraction with ``|yaw_z|`` at most :data:`YAW_95_Z` (NaN with none).
     """
 
     marker_ids: NDArray[np.int64]
     d2: NDArray[np.float64]
     share: float
     sigma_max_m: NDArray[np.float64]
+    yaw_z: NDArray[np.float64]
+    yaw_share: float
 
 
 def ellipse_coverage(estimate: Estimate, truth: Mapping[int, gtsam.Pose2]) -> EllipseCoverage:
-    """Which true markers fall inside the estimate's 95 % position ellipses.
+    """Which true markers fall inside the estimate's 95 % position ellipses, and their yaws
+    inside their 95 % intervals.
 
     The covariance is GTSAM's (tangent space at the estimated pose, perturbed on the right), so
     the position error is taken in the estimated marker's frame before it is whitened.
@@ -238,7 +244,7 @@ def ellipse_coverage(estimate: Estimate, truth: Mapping[int, gtsam.Pose2]) -> El
         estimate: markers with covariances (those without are skipped).
         truth: marker id -> true ``T_map_marker`` in the estimate's map frame (home's frame).
     """
-    ids, d2, sigma_max = [], [], []
+    ids, d2, sigma_max, yaw_z = [], [], [], []
     for marker_id in sorted(set(estimate.markers) & set(truth)):
         marker = estimate.markers[marker_id]
         if marker.covariance is None or marker_id == estimate.home_id:
@@ -250,9 +256,14 @@ def ellipse_coverage(estimate: Estimate, truth: Mapping[int, gtsam.Pose2]) -> El
         ids.append(marker_id)
         d2.append(float(error_local @ np.linalg.solve(position_covariance, error_local)))
         sigma_max.append(math.sqrt(float(np.linalg.eigvalsh(position_covariance)[-1])))
-    d2_array = np.array(d2)
+        yaw_error = math.remainder(truth[marker_id].theta() - marker.T_map_marker.theta(), math.tau)
+        yaw_z.append(yaw_error / math.sqrt(max(float(marker.covariance[2, 2]), 1e-300)))
+    d2_array, yaw_z_array = np.array(d2), np.array(yaw_z)
     share = float(np.mean(d2_array <= ELLIPSE_95_D2)) if d2 else float("nan")
-    return EllipseCoverage(np.array(ids, dtype=np.int64), d2_array, share, np.array(sigma_max))
+    yaw_share = float(np.mean(np.abs(yaw_z_array) <= YAW_95_Z)) if yaw_z else float("nan")
+    return EllipseCoverage(
+        np.array(ids, dtype=np.int64), d2_array, share, np.array(sigma_max), yaw_z_array, yaw_share
+    )
 
 
 def align_rigid_3d(source: NDArray[np.float64], target: NDArray[np.float64]) -> gtsam.Pose3:

@@ -74,6 +74,10 @@ class Observation:
         height_m: the marker centre's height above the base frame's origin (the floor, for a
             base on it) [m]; NaN where unknown. The 2-D estimators ignore it; each marker's
             height in the map is a robust mean of its observations' (:func:`marker_heights`).
+        sigma_theta_shared: the part of theta's error that nearby frames' observations of the
+            same marker share (the corners' common bias) [rad], apart from ``sigma_theta``:
+            averaging them does not reduce it. :func:`shared_over_views` counts it once a view;
+            0 once counted, or where unknown.
     """
 
     t_ns: int
@@ -87,6 +91,7 @@ class Observation:
     corners: tuple[tuple[float, float], ...] = ()
     flags: frozenset[str] = frozenset()
     height_m: float = math.nan
+    sigma_theta_shared: float = 0.0
 
     def validate(self) -> None:
         """Raise :class:`RejectedObservationError` naming this record if it is unusable."""
@@ -112,6 +117,11 @@ class Observation:
             raise RejectedObservationError(
                 f"observation of marker {self.marker_id} at t_ns="
                 f"{self.t_ns} has a standard deviation <= 0"
+            )
+        if not self.sigma_theta_shared >= 0.0 or not math.isfinite(self.sigma_theta_shared):
+            raise RejectedObservationError(
+                f"observation of marker {self.marker_id} at t_ns="
+                f"{self.t_ns} has sigma_theta_shared={self.sigma_theta_shared}"
             )
 
 

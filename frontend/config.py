@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from markergraph.frontend.camera import Camera, CameraMount
-from markergraph.frontend.detect import DetectorMode
+from markergraph.frontend.detect import DetectorMode, marker_modules
 from markergraph.frontend.detectors import DetectorChoice
 from markergraph.frontend.observe import DepthModel, ObservationModel
 from markergraph.frontend.sizes import MarkerSizes
@@ -77,4 +77,5 @@ class FrontendConfig:
             self.method,
             self.corner_sigma_px,
             self.depth_model,
+            marker_modules(self.dictionary),
         )

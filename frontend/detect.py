@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import Counter
 from collections.abc import Collection, Iterable
@@ -23,6 +24,7 @@ __all__ = [
     "detection_agreement",
     "edge_refined",
     "load_dictionary",
+    "marker_modules",
 ]
 
 
@@ -81,6 +83,12 @@ def load_dictionary(name_or_path: str) -> cv2.aruco.Dictionary:
     if not readable or dictionary.bytesList is None or len(dictionary.bytesList) == 0:
         raise SettingsError(f"--dictionary {path}: not an OpenCV dictionary file")
     return dictionary
+
+
+@functools.cache
+def marker_modules(dictionary: str) -> int:
+    """Modules across a marker of ``dictionary``, its one-module black border included."""
+    return int(load_dictionary(dictionary).markerSize) + 2
 
 
 def allowed_in(dictionary: str, allowed_ids: Collection[int] | None) -> frozenset[int] | None:

@@ -11,12 +11,12 @@ from numpy.typing import NDArray
 
 from markergraph.estimator.types import Observation
 from markergraph.frontend.camera import Camera, CameraMount
-from markergraph.frontend.detect import Detection, Detector
+from markergraph.frontend.detect import EDGE_HALF_WIDTH_PX, Detection, Detector
 from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.yaw import (
     YawMethod,
     marker_centre,
-    pnp_pose,
+    pnp_solutions,
     pnp_theta,
     pnp_theta_sigma,
     yaw_from_corners,
@@ -30,6 +30,7 @@ __all__ = [
     "marker_depth",
     "observe",
     "observe_detections",
+    "theta_shared_sigma",
 ]
 
 
@@ -59,6 +60,20 @@ AMBIGUOUS_RAD = math.radians(5.0)
 # deg made theta's sigma 3.7x cautious on TagSLAM's real recording (median |z| 0.18); 1 deg
 # keeps it within the honest range there (test_real_logs).
 THETA_FLOOR_RAD = math.radians(1.0)
+# A small marker's corners share a bias: where its border (one module wide) is narrower than
+# two of edge_refined's reaches across an edge, the refinement's profiles take in the inner
+# cells' edges, blurred, and every corner moves with the marker's pattern. Read as the error of
+# the difference between its left and right edges [px], theta's perspective cue (s^2 sin(theta)
+# / f for a marker s pixels high, f the focal length), it moves theta by CORNER_BIAS_PX f / (s^2
+# cos theta): 7 deg at 22 px. Larger markers' theta errors stay well inside the sigmas above.
+# Observations from one view (one direction and distance) share it, so averaging them does not
+# reduce it: each observation carries it apart (``sigma_theta_shared``), for the estimators to
+# count once a view (:func:`~markergraph.estimator.shared_over_views`).
+CORNER_BIAS_PX = 0.1
+CLEAN_MODULE_PX = 2.0 * EDGE_HALF_WIDTH_PX
+# IPPE's two solutions explain the corners almost equally well when this close (ratio of their
+# reprojection errors): the marker is small or seen nearly face-on, and its theta is ambiguous.
+AMBIGUITY_RATIO = 2.0
 # Beyond this, theta's sigma is propagated from the one PnP solve; nearer frontal, where the
 # linearisation is up to 2x optimistic (IPPE's two poses meet), by re-solving.
 NEAR_FRONTAL_RAD = math.radians(12.0)
@@ -91,12 +106,19 @@ class ObservationModel:
         method: how theta is computed from the corners.
         corner_sigma_px: the corners' noise after sub-pixel refinement [px].
         depth_model: the depth camera's error model.
+        marker_modules: modules across a marker, its black border included (the dictionary's
+            bits and 2: 6 for 4x4 markers).
+        refined_corners: the corners were refined here (:func:`~.detect.edge_refined`), whose
+            bias on small markers :func:`theta_shared_sigma` models; False for another
+            detector's.
     """
 
     marker_sizes: MarkerSizes = MarkerSizes()
     method: YawMethod = YawMethod.PNP
     corner_sigma_px: float = 0.3
     depth_model: DepthModel = DepthModel()
+    marker_modules: int = 6
+    refined_corners: bool = True
 
 
 def corner_flags(corners: NDArray[np.float64], camera: Camera) -> set[str]:
@@ -243,7 +265,8 @@ def _observe_one(
     edge_flags = corner_flags(detection.corners, camera)
     # One PnP solve serves theta (the default method), the range without depth and the
     # depth's scale.
-    pose = pnp_pose(corners, camera, length_m)
+    solutions = pnp_solutions(corners, camera, length_m)
+    pose = (solutions[0][1], solutions[0][2]) if solutions else None
     theta = (
         pnp_theta(pose)
         if method is YawMethod.PNP
@@ -275,6 +298,14 @@ def _observe_one(
         flags.add(Flags.GRAZING)
     if abs(theta) < AMBIGUOUS_RAD:
         flags.add(Flags.AMBIGUOUS)
+    if method is YawMethod.PNP:
+        other = second_theta(solutions)
+        if other is not None:  # theta may be the other pose's: widened to cover both
+            sigma_theta = min(
+                max(sigma_theta, abs(math.remainder(other - theta, math.tau)) / 2.0),
+                GRAZING_SIGMA_RAD,
+            )
+            flags.add(Flags.AMBIGUOUS)
     return Observation(
         t_ns,
         detection.marker_id,
@@ -287,6 +318,7 @@ def _observe_one(
         tuple((float(u), float(v)) for u, v in detection.corners),
         frozenset(flags),
         float(mount.height_m + p_base[2]),
+        theta_shared_sigma(corners, theta, camera, model),
     )
 
 
@@ -319,6 +351,31 @@ def _centre_depth(
     if pose is not None:
         ray = pose[1] / pose[1][2]
     return z, ray, z * model.corner_sigma_px * math.sqrt(2.0) / side_px
+
+
+def second_theta(
+    solutions: list[tuple[float, NDArray[np.float64], NDArray[np.float64]]],
+) -> float | None:
+    """The theta of IPPE's second pose where it explains the corners almost as well as the
+    first (:data:`AMBIGUITY_RATIO`): a small or face-on marker, whose theta may be either."""
+    if len(solutions) < 2 or solutions[1][0] >= AMBIGUITY_RATIO * max(solutions[0][0], 1e-3):
+        return None
+    return pnp_theta((solutions[1][1], solutions[1][2]))
+
+
+def theta_shared_sigma(
+    corners: NDArray[np.float64], theta: float, camera: Camera, model: ObservationModel
+) -> float:
+    """Theta's error shared by one view's observations of a marker [rad]: the corners' common
+    bias (:data:`CORNER_BIAS_PX`) through the perspective cue where the corners were refined
+    here and a module (``model.marker_modules`` across the marker) is under
+    :data:`CLEAN_MODULE_PX`; else 0."""
+    side_px = _mean_side_px(corners)
+    if not model.refined_corners or side_px >= CLEAN_MODULE_PX * model.marker_modules:
+        return 0.0
+    cos_theta = max(math.cos(theta), math.cos(GRAZING_RAD))
+    shared = CORNER_BIAS_PX * camera.fx / (side_px * side_px * cos_theta)
+    return min(shared, GRAZING_SIGMA_RAD)
 
 
 def _theta_sigma(

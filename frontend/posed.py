@@ -26,7 +26,6 @@ from collections import Counter
 from dataclasses import dataclass
 from enum import Enum
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -35,14 +34,17 @@ from markergraph.estimator.types import Observation
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import Detection
 from markergraph.frontend.observe import (
+    AMBIGUITY_RATIO,
     GRAZING_RAD,
     GRAZING_SIGMA_RAD,
     THETA_FLOOR_RAD,
     Flags,
     ObservationModel,
     corner_flags,
+    theta_shared_sigma,
 )
 from markergraph.frontend.tf import rot_z
+from markergraph.frontend.yaw import pnp_solutions
 
 __all__ = [
     "LEVEL_TOLERANCE_RAD",
@@ -64,9 +66,6 @@ WALL_TILT_RAD = math.radians(45.0)
 # height-and-pitch model is exact to well under a millimetre at the ranges markers are seen.
 LEVEL_TOLERANCE_RAD = math.radians(0.5)
 MAX_ATTITUDE_GAP_NS = 100_000_000  # the odometry attitude nearest a frame levels it within this
-# IPPE's two solutions explain the corners almost equally well when this close (ratio of their
-# reprojection errors): the marker is seen nearly face-on and its yaw is ambiguous.
-AMBIGUITY_RATIO = 2.0
 JACOBIAN_STEP_PX = 0.05
 
 
@@ -84,12 +83,6 @@ class LevelledCamera:
     camera: Camera
     R_level_optical: NDArray[np.float64]
     t_level_optical: NDArray[np.float64]
-
-
-def _square(side_m: float) -> NDArray[np.float64]:
-    """A marker's corners in its own frame, OpenCV's order: x right, y up, z out."""
-    h = side_m / 2.0
-    return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
 
 
 class DropReason(Enum):
@@ -135,16 +128,7 @@ def _solutions(
 ) -> list[tuple[float, NDArray[np.float64], NDArray[np.float64]]]:
     """IPPE's solutions (reprojection error [px], R_optical_marker, t_optical_marker), best
     first."""
-    undistorted = view.camera.undistort(corners_px)
-    count, rvecs, tvecs, errors = cv2.solvePnPGeneric(
-        _square(side_m), undistorted, view.camera.K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
-    )
-    found = []
-    for i in range(count):
-        R, _ = cv2.Rodrigues(rvecs[i])
-        t = np.asarray(tvecs[i], dtype=np.float64).ravel()
-        found.append((float(np.ravel(errors)[i]), np.asarray(R, dtype=np.float64), t))
-    return sorted(found, key=lambda s: s[0])
+    return pnp_solutions(view.camera.undistort(corners_px), view.camera, side_m)
 
 
 def _faces_camera(
@@ -271,6 +255,7 @@ def observe_levelled_frame(
                 corners=tuple((float(u), float(v)) for u, v in corners),
                 flags=frozenset(flags),
                 height_m=height_m,
+                sigma_theta_shared=theta_shared_sigma(corners, theta, camera, model),
             )
         )
     return LevelledFrame(observations, dropped, rewound)

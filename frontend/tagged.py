@@ -319,7 +319,9 @@ class _Reader:
     # --- observations -------------------------------------------------------------------------
 
     def _observe(self, views: dict[str, tuple[Camera, Pose3]]) -> None:
-        model = self.config.observation_model
+        # The corners are the recording's own detector's, not refined here: the corner bias of
+        # small markers (:func:`~markergraph.frontend.observe.theta_shared_sigma`) is ours.
+        model = replace(self.config.observation_model, refined_corners=False)
         if self.tagslam is not None:
             sizes = model.marker_sizes.under(self.tagslam.tag_sizes_m)
             model = replace(model, marker_sizes=sizes)

@@ -22,6 +22,7 @@ __all__ = [
     "marker_centre",
     "marker_object_points",
     "pnp_pose",
+    "pnp_solutions",
     "pnp_theta",
     "yaw_from_corners",
     "yaw_sigma",
@@ -131,18 +132,30 @@ def pnp_pose(
     corners: NDArray[np.float64], camera: Camera, marker_length_m: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """The marker's pose in the optical frame, (R (3, 3), t (3,) [m]), from its undistorted
-    corners (OpenCV's order) by ``solvePnP`` with IPPE for squares; None if it finds none."""
-    ok, rvec, tvec = cv2.solvePnP(
+    corners (OpenCV's order) by IPPE for squares; None if it finds none."""
+    solutions = pnp_solutions(corners, camera, marker_length_m)
+    return (solutions[0][1], solutions[0][2]) if solutions else None
+
+
+def pnp_solutions(
+    corners: NDArray[np.float64], camera: Camera, marker_length_m: float
+) -> list[tuple[float, NDArray[np.float64], NDArray[np.float64]]]:
+    """IPPE's poses of the marker for its undistorted corners, (reprojection error [px], R, t
+    [m]) each, best first: a square's two planar poses, which explain the corners alike when
+    it is small or seen face-on."""
+    count, rvecs, tvecs, errors = cv2.solvePnPGeneric(
         marker_object_points(marker_length_m),
         corners,
         camera.K,
         None,
         flags=cv2.SOLVEPNP_IPPE_SQUARE,
     )
-    if not ok:
-        return None
-    R, _ = cv2.Rodrigues(rvec)
-    return np.asarray(R, dtype=np.float64), np.asarray(tvec, dtype=np.float64).ravel()
+    found = []
+    for i in range(count):
+        R, _ = cv2.Rodrigues(rvecs[i])
+        t = np.asarray(tvecs[i], dtype=np.float64).ravel()
+        found.append((float(np.ravel(errors)[i]), np.asarray(R, dtype=np.float64), t))
+    return sorted(found, key=lambda s: s[0])
 
 
 def marker_object_points(marker_length_m: float) -> NDArray[np.float64]:

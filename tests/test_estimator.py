@@ -587,8 +587,9 @@ def test_iterated_ekf_update_lands_on_the_gauss_newton_optimum() -> None:
 
 def test_ellipse_coverage_whitens_the_error_in_the_markers_frame() -> None:
     """d^2 of a known offset under a known covariance, the error turned into the marker's frame
-    first; the share counts d^2 up to chi-square(2)'s 95 % point; home and markers without a
-    covariance are left out."""
+    first; the share counts d^2 up to chi-square(2)'s 95 % point; the yaw's error over its sigma,
+    counted up to the normal's 95 % point; home and markers without a covariance are left
+    out."""
     covariance = np.diag([0.04, 0.01, 0.001])  # 0.2 m along the marker's x, 0.1 m across
     markers = {
         0: MarkerEstimate(0, gtsam.Pose2(), np.zeros((3, 3)), 10),
@@ -600,7 +601,7 @@ def test_ellipse_coverage_whitens_the_error_in_the_markers_frame() -> None:
     truth = {
         0: gtsam.Pose2(),
         1: gtsam.Pose2(1.2, 0.0, math.pi / 2),  # 0.2 m along map x: across the marker, 2 sigma
-        2: gtsam.Pose2(0.5, 2.0, 0.0),  # 0.5 m along the marker's x: 2.5 sigma
+        2: gtsam.Pose2(0.5, 2.0, 2.5 * math.sqrt(0.001)),  # 0.5 m along its x: 2.5 sigma
         3: gtsam.Pose2(),
     }
     coverage = ellipse_coverage(result, truth)
@@ -609,3 +610,5 @@ def test_ellipse_coverage_whitens_the_error_in_the_markers_frame() -> None:
     assert coverage.share == 0.5
     np.testing.assert_allclose(coverage.sigma_max_m, [0.2, 0.2], rtol=EXACT_ALGEBRA)
     np.testing.assert_allclose(ELLIPSE_95_D2, 5.991464547107979, rtol=EXACT_ALGEBRA)
+    np.testing.assert_allclose(coverage.yaw_z, [0.0, 2.5], rtol=EXACT_ALGEBRA, atol=1e-15)
+    assert coverage.yaw_share == 0.5

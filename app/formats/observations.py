@@ -3,7 +3,8 @@
 Each line: ``t_ns`` (int), ``marker_id``, ``bearing``, ``theta`` [rad], ``range_m`` [m], their
 ``sigma_bearing``, ``sigma_theta``, ``sigma_range``, ``corners`` ([[u, v] x 4], OpenCV order),
 ``flags`` (list of strings), ``height_m`` (the marker centre above the base frame [m], or
-null) and ``odom`` ({"x", "y", "yaw"}: ``T_odom_base`` interpolated at
+null), ``sigma_theta_shared`` (the part of theta's error nearby frames share [rad]; 0 where
+absent) and ``odom`` ({"x", "y", "yaw"}: ``T_odom_base`` interpolated at
 ``t_ns``, or null where odometry does not reach).
 
 ``markergraph detect`` also writes what ``markergraph map`` needs to map from the file: a first
@@ -109,6 +110,7 @@ def write_observations(
                         "sigma_bearing": obs.sigma_bearing,
                         "sigma_theta": obs.sigma_theta,
                         "sigma_range": obs.sigma_range,
+                        "sigma_theta_shared": obs.sigma_theta_shared,
                         "corners": [list(c) for c in obs.corners],
                         "flags": sorted(obs.flags),
                         "height_m": obs.height_m if math.isfinite(obs.height_m) else None,
@@ -198,6 +200,7 @@ def _observation(row: dict[str, Any]) -> Observation:
         tuple((float(u), float(v)) for u, v in row.get("corners", [])),
         frozenset(row.get("flags", [])),
         math.nan if row.get("height_m") is None else float(row["height_m"]),
+        float(row.get("sigma_theta_shared", 0.0)),
     )
 
 
