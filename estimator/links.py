@@ -150,14 +150,23 @@ def components(marker_ids: list[int], links: list[MeasuredLink]) -> list[list[in
     return groups
 
 
-def describe_disconnected(groups: list[list[int]], home_id: int) -> list[str]:
-    """One sentence per group of markers no link chain joins to the home marker."""
-    return [
-        f"markers {', '.join(map(str, group))} are linked to no chain reaching home marker "
-        f"{home_id}"
+def describe_disconnected(groups: list[list[int]], home_id: int) -> list[tuple[list[int], str]]:
+    """(markers, sentence) for each group of markers no link chain joins to the home marker;
+    the markers linked to none at all share one sentence."""
+    apart = [group for group in groups if home_id not in group]
+    described = [
+        (group, f"markers {', '.join(map(str, group))} are linked to no chain reaching home "
+                f"marker {home_id}")
+        for group in apart
         if len(group) > 1
-        else f"marker {group[0]} is never seen, with its theta measured, together with or right "
-        "after another marker"
-        for group in groups
-        if home_id not in group
-    ]
+    ]  # fmt: skip
+    lone = sorted(group[0] for group in apart if len(group) == 1)
+    if lone:
+        ids = ", ".join(map(str, lone))
+        described.append((lone, (
+            f"marker {ids} is never seen, with its theta measured, together with or right after "
+            "another marker" if len(lone) == 1 else
+            f"markers {ids} are never seen, with their theta measured, together with or right "
+            "after another marker"
+        )))  # fmt: skip
+    return described

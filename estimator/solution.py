@@ -216,13 +216,11 @@ def solved_estimate(
 def disconnected_notes(
     kind: str, groups: list[list[int]], home_id: int, ending: str = ""
 ) -> list[Note]:
-    """A note per group of markers no link chain joins to home (``describe_disconnected``'s
-    sentences), its figure the group's size."""
-    apart = [group for group in groups if home_id not in group]
-    sentences = describe_disconnected(groups, home_id)
+    """A note per group of markers no link chain joins to home, and one for the markers linked
+    to none (``describe_disconnected``'s sentences), its figure how many markers it names."""
     return [
         Note(kind, f"{sentence}{ending}", figure=len(group))
-        for group, sentence in zip(apart, sentences, strict=True)
+        for group, sentence in describe_disconnected(groups, home_id)
     ]
 
 

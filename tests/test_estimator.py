@@ -33,7 +33,7 @@ from markergraph.estimator import (
     odometry_scale_by_residuals,
 )
 from markergraph.estimator.ekf import MarkerEkf
-from markergraph.estimator.links import measure_links
+from markergraph.estimator.links import describe_disconnected, measure_links
 from markergraph.estimator.models import (
     compose_covariance,
     ekf_marker_init,
@@ -351,6 +351,16 @@ def test_disconnected_markers_are_named(noisy_run: SimulatedRun) -> None:
         note.kind == "slam.disconnected" and note.figure == 1 and "marker 99" in note.text
         for note in slam.notes
     )
+
+
+def test_markers_linked_to_none_are_named_in_one_sentence() -> None:
+    """A group linked among itself but not to home gets its own sentence; the markers linked to
+    none share one, so a log of many lone markers says so in one line, not one line each."""
+    described = describe_disconnected([[0, 1], [2, 3], [4], [5], [6]], home_id=0)
+    assert [group for group, _ in described] == [[2, 3], [4, 5, 6]]
+    assert described[0][1].startswith("markers 2, 3 are linked to no chain reaching home marker 0")
+    assert described[1][1].startswith("markers 4, 5, 6 are never seen")
+    assert describe_disconnected([[0], [7]], home_id=0)[0][1].startswith("marker 7 is never")
 
 
 @pytest.mark.parametrize(
