@@ -25,7 +25,6 @@ from markergraph.estimator import (
     camera_delay_by_residuals,
     odometry_scale_by_residuals,
     retimed,
-    shared_over_views,
     widened_for_motion,
 )
 from markergraph.frontend import Extraction
@@ -196,12 +195,11 @@ def _timed(
     key: str,
 ) -> tuple[list[Observation], int, gtsam.Values | None]:
     """The observations at their capture times (the camera's delay, chosen by the residuals
-    unless set, and a rolling shutter's row delays), theta's shared error counted once a view,
-    sigmas widened for blur and, if asked, for the shutter instead; the camera's delay used
-    [ns]; and the delay search's solution where it ran (None otherwise), for the scale's search
-    to start from."""
+    unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked, for
+    the shutter instead; the camera's delay used [ns]; and the delay search's solution where it
+    ran (None otherwise), for the scale's search to start from."""
     camera = config.camera
-    observations = shared_over_views(extraction.observations)
+    observations = extraction.observations
     readout_ns = camera.readout_ns
     height = extraction.camera.height if extraction.camera is not None else 0
     window_s = camera.exposure_s

@@ -14,6 +14,7 @@ from markergraph.common.errors import MarkerGraphError, RejectedObservationError
 from markergraph.common.notes import Note
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import Observation, OdometryNoise, OdometrySample
+from markergraph.estimator.views import shared_over_views
 
 __all__ = ["RELEASED_MOTION_COVARIANCE", "Frame", "Frames", "build_frames"]
 
@@ -74,7 +75,8 @@ def build_frames(
     odometry_noise: OdometryNoise = OdometryNoise(),
     odometry_breaks: Collection[int] = (),
 ) -> Frames:
-    """Validate observations, group them by stamp and attach the odometry pose at each stamp.
+    """Validate observations, group them by stamp and attach the odometry pose at each stamp;
+    theta's shared error is counted once a view (:func:`shared_over_views`).
 
     Args:
         observations: marker observations, any order.
@@ -90,7 +92,7 @@ def build_frames(
         RejectedObservationError: an observation is unusable (the message names it).
         MarkerGraphError: no odometry, no observation, or the home marker is never seen.
     """
-    by_stamp = _by_stamp(observations, marker_ids)
+    by_stamp = _by_stamp(shared_over_views(list(observations)), marker_ids)
     path = odometry if isinstance(odometry, Trajectory) else Trajectory.from_samples(odometry)
     if not len(path):
         raise MarkerGraphError("no odometry samples: the estimators need odometry")

@@ -76,8 +76,8 @@ class Observation:
             height in the map is a robust mean of its observations' (:func:`marker_heights`).
         sigma_theta_shared: the part of theta's error that nearby frames' observations of the
             same marker share (the corners' common bias) [rad], apart from ``sigma_theta``:
-            averaging them does not reduce it. :func:`shared_over_views` counts it once a view;
-            0 once counted, or where unknown.
+            averaging them does not reduce it. ``build_frames`` counts it once a view
+            (:func:`shared_over_views`); 0 once counted, or where unknown.
     """
 
     t_ns: int

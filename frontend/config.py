@@ -7,7 +7,7 @@ from pathlib import Path
 
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import DetectorMode, marker_modules
-from markergraph.frontend.detectors import DetectorChoice
+from markergraph.frontend.detectors import DetectorChoice, MarkerDetector, make_detector
 from markergraph.frontend.observe import DepthModel, ObservationModel
 from markergraph.frontend.sizes import MarkerSizes
 from markergraph.frontend.yaw import YawMethod
@@ -68,6 +68,12 @@ class FrontendConfig:
     depth_scale: float | None = None
     detector_mode: DetectorMode = DetectorMode.FAST
     detector: DetectorChoice = DetectorChoice.AUTO
+
+    def new_detector(self) -> MarkerDetector:
+        """A detector as configured (one a thread: a detector is not safe to share)."""
+        return make_detector(
+            self.dictionary, self.detector, mode=self.detector_mode, allowed_ids=self.allowed_ids
+        )
 
     @property
     def observation_model(self) -> ObservationModel:

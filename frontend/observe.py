@@ -298,14 +298,11 @@ def _observe_one(
         flags.add(Flags.GRAZING)
     if abs(theta) < AMBIGUOUS_RAD:
         flags.add(Flags.AMBIGUOUS)
-    if method is YawMethod.PNP:
-        other = second_theta(solutions)
-        if other is not None:  # theta may be the other pose's: widened to cover both
-            sigma_theta = min(
-                max(sigma_theta, abs(math.remainder(other - theta, math.tau)) / 2.0),
-                GRAZING_SIGMA_RAD,
-            )
-            flags.add(Flags.AMBIGUOUS)
+    if method is YawMethod.PNP and second_fits_alike(solutions):
+        other = pnp_theta((solutions[1][1], solutions[1][2]))  # theta may be either: cover both
+        spread = abs(math.remainder(other - theta, math.tau)) / 2.0
+        sigma_theta = min(max(sigma_theta, spread), GRAZING_SIGMA_RAD)
+        flags.add(Flags.AMBIGUOUS)
     return Observation(
         t_ns,
         detection.marker_id,
@@ -353,14 +350,13 @@ def _centre_depth(
     return z, ray, z * model.corner_sigma_px * math.sqrt(2.0) / side_px
 
 
-def second_theta(
+def second_fits_alike(
     solutions: list[tuple[float, NDArray[np.float64], NDArray[np.float64]]],
-) -> float | None:
-    """The theta of IPPE's second pose where it explains the corners almost as well as the
-    first (:data:`AMBIGUITY_RATIO`): a small or face-on marker, whose theta may be either."""
-    if len(solutions) < 2 or solutions[1][0] >= AMBIGUITY_RATIO * max(solutions[0][0], 1e-3):
-        return None
-    return pnp_theta((solutions[1][1], solutions[1][2]))
+) -> bool:
+    """Whether IPPE's second pose (of :func:`~.yaw.pnp_solutions`) explains the corners almost
+    as well as the first (:data:`AMBIGUITY_RATIO`): a small or face-on marker, whose pose may be
+    either."""
+    return len(solutions) > 1 and solutions[1][0] < AMBIGUITY_RATIO * max(solutions[0][0], 1e-3)
 
 
 def theta_shared_sigma(

@@ -34,13 +34,13 @@ from markergraph.estimator.types import Observation
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.detect import Detection
 from markergraph.frontend.observe import (
-    AMBIGUITY_RATIO,
     GRAZING_RAD,
     GRAZING_SIGMA_RAD,
     THETA_FLOOR_RAD,
     Flags,
     ObservationModel,
     corner_flags,
+    second_fits_alike,
     theta_shared_sigma,
 )
 from markergraph.frontend.tf import rot_z
@@ -224,7 +224,7 @@ def observe_levelled_frame(
             continue
         if reversed_:
             rewound.append(detection.marker_id)
-        error, R, t = solutions[0]
+        _, R, t = solutions[0]
         bearing, theta, range_m, elevation, height_m = _polar(R, t, view)
         if abs(elevation) > WALL_TILT_RAD:
             dropped.append(Dropped(detection.marker_id, DropReason.OFF_WALL, elevation))
@@ -234,7 +234,7 @@ def observe_levelled_frame(
         sigma_bearing, sigma_theta, sigma_range = np.sqrt(np.maximum(np.diag(covariance), 1e-12))
         sigma_theta = math.hypot(sigma_theta, THETA_FLOOR_RAD)
         flags = {Flags.NO_DEPTH}
-        if len(solutions) > 1 and solutions[1][0] < AMBIGUITY_RATIO * max(error, 1e-3):
+        if second_fits_alike(solutions):
             other = _polar(solutions[1][1], solutions[1][2], view)[1]
             sigma_theta = max(sigma_theta, abs(math.remainder(other - theta, math.tau)) / 2.0)
             flags.add(Flags.AMBIGUOUS)

@@ -29,7 +29,7 @@ from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_image
 from markergraph.frontend.detect import Detection
-from markergraph.frontend.detectors import MarkerDetector, make_detector
+from markergraph.frontend.detectors import MarkerDetector
 from markergraph.frontend.logs import LogError, Message
 from markergraph.frontend.observe import ObservationModel, observe_detections
 from markergraph.frontend.posed import LevelledCamera, LevelledFrame, observe_levelled_frame
@@ -92,6 +92,7 @@ class SeeingPool:
         self, config: FrontendConfig, threads: int, camera_size: tuple[int, int] | None
     ) -> None:
         self.config, self.camera_size = config, camera_size
+        self.model = config.observation_model
         self._local = threading.local()
         self._detectors: list[MarkerDetector] = []
         self._lock = threading.Lock()
@@ -105,7 +106,7 @@ class SeeingPool:
         """A seen frame observed, in a thread of the pool. Its seeing was submitted first, so
         it has started by the time this does (the pool takes work in order): waiting for it
         cannot hold up the pool."""
-        return self._executor.submit(_observed, frame, self.config.observation_model)
+        return self._executor.submit(_observed, frame, self.model)
 
     def left_out(self) -> Counter[int]:
         """Detections of ids outside the allowed ones, over every thread's detector."""
@@ -123,10 +124,7 @@ class SeeingPool:
         """This thread's detector, made on its first frame."""
         detector: MarkerDetector | None = getattr(self._local, "detector", None)
         if detector is None:
-            c = self.config
-            detector = make_detector(
-                c.dictionary, c.detector, mode=c.detector_mode, allowed_ids=c.allowed_ids
-            )
+            detector = self.config.new_detector()
             self._local.detector = detector
             with self._lock:
                 self._detectors.append(detector)

@@ -30,7 +30,7 @@ from markergraph.frontend.decode import (
     stamp_ns,
 )
 from markergraph.frontend.detect import DetectorMode
-from markergraph.frontend.detectors import DetectorChoice, MarkerDetector, make_detector
+from markergraph.frontend.detectors import DetectorChoice, MarkerDetector
 from markergraph.frontend.extraction import Extraction, Part
 from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message, read_ahead
 from markergraph.frontend.observe import Flags
@@ -115,12 +115,7 @@ def detector_for(config: FrontendConfig) -> MarkerDetector:
     """One detector per process and configuration (building one costs more than a frame)."""
     key = (config.dictionary, config.allowed_ids, config.detector_mode, config.detector)
     if key not in _DETECTORS:
-        _DETECTORS[key] = make_detector(
-            config.dictionary,
-            config.detector,
-            mode=config.detector_mode,
-            allowed_ids=config.allowed_ids,
-        )
+        _DETECTORS[key] = config.new_detector()
     return _DETECTORS[key]
 
 
@@ -181,7 +176,6 @@ class SpanReader:
         self.odometry_judge: OdometryJudge | None = None  # set while reading from the log's start
         self.paired: deque[_Paired] = deque()
         self.pool: SeeingPool | None = None  # while reading
-        self.model = config.observation_model
         self.attitudes: deque[tuple[int, NDArray[np.float64]]] = deque(maxlen=MAX_ATTITUDES)
 
     def read(self, span: Span, progress: Callable[[int, int], None] | None) -> Part:

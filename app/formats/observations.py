@@ -3,8 +3,8 @@
 Each line: ``t_ns`` (int), ``marker_id``, ``bearing``, ``theta`` [rad], ``range_m`` [m], their
 ``sigma_bearing``, ``sigma_theta``, ``sigma_range``, ``corners`` ([[u, v] x 4], OpenCV order),
 ``flags`` (list of strings), ``height_m`` (the marker centre above the base frame [m], or
-null), ``sigma_theta_shared`` (the part of theta's error nearby frames share [rad]; 0 where
-absent) and ``odom`` ({"x", "y", "yaw"}: ``T_odom_base`` interpolated at
+null), ``sigma_theta_shared`` (the part of theta's error one view's observations share [rad];
+0 where absent) and ``odom`` ({"x", "y", "yaw"}: ``T_odom_base`` interpolated at
 ``t_ns``, or null where odometry does not reach).
 
 ``markergraph detect`` also writes what ``markergraph map`` needs to map from the file: a first
