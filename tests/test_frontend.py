@@ -940,7 +940,9 @@ def test_busy_cores_sees_a_process_spinning_on_our_cores() -> None:
     """A process spinning beside us shows as about one more busy core than before it ran."""
     from markergraph.common.pool import available_cores, busy_cores
 
-    quiet = busy_cores(0.3)
+    # A second's window: /proc/stat counts 100 ticks a second per core, so 0.3 s left a
+    # tick's 3 % a core of rounding, and CI's own background work rides on top of it.
+    quiet = busy_cores(1.0)
     if quiet is None:
         pytest.skip("no per-core counters in /proc/stat here")
     if available_cores() - quiet < 1.5:
@@ -948,12 +950,12 @@ def test_busy_cores_sees_a_process_spinning_on_our_cores() -> None:
     spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
     try:
         time.sleep(0.3)  # started and spinning
-        loaded = busy_cores(0.3)
+        loaded = busy_cores(1.0)
     finally:
         spinner.kill()
         spinner.wait()
     assert loaded is not None
-    assert 0.6 < loaded - quiet <= 1.1
+    assert 0.6 < loaded - quiet <= 1.3  # one core, never two
     assert loaded <= available_cores() + 0.05
 
 
