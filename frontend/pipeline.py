@@ -179,7 +179,10 @@ def _extract_once(
     if choice.detections:
         part = _from_detections(read_detection_log(log, config, choice), choice)
     elif workers <= 1:
-        part = SpanReader(log, config, choice, counts, available_cores()).read(Span(), progress)
+        threads = available_cores()
+        # The pool's threads keep the cores busy: OpenCV's own threads on top only contend.
+        with _opencv_threads(1 if threads > 1 else cv2.getNumThreads()):
+            part = SpanReader(log, config, choice, counts, threads).read(Span(), progress)
     else:
         part = _read_in_workers(log, config, choice, counts, workers, progress)
     result = part.extraction

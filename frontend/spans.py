@@ -8,11 +8,13 @@ costs its frame, not the run.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import Counter, deque
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
+from operator import itemgetter
 from typing import Any
 
 import cv2
@@ -43,6 +45,7 @@ from markergraph.frontend.posed import (
 from markergraph.frontend.ros2 import yaw_from_quaternion
 from markergraph.frontend.seeing import Observed, SeeingPool, Seen, ToObserve
 from markergraph.frontend.tf import (
+    is_rotation,
     mount_from_transforms,
     odometry_from_tf,
     rotation_of,
@@ -176,7 +179,8 @@ class SpanReader:
         self.odometry_judge: OdometryJudge | None = None  # set while reading from the log's start
         self.paired: deque[_Paired] = deque()
         self.pool: SeeingPool | None = None  # while reading
-        self.attitudes: deque[tuple[int, NDArray[np.float64]]] = deque(maxlen=MAX_ATTITUDES)
+        # (stamp, orientation) in stamp order; turned into a rotation only for a frame's nearest.
+        self.attitudes: deque[tuple[int, Any]] = deque(maxlen=MAX_ATTITUDES)
 
     def read(self, span: Span, progress: Callable[[int, int], None] | None) -> Part:
         """The stretch's observations, odometry and truth; ``progress`` called with (colour
@@ -283,9 +287,8 @@ class SpanReader:
                 self.part.odometry_log_ns.append(message.log_time_ns)
             self.odometry_frame = self.odometry_frame or getattr(decoded, "child_frame_id", None)
             pose = decoded.pose.pose if hasattr(decoded.pose, "pose") else decoded.pose
-            R = rotation_of(pose.orientation)
-            if R is not None:  # its attitude levels the frames about it
-                self.attitudes.append((stamp_ns(decoded), R))
+            if is_rotation(pose.orientation):  # its attitude levels the frames about it
+                self._keep_attitude(stamp_ns(decoded), pose.orientation)
         elif topic == TRUE_POSE and inside:
             q, p = decoded.pose.orientation, decoded.pose.position
             self.part.true_poses.append(
@@ -339,14 +342,25 @@ class SpanReader:
                 )
             )
 
+    def _keep_attitude(self, t_ns: int, orientation: Any) -> None:
+        """An odometry attitude kept in stamp order (a late stamp goes in its place), the
+        oldest dropped once :data:`MAX_ATTITUDES` are kept."""
+        if len(self.attitudes) == MAX_ATTITUDES:
+            self.attitudes.popleft()
+        bisect.insort(self.attitudes, (t_ns, orientation), key=itemgetter(0))
+
     def _levelled_view(self, t_ns: int) -> LevelledCamera | None:
         """The camera levelled with the odometry's attitude nearest ``t_ns``; None when level."""
         result = self.part.extraction
         assert result.camera is not None
-        nearest = min(self.attitudes, key=lambda a: abs(a[0] - t_ns), default=None)
-        if nearest is None or abs(nearest[0] - t_ns) > MAX_ATTITUDE_GAP_NS:
-            nearest = (t_ns, np.eye(3))  # no attitude: a level base
-        return levelled_view(result.camera, result.mount, nearest[1])
+        after = bisect.bisect_left(self.attitudes, t_ns, key=itemgetter(0))
+        around = (self.attitudes[i] for i in (after - 1, after) if 0 <= i < len(self.attitudes))
+        nearest = min(around, key=lambda a: abs(a[0] - t_ns), default=None)
+        R = None
+        if nearest is not None and abs(nearest[0] - t_ns) <= MAX_ATTITUDE_GAP_NS:
+            R = rotation_of(nearest[1])
+        # No attitude near it: a level base.
+        return levelled_view(result.camera, result.mount, np.eye(3) if R is None else R)
 
     def _observe(self, paired: _Paired) -> None:
         """One frame's observations (made in the pool) and its counts kept; a bad frame costs

@@ -18,6 +18,7 @@ from markergraph.frontend.ros2 import yaw_from_quaternion
 
 __all__ = [
     "chain_between",
+    "is_rotation",
     "mount_from_transforms",
     "odometry_from_tf",
     "parent_frame",
@@ -49,13 +50,20 @@ def odometry_from_tf(
     return samples
 
 
+def is_rotation(q: Any) -> bool:
+    """Whether a quaternion (``x``, ``y``, ``z``, ``w``) stands for a rotation: finite and not
+    zero (:func:`rotation_of` gives its matrix)."""
+    squared = float(q.x) ** 2 + float(q.y) ** 2 + float(q.z) ** 2 + float(q.w) ** 2
+    return math.isfinite(squared) and squared >= 1e-12
+
+
 def rotation_of(q: Any) -> NDArray[np.float64] | None:
     """The rotation matrix of a quaternion, normalised; None if it is not finite or not a
     rotation at all (zero)."""
+    if not is_rotation(q):
+        return None
     x, y, z, w = (float(v) for v in (q.x, q.y, q.z, q.w))
     norm = math.sqrt(x * x + y * y + z * z + w * w)
-    if not math.isfinite(norm) or norm < 1e-6:
-        return None
     x, y, z, w = x / norm, y / norm, z / norm, w / norm
     return np.array(
         [
