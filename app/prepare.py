@@ -1,6 +1,6 @@
 """One log's extraction made ready for the estimators: checked, its odometry's noise model
 chosen, the camera's delay and the odometry's scale applied (each chosen by SLAM's residuals
-unless set)."""
+unless set), and misread marker ids left out (:mod:`~markergraph.estimator.misreads`)."""
 
 from __future__ import annotations
 
@@ -17,12 +17,15 @@ from markergraph.common.numbers import shown
 from markergraph.estimator import (
     ODOMETRY_NOISE,
     Frames,
+    Misread,
     Observation,
     OdometryNoise,
     Robust,
     SlamInputs,
     build_frames,
     camera_delay_by_residuals,
+    describe_misreads,
+    misread_observations,
     odometry_scale_by_residuals,
     retimed,
     widened_for_motion,
@@ -52,6 +55,7 @@ class Prepared:
         odometry_model_reason: what chose that model.
         odometry_scale: what the odometry's distances were multiplied by.
         notes: what this stage noticed and chose.
+        misreads: the observations left out as misread ids.
     """
 
     observations: list[Observation]
@@ -61,6 +65,7 @@ class Prepared:
     odometry_model_reason: str
     odometry_scale: float
     notes: tuple[Note, ...]
+    misreads: tuple[Misread, ...] = ()
 
 
 def prepare(
@@ -73,7 +78,7 @@ def prepare(
 ) -> Prepared:
     """One log's extraction made ready for the estimators: checked, odometry jumps released,
     its noise model chosen, the camera's delay and the odometry's scale applied (each chosen by
-    SLAM's residuals unless set).
+    SLAM's residuals unless set), and misread marker ids left out.
 
     Args:
         searches: the delay and scale searches already run on this extraction, by the settings
@@ -105,14 +110,32 @@ def prepare(
         extraction, config, observations, ODOMETRY_NOISE[source], breaks, home_id, stage, notes,
         searches, search_key("scale", *basis, delay_ns), near,
     )  # fmt: skip
-    frames = build_frames(
-        observations,
-        extraction.odometry.scaled(scale),
-        home_id,
-        odometry_noise=noise,
-        odometry_breaks=breaks,
+
+    def framed(observations: list[Observation]) -> Frames:
+        return build_frames(
+            observations,
+            extraction.odometry.scaled(scale),
+            home_id,
+            odometry_noise=noise,
+            odometry_breaks=breaks,
+        )
+
+    frames = framed(observations)
+    misread_key = search_key("misreads", *basis, delay_ns, scale)
+    if misread_key not in searches:
+        stage("looking for misread marker ids")
+        found = misread_observations(frames, extraction.mount.T_base_camera, SEARCH_ROBUST)
+        searches[misread_key] = [(m.t_ns, m.read_as, m.stands_on, m.kind) for m in found]
+    misreads = [Misread(*m) for m in searches[misread_key]]
+    if misreads:
+        left_out = {(m.t_ns, m.read_as) for m in misreads}
+        observations = [o for o in observations if (o.t_ns, o.marker_id) not in left_out]
+        frames = framed(observations)
+        notes.append(Note("observations.misread_ids", describe_misreads(misreads),
+                          figure=len(misreads)))  # fmt: skip
+    return Prepared(
+        observations, frames, delay_ns, source, why, scale, tuple(notes), tuple(misreads)
     )
-    return Prepared(observations, frames, delay_ns, source, why, scale, tuple(notes))
 
 
 def _check_usable(log: Path, extraction: Extraction, config: MapConfig) -> None:

@@ -136,6 +136,8 @@ class MapRun:
         separate: maps of logs that share no marker with this one: (their logs, the map).
         judgement: the run's verdict: the gravest of its methods', each reason naming its
             method (:func:`~markergraph.run.judge`).
+        misread_markers: markers whose every observation was left out as a misread id (none
+            of them is missing from the map: each was never there).
     """
 
     log: Path
@@ -154,6 +156,7 @@ class MapRun:
     sessions: list[Session] = field(default_factory=list)
     separate: list[tuple[list[Path], MarkerMap]] = field(default_factory=list)
     judgement: Judgement = field(default_factory=lambda: Judgement(Verdict.OK))
+    misread_markers: frozenset[int] = frozenset()
 
 
 @dataclass

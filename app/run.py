@@ -228,6 +228,10 @@ def map_logs(
         odometry_model_reason=prepared.odometry_model_reason,
         odometry_scale=prepared.odometry_scale, notes=first.notes, seconds=seconds,
         sessions=solved.sessions, separate=solved.separate,
+        misread_markers=frozenset(
+            {m.read_as for r in read for m in r.prepared.misreads}
+            - {o.marker_id for r in read for f in r.prepared.frames.frames for o in f.observations}
+        ),
     )  # fmt: skip
     return judge(run)
 
@@ -321,7 +325,7 @@ def judge(run: MapRun) -> MapRun:
         [result.estimate for result in run.results], run.extraction,
         camera_delay_ns=run.camera_delay_ns, odometry_scale=run.odometry_scale,
         delay_searched=run.config.camera.delay_ns is None,
-        scale_searched=run.config.odometry.scale is None,
+        scale_searched=run.config.odometry.scale is None, misread_markers=run.misread_markers,
     )  # fmt: skip
     for result in run.results:
         result.judgement = per_method[result.method]

@@ -383,15 +383,17 @@ def judge_run(
     odometry_scale: float = 1.0,
     delay_searched: bool = True,
     scale_searched: bool = True,
+    misread_markers: frozenset[int] = frozenset(),
 ) -> tuple[Judgement, dict[Method, Judgement]]:
     """The verdict on each method's estimate and on the run.
 
     Each method's reasons are its own and the run's (bad input harms every method); the run's
     verdict is the gravest of its methods', with each reason naming its method. A delay or
     scale at the end of its search is suspect only where it was searched (``delay_searched``,
-    ``scale_searched``); set by hand, the bound is no evidence.
+    ``scale_searched``); set by hand, the bound is no evidence. ``misread_markers``, whose
+    every sighting was another marker's (a note says so), are not missing from the map.
     """
-    seen = {o.marker_id for o in extraction.observations}
+    seen = {o.marker_id for o in extraction.observations} - misread_markers
     camera_x_m = extraction.mount.T_base_camera.x()
     inputs = _input_reasons(
         extraction, camera_delay_ns, odometry_scale, delay_searched, scale_searched

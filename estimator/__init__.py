@@ -29,6 +29,7 @@ if TYPE_CHECKING:
         nees,
         trajectory_error,
     )
+    from markergraph.estimator.misreads import Misread, describe_misreads, misread_observations
     from markergraph.estimator.odometry_scale import odometry_scale_by_residuals
     from markergraph.estimator.paper import (
         Edge,
@@ -89,6 +90,7 @@ __all__ = [
     "MarkerHeight",
     "MarkerLink",
     "Method",
+    "Misread",
     "Observation",
     "OdometryNoise",
     "OdometrySample",
@@ -105,6 +107,7 @@ __all__ = [
     "chi2_interval",
     "compose",
     "corrected_odometry",
+    "describe_misreads",
     "edge_from_observation",
     "edge_from_pose2",
     "edge_to_pose2",
@@ -116,6 +119,7 @@ __all__ = [
     "map_error",
     "map_to_odom",
     "marker_heights",
+    "misread_observations",
     "nees",
     "odometry",
     "odometry_in_map",
@@ -165,6 +169,11 @@ lazy_package(
             "map_error",
             "nees",
             "trajectory_error",
+        ),
+        "markergraph.estimator.misreads": (
+            "Misread",
+            "describe_misreads",
+            "misread_observations",
         ),
         "markergraph.estimator.odometry_scale": ("odometry_scale_by_residuals",),
         "markergraph.estimator.paper": (

@@ -57,12 +57,14 @@ def build_slam_graph(
     memo: FactorMemo | None = None,
 ) -> GraphBuilder:
     """The full SLAM graph: home prior, odometry chain, one factor per observation, with
-    initial values from odometry anchored on home (``memo``: :class:`GraphBuilder`'s)."""
+    initial values from odometry anchored on home, each marker at its medoid sighting
+    (``memo``: :class:`GraphBuilder`'s)."""
     builder = GraphBuilder(T_base_camera, robust, memo)
     builder.add_home_prior(frames.home_id)
     T_map_odom = _T_map_odom(frames, T_base_camera)
     for k in range(len(frames.frames)):
         builder.add_frame(frames, k, T_map_odom)
+    builder.start_markers_at_medoids()
     return builder
 
 

@@ -69,8 +69,10 @@ class Observation:
         sigma_bearing, sigma_theta, sigma_range: standard deviations of the three [rad, rad, m].
         corners: the detected corners as (u, v) pixel pairs in OpenCV's order (top-left,
             top-right, bottom-right, bottom-left), empty when the observation was not detected.
-        flags: quality flags set by the front end (``near-edge``, ``small``, ``grazing``,
-            ``ambiguous``, ``no-depth``); the estimators weight by the sigmas, not by these.
+        flags: quality flags set by the front end (``near-edge``, ``small``, ``tiny``,
+            ``grazing``, ``ambiguous``, ``no-depth``); the estimators weight by the sigmas, not
+            by these, though ``small`` and ``tiny`` sightings may be taken for misread ids
+            (:mod:`~markergraph.estimator.misreads`).
         height_m: the marker centre's height above the base frame's origin (the floor, for a
             base on it) [m]; NaN where unknown. The 2-D estimators ignore it; each marker's
             height in the map is a robust mean of its observations' (:func:`marker_heights`).

@@ -42,6 +42,7 @@ class Flags:
     GRAZING = "grazing"  # |theta| beyond GRAZING_RAD: corners foreshortened, yaw poor
     AMBIGUOUS = "ambiguous"  # |theta| under AMBIGUOUS_RAD: the yaw's sign is unreliable
     NO_DEPTH = "no-depth"  # range from the marker's pose (PnP), not the depth image
+    TINY = "tiny"  # modules under READABLE_MODULE_PX: its bits, so its id, may be misread
 
 
 EDGE_MARGIN_PX = 10.0
@@ -49,6 +50,10 @@ DEPTH_DISAGREES = 0.2  # depth this far from the marker's PnP distance belongs t
 MIN_PLANE_PIXELS = 30  # valid depth pixels on a marker before a plane is fitted to them
 PLANE_PIXELS = 600  # about as many as a plane is fitted to
 SMALL_EDGE_PX = 20.0
+# Two pixels a module samples each bit at least once whatever the phase (Nyquist). Below it the
+# D435i's blur read the simulated warehouse's DICT_4X4_250 markers (6-14 px) as other ids: 10 of
+# its 11 markers never seen at 2 px a module or more, over three logs, were misread ids.
+READABLE_MODULE_PX = 2.0
 GRAZING_RAD = math.radians(60.0)
 GRAZING_SIGMA_RAD = math.radians(90.0)
 AMBIGUOUS_RAD = math.radians(5.0)
@@ -121,9 +126,10 @@ class ObservationModel:
     refined_corners: bool = True
 
 
-def corner_flags(corners: NDArray[np.float64], camera: Camera) -> set[str]:
-    """``near-edge`` (a corner within EDGE_MARGIN_PX of the image border) and ``small`` (an
-    edge shorter than SMALL_EDGE_PX) for detected corners (4, 2) in pixels."""
+def corner_flags(corners: NDArray[np.float64], camera: Camera, modules: int) -> set[str]:
+    """``near-edge`` (a corner within EDGE_MARGIN_PX of the image border), ``small`` (an edge
+    shorter than SMALL_EDGE_PX) and ``tiny`` (the mean side under READABLE_MODULE_PX times the
+    ``modules`` across the marker) for detected corners (4, 2) in pixels."""
     flags = set()
     (u0, v0), (u1, v1) = corners.min(axis=0), corners.max(axis=0)
     if min(u0, v0) < EDGE_MARGIN_PX or (
@@ -131,8 +137,11 @@ def corner_flags(corners: NDArray[np.float64], camera: Camera) -> set[str]:
     ):
         flags.add(Flags.NEAR_EDGE)
     edges = corners - corners[[3, 0, 1, 2]]
-    if float(np.min(edges[:, 0] ** 2 + edges[:, 1] ** 2)) < SMALL_EDGE_PX**2:
+    lengths = np.hypot(edges[:, 0], edges[:, 1])
+    if float(lengths.min()) < SMALL_EDGE_PX:
         flags.add(Flags.SMALL)
+    if float(lengths.mean()) < READABLE_MODULE_PX * modules:
+        flags.add(Flags.TINY)
     return flags
 
 
@@ -262,7 +271,7 @@ def _observe_one(
     method, corner_sigma_px = model.method, model.corner_sigma_px
     length_m = model.marker_sizes.of(detection.marker_id)
     corners = camera.undistort(detection.corners)
-    edge_flags = corner_flags(detection.corners, camera)
+    edge_flags = corner_flags(detection.corners, camera, model.marker_modules)
     # One PnP solve serves theta (the default method), the range without depth and the
     # depth's scale.
     solutions = pnp_solutions(corners, camera, length_m)

@@ -241,7 +241,7 @@ def observe_levelled_frame(
         if abs(theta) > GRAZING_RAD:
             flags.add(Flags.GRAZING)
             sigma_theta = max(sigma_theta, GRAZING_SIGMA_RAD)
-        flags |= corner_flags(corners, camera)
+        flags |= corner_flags(corners, camera, model.marker_modules)
         observations.append(
             Observation(
                 t_ns=t_ns,
