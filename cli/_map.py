@@ -5,24 +5,23 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from markergraph.cli._commands import summary
 from markergraph.cli._settings import add_settings, add_verbosity, settings_from
-from markergraph.common import Note, SettingsError
+from markergraph.common import SettingsError
 from markergraph.common.files import check_output_folder
 from markergraph.common.progress import ProgressBar, Stages
-from markergraph.estimator import MapError
-from markergraph.formats.observations import is_observation_file
-from markergraph.localize_accuracy import accuracy_lines, accuracy_of
-from markergraph.markermap import MarkerMap
-from markergraph.records import LINKING_METHODS, MapRun, MethodResult
-from markergraph.report_page import REPORT_PAGE
-from markergraph.results import write_localization, write_results
-from markergraph.results3d import write_results_3d
-from markergraph.run import localize_log, map_logs
-from markergraph.run3d import map_log_3d, wants_3d
-from markergraph.settings import MapConfig, config_toml, map_config
-from markergraph.verdicts import Verdict
+from markergraph.settings import config_toml, map_config
+
+if TYPE_CHECKING:
+    from markergraph.common import Note
+    from markergraph.estimator import MapError
+    from markergraph.records import MapRun, MethodResult
+    from markergraph.settings import MapConfig
+
+# The mapping itself (GTSAM, matplotlib, the writers) is imported by the command's run, once
+# its arguments are checked: a missing log is said without waiting for them.
 
 SUMMARY = summary("map")
 DEFAULT_SAMPLE = "corridor-loop"
@@ -108,7 +107,16 @@ def add_no_cache(parser: argparse.ArgumentParser) -> None:
 
 
 def run_localize(args: argparse.Namespace) -> int:
+    from markergraph.frontend.logs.files import check_exists
+
     config = map_config(settings_from(args, "localize"))
+    check_exists(Path(args.log))  # said at once, before the mapping's imports
+    from markergraph.localize_accuracy import accuracy_lines, accuracy_of
+    from markergraph.markermap import MarkerMap
+    from markergraph.report_page import REPORT_PAGE
+    from markergraph.results import write_localization
+    from markergraph.run import localize_log
+
     check_output_folder(args.out, [args.log, args.map], force=args.force)
     saved = MarkerMap.load(args.map)
     with ProgressBar(f"reading {Path(args.log).name}", quiet=args.quiet) as bar:
@@ -150,12 +158,23 @@ def add_executor(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from markergraph.datasets.samples import sample_log, sample_path
+    from markergraph.frontend.logs.files import check_exists
 
     config = map_config(settings_from(args, "map"))
     if args.print_config:
         print(config_toml(config.values), end="")
         return 0
+    for log in args.logs:  # said at once, before the mapping's imports
+        check_exists(Path(log))
+    from markergraph.datasets.samples import sample_log, sample_path
+    from markergraph.formats.observations import is_observation_file
+    from markergraph.markermap import MarkerMap
+    from markergraph.report_page import REPORT_PAGE
+    from markergraph.results import write_results
+    from markergraph.run import map_logs
+    from markergraph.run3d import wants_3d
+    from markergraph.verdicts import Verdict
+
     logs = list(args.logs) or [sample_path(DEFAULT_SAMPLE)]
     out = args.out or Path(f"map-{Path(logs[0]).stem}")
     # Before any work (a sample's rendering included): never over the input or a user's folder.
@@ -191,6 +210,11 @@ def run(args: argparse.Namespace) -> int:
 def _run_3d(
     args: argparse.Namespace, log: Path, out: Path, config: MapConfig, notes: list[Note]
 ) -> int:
+    from markergraph.report_page import REPORT_PAGE
+    from markergraph.results3d import write_results_3d
+    from markergraph.run3d import map_log_3d
+    from markergraph.verdicts import Verdict
+
     stages = Stages(quiet=args.quiet, verbose=args.verbose)
     run = map_log_3d(log, config, notes=notes, stage=stages)
     stages(f"writing {out}/")
@@ -239,6 +263,8 @@ def _error_columns(method_result: MethodResult, home_fixed: MapError) -> str:
 
 
 def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
+    from markergraph.records import LINKING_METHODS
+
     extraction = result.extraction
     markers = {o.marker_id for o in extraction.observations}
     print(

@@ -101,6 +101,16 @@ def log_kind(path: Path) -> LogKind:
     return LogKind.MCAP
 
 
+def check_exists(path: Path) -> None:
+    """Raise, naming ``path``, where there is no file or folder there.
+
+    Raises:
+        LogError: nothing at ``path``.
+    """
+    if not path.exists():
+        raise LogError(f"{path}: no such file or folder")
+
+
 def mcap_files(path: Path) -> list[Path]:
     """The MCAP files of a log: the file itself, or a rosbag2 folder's files in order.
 
@@ -115,8 +125,7 @@ def mcap_files(path: Path) -> list[Path]:
     """
     if path.is_file():
         return [path]
-    if not path.is_dir():
-        raise LogError(f"{path}: no such file or folder")
+    check_exists(path)
     metadata = path / "metadata.yaml"
     if metadata.is_file():
         files = [_bag_file(path, name) for name in _relative_file_paths(metadata)]
