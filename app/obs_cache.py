@@ -38,7 +38,7 @@ __all__ = [
     "store_entry",
 ]
 
-CACHE_VERSION = 5  # 5: observations flagged tiny (modules under 2 px)
+CACHE_VERSION = 6  # 6: theta_per_turn; edges found across a smear
 """Raised whenever what an entry holds changes (its shape, or the wording of the notes it keeps):
 older entries are then ignored."""
 MAX_CACHE_BYTES = 10**9

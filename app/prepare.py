@@ -16,23 +16,26 @@ from markergraph.common import MarkerGraphError, Note
 from markergraph.common.numbers import shown
 from markergraph.estimator import (
     ODOMETRY_NOISE,
+    READOUT_MAX_S,
     Frames,
     Misread,
     Observation,
     OdometryNoise,
     Robust,
     SlamInputs,
+    Trajectory,
     build_frames,
     camera_delay_by_residuals,
     describe_misreads,
     misread_observations,
     odometry_scale_by_residuals,
     retimed,
+    unleaned,
     widened_for_motion,
 )
 from markergraph.frontend import Extraction
 from markergraph.obs_cache import search_key
-from markergraph.sections import Shutter
+from markergraph.sections import CameraSettings, Shutter
 from markergraph.settings import MapConfig
 
 __all__ = ["SEARCH_ROBUST", "Prepared", "prepare"]
@@ -223,7 +226,7 @@ def _timed(
     ran (None otherwise), for the scale's search to start from."""
     camera = config.camera
     observations = extraction.observations
-    readout_ns = camera.readout_ns
+    readout_ns = camera.readout_ns or 0
     height = extraction.camera.height if extraction.camera is not None else 0
     window_s = camera.exposure_s
     if camera.shutter is Shutter.WIDEN:
@@ -233,7 +236,8 @@ def _timed(
         observations = widened_for_motion(observations, extraction.odometry, window_s)
     if camera.delay_ns is not None:
         delay_ns = camera.delay_ns
-        return retimed(observations, delay_ns, readout_ns, height), delay_ns, None
+        moved = retimed(observations, delay_ns, readout_ns, height)
+        return _unleaned(moved, extraction.odometry, camera, notes), delay_ns, None
     mount = extraction.mount.T_base_camera
     inputs = SlamInputs(
         observations, extraction.odometry, home_id, mount, noise, breaks, SEARCH_ROBUST
@@ -261,7 +265,38 @@ def _timed(
             f"(chosen by SLAM's residuals over -50..+100 ms{cached}; --camera-delay sets it)",
             topic=topic, figure=delay_ns * 1e-9,
         ))  # fmt: skip
-    return retimed(observations, delay_ns, readout_ns, height), delay_ns, near
+    moved = retimed(observations, delay_ns, readout_ns, height)
+    return _unleaned(moved, extraction.odometry, camera, notes), delay_ns, near
+
+
+def _unleaned(
+    observations: list[Observation],
+    odometry: Trajectory,
+    camera: CameraSettings,
+    notes: list[Note],
+) -> list[Observation]:
+    """Theta freed of the lean a rolling shutter gives markers in turns (:func:`unleaned`), the
+    observations at their capture times: taken off with the readout given, widened by it under
+    ``--shutter widen``, and widened to cover any readout up to :data:`READOUT_MAX_S` where none
+    is given (said in a note); as they are for a global shutter (``--readout 0``)."""
+    if camera.readout_ns == 0:
+        return observations
+    if camera.readout_ns is not None:
+        known = camera.shutter is Shutter.MODEL
+        return unleaned(observations, odometry, camera.readout_ns * 1e-9, known=known)
+    handled = unleaned(observations, odometry, READOUT_MAX_S, known=False)
+    pairs = zip(handled, observations, strict=True)
+    widened = sum(after.sigma_theta > 1.25 * before.sigma_theta for after, before in pairs)
+    if widened:
+        notes.append(Note(
+            "camera.readout_unknown",
+            f"theta of {widened:,} of {len(observations):,} observations, made in turns, widened "
+            f"by over a quarter for a rolling shutter's lean (readout not given: up to "
+            f"{READOUT_MAX_S * 1e3:.0f} ms covered); --readout MS takes the lean off, --readout "
+            "0 says the shutter is global",
+            figure=widened,
+        ))  # fmt: skip
+    return handled
 
 
 def _odometry_scale(

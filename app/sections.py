@@ -69,8 +69,9 @@ class CameraSettings:
     """The mount assumed without /tf_static (angles in radians)."""
     delay_ns: int | None
     """How late the camera's stamps are against odometry [ns]; None: chosen by SLAM."""
-    readout_ns: int
-    """A rolling shutter's time to read the rows out, top to bottom [ns] (0: global)."""
+    readout_ns: int | None
+    """A rolling shutter's time to read the rows out, top to bottom [ns] (0: global; None:
+    unknown)."""
     shutter: Shutter
     """What the rolling shutter's row delay does."""
     exposure_s: float

@@ -193,8 +193,9 @@ SETTINGS: tuple[Setting, ...] = (
             "how late the camera's stamps are against odometry [ms] (default: chosen by "
             "SLAM's residuals over -50..100 ms)",
             flag=Flag("--camera-delay", "MS", type=float, commands=_MAP)),
-    Setting("camera.readout_ms", 0.0, bounded(0.0, 200.0),
-            "rolling shutter: time to read the rows out, top to bottom [ms] (0: global shutter)",
+    Setting("camera.readout_ms", None, optional(bounded(0.0, 200.0)),
+            "rolling shutter: time to read the rows out, top to bottom [ms]; 0: a global "
+            "shutter (default: unknown, theta's sigma covers up to 33 ms in turns)",
             flag=Flag("--readout", "MS", type=float, commands=_MAP)),
     Setting("camera.shutter", "model", nonempty,
             "a rolling shutter's row delay: model (each marker at its row's time) or widen "
@@ -363,12 +364,12 @@ class MapConfig:
             math.radians(v["camera.yaw_deg"]),
             math.radians(v["camera.pitch_deg"]),
         )
-        delay_ms = v["camera.delay_ms"]
+        delay_ms, readout_ms = v["camera.delay_ms"], v["camera.readout_ms"]
         return CameraSettings(
             base_frame=v["camera.base_frame"],
             default_mount=mount,
             delay_ns=None if delay_ms is None else round(delay_ms * 1e6),
-            readout_ns=round(v["camera.readout_ms"] * 1e6),
+            readout_ns=None if readout_ms is None else round(readout_ms * 1e6),
             shutter=Shutter(v["camera.shutter"]),
             exposure_s=v["camera.exposure_ms"] * 1e-3,
         )

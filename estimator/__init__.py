@@ -46,9 +46,11 @@ if TYPE_CHECKING:
     from markergraph.estimator.residual_search import GridMinimum, SlamInputs
     from markergraph.estimator.run import estimate, estimate_frames
     from markergraph.estimator.timing import (
+        READOUT_MAX_S,
         CameraDelay,
         camera_delay_by_residuals,
         retimed,
+        unleaned,
         widened_for_motion,
     )
     from markergraph.estimator.trajectory import (
@@ -75,6 +77,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ELLIPSE_95_D2",
     "ODOMETRY_NOISE",
+    "READOUT_MAX_S",
     "CameraDelay",
     "Edge",
     "EllipseCoverage",
@@ -130,6 +133,7 @@ __all__ = [
     "shared_over_views",
     "trajectory_error",
     "turn_rate",
+    "unleaned",
     "widened_for_motion",
     "wrap",
     "wrap_array",
@@ -198,9 +202,11 @@ lazy_package(
         ),
         "markergraph.estimator.views": ("shared_over_views",),
         "markergraph.estimator.timing": (
+            "READOUT_MAX_S",
             "CameraDelay",
             "camera_delay_by_residuals",
             "retimed",
+            "unleaned",
             "widened_for_motion",
         ),
         "markergraph.estimator.trajectory": (

@@ -5,6 +5,8 @@ smears a turn.
 - :func:`retimed`: observations moved to their capture time, the shutter's row delay included;
 - :func:`widened_for_motion`: sigmas widened by what the turn swept during a time window (the
   alternative to modelling the shutter, and the remedy for blur);
+- :func:`unleaned`: theta freed of the lean a rolling shutter gives a marker in a turn, or
+  widened to cover it where the readout is not known;
 - :func:`camera_delay_by_residuals`: the stamps' delay against odometry, chosen as the one whose
   SLAM solution explains the observations and odometry best.
 """
@@ -24,9 +26,11 @@ from markergraph.estimator.trajectory import Trajectory, turn_rate
 from markergraph.estimator.types import Observation
 
 __all__ = [
+    "READOUT_MAX_S",
     "CameraDelay",
     "camera_delay_by_residuals",
     "retimed",
+    "unleaned",
     "widened_for_motion",
 ]
 
@@ -68,6 +72,36 @@ def widened_for_motion(
             )
         )
     return widened
+
+
+READOUT_MAX_S = 1.0 / 30.0
+"""The longest a rolling shutter of a camera at 30 frames a second takes to read its rows out [s]:
+what theta is widened to cover where the readout is not known."""
+
+
+def unleaned(
+    observations: Sequence[Observation],
+    odometry: Trajectory,
+    readout_s: float,
+    *,
+    known: bool = True,
+) -> list[Observation]:
+    """Theta without the lean a rolling shutter gives a marker while the camera turns: the turn
+    during the readout, ``omega * readout_s`` (the odometry's heading rate at each capture
+    time), times the observation's ``theta_per_turn``, taken off. Where the readout is not
+    ``known``, ``readout_s`` its bound, theta stays and its sigma grows to cover a lean anywhere
+    within that (a spread of +-b adds ``b^2 / 3``). ``theta_per_turn`` is 0 afterwards, as it
+    is counted."""
+    handled = []
+    for o in observations:
+        lean = o.theta_per_turn * turn_rate(odometry, o.t_ns) * readout_s
+        if known:
+            o = replace(o, theta=math.remainder(o.theta - lean, math.tau), theta_per_turn=0.0)
+        else:
+            sigma = math.sqrt(o.sigma_theta**2 + lean * lean / 3.0)
+            o = replace(o, sigma_theta=sigma, theta_per_turn=0.0)
+        handled.append(o)
+    return handled
 
 
 @dataclass(frozen=True)

@@ -80,6 +80,10 @@ class Observation:
             same marker share (the corners' common bias) [rad], apart from ``sigma_theta``:
             averaging them does not reduce it. ``build_frames`` counts it once a view
             (:func:`shared_over_views`); 0 once counted, or where unknown.
+        theta_per_turn: theta's change per radian the camera turns (to the left, about its
+            vertical axis) while a rolling shutter reads out its rows [rad/rad]: the lean that
+            turn gives the marker's image read as perspective. 0 where unknown, and once the
+            lean is taken off or theta widened by it (:mod:`~markergraph.estimator.timing`).
     """
 
     t_ns: int
@@ -94,6 +98,7 @@ class Observation:
     flags: frozenset[str] = frozenset()
     height_m: float = math.nan
     sigma_theta_shared: float = 0.0
+    theta_per_turn: float = 0.0
 
     def validate(self) -> None:
         """Raise :class:`RejectedObservationError` naming this record if it is unusable."""
@@ -104,6 +109,7 @@ class Observation:
             self.sigma_bearing,
             self.sigma_theta,
             self.sigma_range,
+            self.theta_per_turn,
         )
         if not all(math.isfinite(v) for v in values):
             raise RejectedObservationError(

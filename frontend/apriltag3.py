@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common.errors import SettingsError
-from markergraph.frontend.detect import Detection, allowed_in, edge_refined
+from markergraph.frontend.detect import Detection, allowed_in, edge_refined, marker_modules
 
 __all__ = ["APRILTAG3_FAMILIES", "AprilTag3Detector", "apriltag3_available"]
 
@@ -98,6 +98,7 @@ class AprilTag3Detector:
         self.dictionary_name = dictionary
         self.subpixel = subpixel
         self.allowed_ids = allowed_in(dictionary, allowed_ids)
+        self.modules = marker_modules(dictionary)
         self.left_out: Counter[int] = Counter()  # detections of ids outside ``allowed_ids``
         self._max_hamming = MAX_HAMMING[family]
         self._detector = pupil_apriltags.Detector(
@@ -119,7 +120,7 @@ class AprilTag3Detector:
             self.left_out.update(d.marker_id for d in found if d.marker_id not in self.allowed_ids)
             found = [d for d in found if d.marker_id in self.allowed_ids]
         if self.subpixel and found:
-            refined = edge_refined(gray, np.array([d.corners for d in found]))
+            refined = edge_refined(gray, np.array([d.corners for d in found]), self.modules)
             found = [Detection(d.marker_id, c) for d, c in zip(found, refined, strict=True)]
         return sorted(found, key=lambda d: d.marker_id)
 

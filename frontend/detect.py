@@ -156,6 +156,7 @@ class Detector:
         self.subpixel = subpixel
         self.allowed_ids = allowed_in(dictionary, allowed_ids)
         loaded = load_dictionary(dictionary)
+        self.modules = marker_modules(dictionary)
         self.left_out: Counter[int] = Counter()  # detections of ids outside ``allowed_ids``
         parameters = _parameters(subpixel)
         if mode is DetectorMode.ARUCO3:
@@ -198,7 +199,8 @@ class Detector:
             self.left_out.update(d.marker_id for d in found if d.marker_id not in self.allowed_ids)
             found = [d for d in found if d.marker_id in self.allowed_ids]
         if self.subpixel:
-            refined = edge_refined(gray, np.array([d.corners for d in found]).reshape(-1, 4, 2))
+            found_corners = np.array([d.corners for d in found]).reshape(-1, 4, 2)
+            refined = edge_refined(gray, found_corners, self.modules)
             found = [Detection(d.marker_id, c) for d, c in zip(found, refined, strict=True)]
         return sorted(found, key=lambda d: d.marker_id)
 
@@ -328,6 +330,8 @@ EDGE_HALF_WIDTH_PX = 2.0  # wider windows reach the marker's inner cells on smal
 EDGE_STEP_PX = 0.25
 EDGE_PASSES = 2  # each recentred on the last: noise then pulls toward the edge, not the start
 EDGE_MAX_SHIFT_PX = 1.5  # a corner moved further means a side was occluded or cut: keep OpenCV's
+SHARP_WIDTH_PX = 5.0  # a rise wider than this is smeared (a sharp edge's is 3-4.5 px wide)
+BLUR_REACH_MODULES = 0.9  # how far across an edge its smear is looked for: short of inner cells
 _NEXT = [1, 2, 3, 0]  # side k runs from corner k to corner k + 1
 _PREVIOUS = [3, 0, 1, 2]
 _FRACTIONS = np.linspace(*EDGE_SPAN, EDGE_POINTS)[:, None]  # where along a side
@@ -336,7 +340,9 @@ _MIDDLES = (_OFFSETS[1:] + _OFFSETS[:-1]) / 2.0  # where each difference of the 
 _MEDIAN = slice((EDGE_POINTS - 1) // 2, EDGE_POINTS // 2 + 1)  # the middle one or two, sorted
 
 
-def edge_refined(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDArray[np.float64]:
+def edge_refined(
+    gray: NDArray[np.uint8], corners: NDArray[np.float64], modules: int
+) -> NDArray[np.float64]:
     """Markers' corners ((M, 4, 2) pixels) as the intersections of lines fitted to their sides'
     edges, all of a frame's markers at once.
 
@@ -349,8 +355,9 @@ def edge_refined(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDArr
     meet. On the independent generator's corridor renders (by the marker's size in the image)
     the corners' mean inset went from +0.17-0.37 px to -0.01..+0.06 px, and their median error
     from 0.21-0.50 px to 0.04-0.28 px.
-    A marker whose corners would move more than :data:`EDGE_MAX_SHIFT_PX`, or whose edges are
-    not found, keeps its corners as given."""
+    Under a turn's smear each side's window reaches across its rise (:func:`_half_windows`).
+    A marker whose corners would move more than :data:`EDGE_MAX_SHIFT_PX` (and as much again as
+    its widest window grew), or whose edges are not found, keeps its corners as given."""
     corners = np.asarray(corners, dtype=np.float64)
     markers = len(corners)
     if markers == 0:
@@ -364,17 +371,21 @@ def edge_refined(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDArr
     # (marker, side, point, xy)
     on_side = start[:, :, None] + _FRACTIONS * (end - start)[:, :, None]
     rows = markers * 4 * EDGE_POINTS
+    half = _half_windows(gray, on_side, outward, length[..., 0].mean(axis=1) / modules)
+    scale = (half / EDGE_HALF_WIDTH_PX)[..., None, None]  # (marker, side, 1, 1)
+    offsets, middles = _OFFSETS * scale, _MIDDLES * scale
     shift = np.zeros((markers, 4, EDGE_POINTS))
     for _ in range(EDGE_PASSES):
-        across = (shift[..., None] + _OFFSETS)[..., None] * outward[:, :, None, None]
+        across = (shift[..., None] + offsets)[..., None] * outward[:, :, None, None]
         samples = (on_side[..., None, :] + across).reshape(rows, _OFFSETS.size, 2)
         samples = samples.astype(np.float32)
         profile = cv2.remap(gray, samples[..., 0], samples[..., 1], cv2.INTER_LINEAR,
                             borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
         rise = np.clip(np.diff(profile.astype(np.float32), axis=1), 0.0, None)
         weight = rise.sum(axis=1)
-        step = (rise @ _MIDDLES) / np.maximum(weight, 1e-9)
-        shift += step.reshape(shift.shape)
+        rise = rise.reshape(*shift.shape, -1)
+        step = np.sum(rise * middles, axis=3) / np.maximum(weight.reshape(shift.shape), 1e-9)
+        shift += step
     weight = weight.reshape(shift.shape)
     edge = on_side + shift[..., None] * outward[:, :, None]
     # np.median's own machinery costs more than the rest of this step: the sorted middle.
@@ -403,8 +414,54 @@ def edge_refined(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDArr
         axis=-1,
     )
     moved = np.linalg.norm(refined - corners, axis=2).max(axis=1)
-    good = (moved <= EDGE_MAX_SHIFT_PX) & solvable.all(axis=1) & (count >= 3).all(axis=(1, 2))
+    # A smeared side's edge lies further from OpenCV's corner: the bound grows with its window.
+    bound = EDGE_MAX_SHIFT_PX + half.max(axis=1) - EDGE_HALF_WIDTH_PX
+    good = (moved <= bound) & solvable.all(axis=1) & (count >= 3).all(axis=(1, 2))
     return np.where(good[:, None, None], refined, corners)
+
+
+def _half_windows(
+    gray: NDArray[np.uint8],
+    on_side: NDArray[np.float64],
+    outward: NDArray[np.float64],
+    module_px: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """How far across each side ((marker, side)) its edge is looked for [px]. A turn during the
+    exposure smears the image sideways, and a smeared edge's rise is as wide as the smear: a
+    window of :data:`EDGE_HALF_WIDTH_PX` each way sat inside it and kept OpenCV's corners,
+    biased inward (theta 1.3-2.6 deg off at 20-40 deg under a 9 px smear from 1.4 m). The window
+    reaches across the whole rise, measured first, within most of a module (``module_px``
+    (marker,)) each way, short of the inner cells."""
+    reach = np.maximum(BLUR_REACH_MODULES * module_px, EDGE_HALF_WIDTH_PX)[:, None]
+    width = np.median(_rise_widths(gray, on_side, outward, reach), axis=2)
+    return np.minimum(EDGE_HALF_WIDTH_PX + np.clip(width - SHARP_WIDTH_PX, 0.0, None), reach)
+
+
+def _rise_widths(
+    gray: NDArray[np.uint8],
+    on_side: NDArray[np.float64],
+    outward: NDArray[np.float64],
+    reach: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """The width of each side's rise (dark to bright, outward) at each of its points, over
+    ``reach`` pixels each way ((marker, 1)): ``(sum g)^2 / sum g^2`` of the rise g, the length
+    of a box's rise (a smear's) and about 3.5 sigma of a Gaussian blur's."""
+    markers = len(on_side)
+    fractions = np.linspace(-1.0, 1.0, 2 * BLUR_SAMPLES + 1)
+    step = (reach / BLUR_SAMPLES)[:, :, None, None]  # (marker, 1, 1, 1)
+    across = (fractions * BLUR_SAMPLES)[..., None] * step[..., None]
+    across = across * outward[:, :, None, None]  # (marker, side, 1, sample, xy)
+    samples = (on_side[..., None, :] + across).reshape(markers * 4 * EDGE_POINTS, -1, 2)
+    profile = cv2.remap(gray, samples[..., 0].astype(np.float32),
+                        samples[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+    rise = np.clip(np.diff(profile.astype(np.float32), axis=1), 0.0, None)
+    width = rise.sum(axis=1) ** 2 / np.maximum(np.sum(rise * rise, axis=1), 1e-9)
+    pixels = np.repeat(step[:, :, 0, 0], 4, axis=1)[..., None]  # a sample's step [px]
+    return width.reshape(markers, 4, EDGE_POINTS) * pixels
+
+
+BLUR_SAMPLES = 16  # samples each way across an edge when measuring its rise's width
 
 
 SAME_MARKER_PX = 5.0  # a detection of the same id this close to another is the same marker

@@ -30,6 +30,7 @@ __all__ = [
     "marker_depth",
     "observe",
     "observe_detections",
+    "theta_per_turn",
     "theta_shared_sigma",
 ]
 
@@ -79,6 +80,14 @@ CLEAN_MODULE_PX = 2.0 * EDGE_HALF_WIDTH_PX
 # IPPE's two solutions explain the corners almost equally well when this close (ratio of their
 # reprojection errors): the marker is small or seen nearly face-on, and its theta is ambiguous.
 AMBIGUITY_RATIO = 2.0
+# A rolling shutter reads each row later than the one above: while the camera turns, a marker's
+# lower corners are imaged further along the turn and the square leans. Read as perspective, the
+# lean moves theta, most near face-on: 4 deg from 1.4 m at 0.6 rad/s over a 25 ms readout on the
+# simulated warehouse, which turned its whole map 3 deg about the home marker. Each observation
+# carries theta's change per radian turned during the readout (:func:`theta_per_turn`, by
+# leaning its corners this far and solving again), for the estimator to take the lean off, or
+# widen theta by it, once it knows the turn rate (:mod:`~markergraph.estimator.timing`).
+LEAN_STEP_RAD = 0.015  # 25 ms at 0.6 rad/s: the differences span a lean as large
 # Beyond this, theta's sigma is propagated from the one PnP solve; nearer frontal, where the
 # linearisation is up to 2x optimistic (IPPE's two poses meet), by re-solving.
 NEAR_FRONTAL_RAD = math.radians(12.0)
@@ -302,6 +311,7 @@ def _observe_one(
     bearing = math.atan2(p_base[1], p_base[0]) - mount.yaw_rad
     sigma_range = sigma_z * range_m / z  # the horizontal range scales with Z
     sigma_theta = _theta_sigma(theta, pose, corners, camera, length_m, model)
+    per_turn = theta_per_turn(corners, theta, camera, length_m, method)
     flags = set(edge_flags) | ({Flags.NO_DEPTH} if no_depth else set())
     if abs(theta) > GRAZING_RAD:
         flags.add(Flags.GRAZING)
@@ -325,6 +335,7 @@ def _observe_one(
         frozenset(flags),
         float(mount.height_m + p_base[2]),
         theta_shared_sigma(corners, theta, camera, model),
+        per_turn,
     )
 
 
@@ -366,6 +377,29 @@ def second_fits_alike(
     as well as the first (:data:`AMBIGUITY_RATIO`): a small or face-on marker, whose pose may be
     either."""
     return len(solutions) > 1 and solutions[1][0] < AMBIGUITY_RATIO * max(solutions[0][0], 1e-3)
+
+
+def theta_per_turn(
+    corners: NDArray[np.float64], theta: float, camera: Camera, length_m: float, method: YawMethod
+) -> float:
+    """Theta's change per radian the camera turns about its vertical axis while a rolling
+    shutter reads its rows out [rad/rad]: the undistorted ``corners`` leaned as such a turn
+    leans them (each row moved right by ``f psi / H`` a row, about the marker's middle row, for
+    a turn ``psi`` to the left), :data:`LEAN_STEP_RAD` each way, and theta found again (PnP's
+    best pose: near face-on a lean can carry theta past 0, where the pose nearest it is the
+    other one). 0 where a leaned square has no theta."""
+    rows = corners[:, 1] - corners[:, 1].mean()
+    thetas = []
+    for step in (LEAN_STEP_RAD, -LEAN_STEP_RAD):
+        leaned = np.array(corners, dtype=np.float64)
+        leaned[:, 0] += camera.fx * step / camera.height * rows
+        if method is YawMethod.PNP:
+            solutions = pnp_solutions(leaned, camera, length_m)
+            thetas.append(pnp_theta((solutions[0][1], solutions[0][2])) if solutions else math.nan)
+        else:
+            thetas.append(yaw_from_corners(leaned, method, camera, length_m))
+    change = math.remainder(thetas[0] - thetas[1], math.tau) / (2.0 * LEAN_STEP_RAD)
+    return change if math.isfinite(change) else 0.0
 
 
 def theta_shared_sigma(

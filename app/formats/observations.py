@@ -4,8 +4,9 @@ Each line: ``t_ns`` (int), ``marker_id``, ``bearing``, ``theta`` [rad], ``range_
 ``sigma_bearing``, ``sigma_theta``, ``sigma_range``, ``corners`` ([[u, v] x 4], OpenCV order),
 ``flags`` (list of strings), ``height_m`` (the marker centre above the base frame [m], or
 null), ``sigma_theta_shared`` (the part of theta's error one view's observations share [rad];
-0 where absent) and ``odom`` ({"x", "y", "yaw"}: ``T_odom_base`` interpolated at
-``t_ns``, or null where odometry does not reach).
+0 where absent), ``theta_per_turn`` (theta's change per radian the camera turns while a
+rolling shutter reads its rows out [rad/rad]; 0 where absent) and ``odom`` ({"x", "y", "yaw"}:
+``T_odom_base`` interpolated at ``t_ns``, or null where odometry does not reach).
 
 ``markergraph detect`` also writes what ``markergraph map`` needs to map from the file: a first
 line ``{"header": {...}}`` holding ``format`` ("markergraph.observations"), ``version`` (2),
@@ -111,6 +112,7 @@ def write_observations(
                         "sigma_theta": obs.sigma_theta,
                         "sigma_range": obs.sigma_range,
                         "sigma_theta_shared": obs.sigma_theta_shared,
+                        "theta_per_turn": obs.theta_per_turn,
                         "corners": [list(c) for c in obs.corners],
                         "flags": sorted(obs.flags),
                         "height_m": obs.height_m if math.isfinite(obs.height_m) else None,
@@ -201,6 +203,7 @@ def _observation(row: dict[str, Any]) -> Observation:
         frozenset(row.get("flags", [])),
         math.nan if row.get("height_m") is None else float(row["height_m"]),
         float(row.get("sigma_theta_shared", 0.0)),
+        float(row.get("theta_per_turn", 0.0)),
     )
 
 
