@@ -433,7 +433,7 @@ def _half_windows(
     reaches across the whole rise, measured first, within most of a module (``module_px``
     (marker,)) each way, short of the inner cells."""
     reach = np.maximum(BLUR_REACH_MODULES * module_px, EDGE_HALF_WIDTH_PX)[:, None]
-    width = np.median(_rise_widths(gray, on_side, outward, reach), axis=2)
+    width = np.sort(_rise_widths(gray, on_side, outward, reach), axis=2)[..., _MEDIAN].mean(axis=2)
     return np.minimum(EDGE_HALF_WIDTH_PX + np.clip(width - SHARP_WIDTH_PX, 0.0, None), reach)
 
 
