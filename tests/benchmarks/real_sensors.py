@@ -20,7 +20,8 @@ from markergraph.datasets import scenario, write_log
 from markergraph.datasets.sensors import D435I_ON_DIFF_DRIVE, SensorEffects
 from markergraph.estimator import map_error
 
-NONE = {"camera.delay_ms": 0.0, "noise.depth_scale": 1.0, "odometry.scale": 1.0}
+NONE = {"camera.delay_ms": 0.0, "noise.depth_scale": 1.0, "odometry.scale": 1.0,
+        "camera.readout_ms": 0.0}  # fmt: skip
 REMEDIES = {
     "no remedy": NONE,
     "delay by residuals": {**NONE, "camera.delay_ms": None},
