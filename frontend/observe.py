@@ -80,11 +80,13 @@ CLEAN_MODULE_PX = 2.0 * EDGE_HALF_WIDTH_PX
 # IPPE's two solutions explain the corners almost equally well when this close (ratio of their
 # reprojection errors): the marker is small or seen nearly face-on, and its theta is ambiguous.
 AMBIGUITY_RATIO = 2.0
-# ... or when the second's extra squared error over the eight corner coordinates is what corner
-# noise alone gives (chi-square, one degree of freedom, 95 %): both fit within the noise. A
-# ratio alone misses this where the first fits almost exactly: on the simulated warehouse,
-# markers of 16-22 px at 25 deg came out mirrored (theta off by 50 deg) in 1 of 4 sightings,
-# 0.01-0.10 px against 0.05-0.23 px, and claimed a 3 deg sigma.
+# ... or, for a small marker (modules under CLEAN_MODULE_PX), when the second's extra squared
+# error over the eight corner coordinates is what corner noise alone gives (chi-square, one
+# degree of freedom, 95 %): both fit within the noise. A ratio alone misses this where the first
+# fits almost exactly: on the simulated warehouse, markers of 16-22 px at 25 deg came out
+# mirrored (theta off by 50 deg) in 1 of 4 sightings, 0.01-0.10 px against 0.05-0.23 px, and
+# claimed a 3 deg sigma. Applied to every marker, it took theta from most larger ones, mostly
+# right, and the paper's closed form and marker graph went from 8 to 65-70 cm on an office log.
 AMBIGUITY_CHI2 = 3.84
 # A rolling shutter reads each row later than the one above: while the camera turns, a marker's
 # lower corners are imaged further along the turn and the square leans. Read as perspective, the
@@ -323,7 +325,9 @@ def _observe_one(
         flags.add(Flags.GRAZING)
     if abs(theta) < AMBIGUOUS_RAD:
         flags.add(Flags.AMBIGUOUS)
-    if method is YawMethod.PNP and second_fits_alike(solutions, corner_sigma_px):
+    small = _mean_side_px(corners) < CLEAN_MODULE_PX * model.marker_modules
+    noise_px = corner_sigma_px if small else None
+    if method is YawMethod.PNP and second_fits_alike(solutions, noise_px):
         other = pnp_theta((solutions[1][1], solutions[1][2]))  # theta may be either: cover both
         spread = abs(math.remainder(other - theta, math.tau)) / 2.0
         sigma_theta = min(max(sigma_theta, spread), GRAZING_SIGMA_RAD)
@@ -378,17 +382,18 @@ def _centre_depth(
 
 def second_fits_alike(
     solutions: list[tuple[float, NDArray[np.float64], NDArray[np.float64]]],
-    corner_sigma_px: float,
+    noise_px: float | None = None,
 ) -> bool:
     """Whether IPPE's second pose (of :func:`~.yaw.pnp_solutions`, RMS reprojection errors)
-    explains the corners almost as well as the first (:data:`AMBIGUITY_RATIO`), or within what
-    corners of ``corner_sigma_px`` noise tell apart (:data:`AMBIGUITY_CHI2`): a small or
-    face-on marker, whose pose may be either."""
+    explains the corners almost as well as the first (:data:`AMBIGUITY_RATIO`) or, given the
+    corners' noise ``noise_px`` (for a small marker), within what it tells apart
+    (:data:`AMBIGUITY_CHI2`): a small or face-on marker, whose pose may be either."""
     if len(solutions) < 2:
         return False
     first, second = solutions[0][0], solutions[1][0]
-    extra = 8.0 * (second * second - first * first) / (corner_sigma_px * corner_sigma_px)
-    return second < AMBIGUITY_RATIO * max(first, 1e-3) or extra < AMBIGUITY_CHI2
+    if second < AMBIGUITY_RATIO * max(first, 1e-3):
+        return True
+    return noise_px is not None and 8.0 * (second**2 - first**2) / noise_px**2 < AMBIGUITY_CHI2
 
 
 def theta_per_turn(
