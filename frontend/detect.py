@@ -332,6 +332,7 @@ EDGE_PASSES = 2  # each recentred on the last: noise then pulls toward the edge,
 EDGE_MAX_SHIFT_PX = 1.5  # a corner moved further means a side was occluded or cut: keep OpenCV's
 SHARP_WIDTH_PX = 5.0  # a rise wider than this is smeared (a sharp edge's is 3-4.5 px wide)
 BLUR_REACH_MODULES = 0.9  # how far across an edge its smear is looked for: short of inner cells
+BLUR_SAMPLES = 16  # samples each way across an edge when measuring its rise's width
 _NEXT = [1, 2, 3, 0]  # side k runs from corner k to corner k + 1
 _PREVIOUS = [3, 0, 1, 2]
 _FRACTIONS = np.linspace(*EDGE_SPAN, EDGE_POINTS)[:, None]  # where along a side
@@ -370,23 +371,14 @@ def edge_refined(
     outward *= np.sign(np.sum(outward * (start - centre), axis=2, keepdims=True))
     # (marker, side, point, xy)
     on_side = start[:, :, None] + _FRACTIONS * (end - start)[:, :, None]
-    rows = markers * 4 * EDGE_POINTS
     half = _half_windows(gray, on_side, outward, length[..., 0].mean(axis=1) / modules)
     scale = (half / EDGE_HALF_WIDTH_PX)[..., None, None]  # (marker, side, 1, 1)
     offsets, middles = _OFFSETS * scale, _MIDDLES * scale
     shift = np.zeros((markers, 4, EDGE_POINTS))
     for _ in range(EDGE_PASSES):
-        across = (shift[..., None] + offsets)[..., None] * outward[:, :, None, None]
-        samples = (on_side[..., None, :] + across).reshape(rows, _OFFSETS.size, 2)
-        samples = samples.astype(np.float32)
-        profile = cv2.remap(gray, samples[..., 0], samples[..., 1], cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
-        rise = np.clip(np.diff(profile.astype(np.float32), axis=1), 0.0, None)
-        weight = rise.sum(axis=1)
-        rise = rise.reshape(*shift.shape, -1)
-        step = np.sum(rise * middles, axis=3) / np.maximum(weight.reshape(shift.shape), 1e-9)
-        shift += step
-    weight = weight.reshape(shift.shape)
+        rise = _rises(gray, on_side, outward, shift[..., None] + offsets)
+        weight = rise.sum(axis=3)
+        shift += np.sum(rise * middles, axis=3) / np.maximum(weight, 1e-9)
     edge = on_side + shift[..., None] * outward[:, :, None]
     # np.median's own machinery costs more than the rest of this step: the sorted middle.
     median = np.sort(weight, axis=2)[..., _MEDIAN].mean(axis=2, keepdims=True)
@@ -429,39 +421,35 @@ def _half_windows(
     """How far across each side ((marker, side)) its edge is looked for [px]. A turn during the
     exposure smears the image sideways, and a smeared edge's rise is as wide as the smear: a
     window of :data:`EDGE_HALF_WIDTH_PX` each way sat inside it and kept OpenCV's corners,
-    biased inward (theta 1.3-2.6 deg off at 20-40 deg under a 9 px smear from 1.4 m). The window
-    reaches across the whole rise, measured first, within most of a module (``module_px``
-    (marker,)) each way, short of the inner cells."""
+    biased inward (theta 1.6-2.8 deg off at 20-40 deg under a 9 px smear from 1.4 m). So each
+    side's rise is measured first, over most of a module (``module_px`` (marker,)) each way,
+    short of the inner cells, as ``(sum g)^2 / sum g^2`` of the rise g at each point (a box's
+    length, a smear's; about 3.5 sigma of a Gaussian blur's), and the window reaches across it."""
     reach = np.maximum(BLUR_REACH_MODULES * module_px, EDGE_HALF_WIDTH_PX)[:, None]
-    width = np.sort(_rise_widths(gray, on_side, outward, reach), axis=2)[..., _MEDIAN].mean(axis=2)
+    step = reach / BLUR_SAMPLES  # between samples [px], (marker, 1)
+    offsets = np.arange(-BLUR_SAMPLES, BLUR_SAMPLES + 1) * step[..., None, None]
+    rise = _rises(gray, on_side, outward, offsets)
+    widths = rise.sum(axis=3) ** 2 / np.maximum(np.sum(rise * rise, axis=3), 1e-9) * step[..., None]
+    width = np.sort(widths, axis=2)[..., _MEDIAN].mean(axis=2)
     return np.minimum(EDGE_HALF_WIDTH_PX + np.clip(width - SHARP_WIDTH_PX, 0.0, None), reach)
 
 
-def _rise_widths(
+def _rises(
     gray: NDArray[np.uint8],
     on_side: NDArray[np.float64],
     outward: NDArray[np.float64],
-    reach: NDArray[np.float64],
+    offsets: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """The width of each side's rise (dark to bright, outward) at each of its points, over
-    ``reach`` pixels each way ((marker, 1)): ``(sum g)^2 / sum g^2`` of the rise g, the length
-    of a box's rise (a smear's) and about 3.5 sigma of a Gaussian blur's."""
-    markers = len(on_side)
-    fractions = np.linspace(-1.0, 1.0, 2 * BLUR_SAMPLES + 1)
-    step = (reach / BLUR_SAMPLES)[:, :, None, None]  # (marker, 1, 1, 1)
-    across = (fractions * BLUR_SAMPLES)[..., None] * step[..., None]
-    across = across * outward[:, :, None, None]  # (marker, side, 1, sample, xy)
-    samples = (on_side[..., None, :] + across).reshape(markers * 4 * EDGE_POINTS, -1, 2)
-    profile = cv2.remap(gray, samples[..., 0].astype(np.float32),
-                        samples[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+    """The rise (dark to bright outward; falls count 0) between each pair of neighbouring
+    samples across each side, the samples ``offsets`` px outward of its points ``on_side``:
+    (marker, side, point, samples - 1)."""
+    across = offsets[..., None] * outward[:, :, None, None]
+    samples = (on_side[..., None, :] + across).astype(np.float32)  # (marker, side, point, n, xy)
+    flat = samples.reshape(-1, samples.shape[3], 2)
+    profile = cv2.remap(gray, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
     rise = np.clip(np.diff(profile.astype(np.float32), axis=1), 0.0, None)
-    width = rise.sum(axis=1) ** 2 / np.maximum(np.sum(rise * rise, axis=1), 1e-9)
-    pixels = np.repeat(step[:, :, 0, 0], 4, axis=1)[..., None]  # a sample's step [px]
-    return width.reshape(markers, 4, EDGE_POINTS) * pixels
-
-
-BLUR_SAMPLES = 16  # samples each way across an edge when measuring its rise's width
+    return rise.reshape(*samples.shape[:3], -1)
 
 
 SAME_MARKER_PX = 5.0  # a detection of the same id this close to another is the same marker

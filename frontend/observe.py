@@ -325,9 +325,7 @@ def _observe_one(
         flags.add(Flags.GRAZING)
     if abs(theta) < AMBIGUOUS_RAD:
         flags.add(Flags.AMBIGUOUS)
-    small = _mean_side_px(corners) < CLEAN_MODULE_PX * model.marker_modules
-    noise_px = corner_sigma_px if small else None
-    if method is YawMethod.PNP and second_fits_alike(solutions, noise_px):
+    if method is YawMethod.PNP and second_fits_alike(solutions, corners, model):
         other = pnp_theta((solutions[1][1], solutions[1][2]))  # theta may be either: cover both
         spread = abs(math.remainder(other - theta, math.tau)) / 2.0
         sigma_theta = min(max(sigma_theta, spread), GRAZING_SIGMA_RAD)
@@ -382,18 +380,27 @@ def _centre_depth(
 
 def second_fits_alike(
     solutions: list[tuple[float, NDArray[np.float64], NDArray[np.float64]]],
-    noise_px: float | None = None,
+    corners: NDArray[np.float64],
+    model: ObservationModel,
 ) -> bool:
     """Whether IPPE's second pose (of :func:`~.yaw.pnp_solutions`, RMS reprojection errors)
-    explains the corners almost as well as the first (:data:`AMBIGUITY_RATIO`) or, given the
-    corners' noise ``noise_px`` (for a small marker), within what it tells apart
-    (:data:`AMBIGUITY_CHI2`): a small or face-on marker, whose pose may be either."""
+    explains the ``corners`` almost as well as the first (:data:`AMBIGUITY_RATIO`) or, for a
+    small marker, within what the corners' noise tells apart (:data:`AMBIGUITY_CHI2`): a small
+    or face-on marker, whose pose may be either."""
     if len(solutions) < 2:
         return False
     first, second = solutions[0][0], solutions[1][0]
     if second < AMBIGUITY_RATIO * max(first, 1e-3):
         return True
-    return noise_px is not None and 8.0 * (second**2 - first**2) / noise_px**2 < AMBIGUITY_CHI2
+    if not _small(_mean_side_px(corners), model):
+        return False
+    return 8.0 * (second**2 - first**2) / model.corner_sigma_px**2 < AMBIGUITY_CHI2
+
+
+def _small(side_px: float, model: ObservationModel) -> bool:
+    """Whether a marker ``side_px`` high has modules under :data:`CLEAN_MODULE_PX`, where edge
+    refinement's reach takes in its inner cells and its two planar poses look alike."""
+    return side_px < CLEAN_MODULE_PX * model.marker_modules
 
 
 def theta_per_turn(
@@ -427,7 +434,7 @@ def theta_shared_sigma(
     here and a module (``model.marker_modules`` across the marker) is under
     :data:`CLEAN_MODULE_PX`; else 0."""
     side_px = _mean_side_px(corners)
-    if not model.refined_corners or side_px >= CLEAN_MODULE_PX * model.marker_modules:
+    if not model.refined_corners or not _small(side_px, model):
         return 0.0
     cos_theta = max(math.cos(theta), math.cos(GRAZING_RAD))
     shared = CORNER_BIAS_PX * camera.fx / (side_px * side_px * cos_theta)

@@ -234,7 +234,7 @@ def observe_levelled_frame(
         sigma_bearing, sigma_theta, sigma_range = np.sqrt(np.maximum(np.diag(covariance), 1e-12))
         sigma_theta = math.hypot(sigma_theta, THETA_FLOOR_RAD)
         flags = {Flags.NO_DEPTH}
-        if second_fits_alike(solutions):
+        if second_fits_alike(solutions, corners, model):
             other = _polar(solutions[1][1], solutions[1][2], view)[1]
             sigma_theta = max(sigma_theta, abs(math.remainder(other - theta, math.tau)) / 2.0)
             flags.add(Flags.AMBIGUOUS)
