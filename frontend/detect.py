@@ -439,7 +439,7 @@ def _rises(
     on_side: NDArray[np.float64],
     outward: NDArray[np.float64],
     offsets: NDArray[np.float64],
-) -> NDArray[np.float64]:
+) -> NDArray[np.float32]:
     """The rise (dark to bright outward; falls count 0) between each pair of neighbouring
     samples across each side, the samples ``offsets`` px outward of its points ``on_side``:
     (marker, side, point, samples - 1)."""
