@@ -91,7 +91,7 @@ def test_edges_are_found_across_a_smear(
     """An exposure in a turn smears the image sideways: 9 px (15 ms at 1 rad/s) is over half a
     module of a marker 1.4 m away, 6 px three quarters of one at 2.5 m. The sides' edges, found
     across the whole smear, keep theta within a degree of the truth, where a fixed 2 px window
-    left it 1.3-2.6 deg off at 20-40 deg."""
+    left it 0.9-2.8 deg off at 20-40 deg."""
     truth = turning_at(view_deg, distance_m)
     exposure_s = smear_px / (RATE * RENDERER.camera.fx)
     sharp, true_theta = seen(truth, SensorEffects())
