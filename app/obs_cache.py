@@ -22,6 +22,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from markergraph.common.cache import cache_dir
 from markergraph.common.files import written_whole
 from markergraph.frontend import Extraction, FrontendConfig
 
@@ -78,10 +79,6 @@ def cache_enabled() -> bool:
 def cache_folder() -> Path:
     """``extractions/`` in markergraph's cache folder (``$MARKERGRAPH_CACHE``, else
     ``$XDG_CACHE_HOME/markergraph`` or ``~/.cache/markergraph``)."""
-    # Here, not at the top: the samples' module brings the simulator's writer, which a map of a
-    # recorded log never uses.
-    from markergraph.datasets.samples import cache_dir
-
     return cache_dir() / "extractions"
 
 

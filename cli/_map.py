@@ -157,6 +157,14 @@ def add_executor(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+def _sample(render: bool) -> Path:
+    """The bundled sample's log, rendered first if ``render`` and not yet cached; its modules
+    (the simulator's) are imported only for it."""
+    from markergraph.datasets.samples import sample_log, sample_path
+
+    return sample_log(DEFAULT_SAMPLE) if render else sample_path(DEFAULT_SAMPLE)
+
+
 def run(args: argparse.Namespace) -> int:
     from markergraph.frontend.logs.files import check_exists
 
@@ -166,7 +174,6 @@ def run(args: argparse.Namespace) -> int:
         return 0
     for log in args.logs:  # said at once, before the mapping's imports
         check_exists(Path(log))
-    from markergraph.datasets.samples import sample_log, sample_path
     from markergraph.formats.observations import is_observation_file
     from markergraph.markermap import MarkerMap
     from markergraph.report_page import REPORT_PAGE
@@ -175,13 +182,13 @@ def run(args: argparse.Namespace) -> int:
     from markergraph.run3d import wants_3d
     from markergraph.verdicts import Verdict
 
-    logs = list(args.logs) or [sample_path(DEFAULT_SAMPLE)]
+    logs = list(args.logs) or [_sample(render=False)]
     out = args.out or Path(f"map-{Path(logs[0]).stem}")
     # Before any work (a sample's rendering included): never over the input or a user's folder.
     check_output_folder(out, [*logs, *([args.prior] if args.prior else [])], force=args.force)
     prior = MarkerMap.load(args.prior) if args.prior is not None else None
     if not args.logs:
-        logs = [sample_log(DEFAULT_SAMPLE)]
+        logs = [_sample(render=True)]
         print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({logs[0]})")
     if args.logs and not is_observation_file(logs[0]):
         three_d, why = wants_3d(logs[0], config)

@@ -7,16 +7,16 @@ them once, with a progress bar, into ``$MARKERGRAPH_CACHE`` (default
 
 from __future__ import annotations
 
-import os
 import sys
 from dataclasses import replace
 from pathlib import Path
 
+from markergraph.common.cache import cache_dir
 from markergraph.common.progress import ProgressBar
 from markergraph.datasets.scenarios import scenario
 from markergraph.datasets.write import write_log
 
-__all__ = ["SAMPLES", "cache_dir", "sample_log", "sample_path"]
+__all__ = ["SAMPLES", "sample_log", "sample_path"]
 
 # name -> (scenario, seed, laps, frame rate [Hz]); bump the version when the output changes.
 SAMPLES = {
@@ -24,14 +24,6 @@ SAMPLES = {
     "corridor-loop": ("corridor-loop", 1, 1, 5.0),
 }
 SAMPLE_VERSION = 1
-
-
-def cache_dir() -> Path:
-    """Where generated sample logs live."""
-    if "MARKERGRAPH_CACHE" in os.environ:
-        return Path(os.environ["MARKERGRAPH_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "markergraph"
 
 
 def sample_path(name: str) -> Path:
