@@ -14,8 +14,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
+
 from markergraph.common import EstimationError, Note, SettingsError
+from markergraph.common.numbers import shown
 from markergraph.estimator import (
+    READOUT_MAX_S,
+    Estimate,
     Form,
     Method,
     corrected_odometry,
@@ -23,6 +28,7 @@ from markergraph.estimator import (
     marker_heights,
     odometry_in_map,
 )
+from markergraph.estimator.consider import AT_ONE_END, marker_moves, with_considered
 from markergraph.estimator.localization import localize
 from markergraph.estimator.sessions import solve_sessions
 from markergraph.executors import extract_logs
@@ -62,6 +68,9 @@ class _Read:
     log: Path
     extraction: Extraction
     prepared: Prepared
+    at_longest_readout: Prepared | None = None
+    """Made ready again as if the rolling shutter's readout were :data:`READOUT_MAX_S`, where
+    it is not known: the maps solved from it give the readout's share of the covariances."""
 
     @property
     def notes(self) -> list[Note]:
@@ -92,11 +101,14 @@ def _read(
     progress: Progress | None = None,
     stage: Stage = _silent,
     cache: bool = True,
+    readout_share: bool = False,
 ) -> list[_Read]:
     """Every log through the front end (timed as ``front end``), then made ready, each with
     its own home marker (None: the first seen). With ``cache`` (and the cache not turned off
     by ``MARKERGRAPH_NO_CACHE``), a log read before with the same front-end settings is taken
-    from the cache (:mod:`~markergraph.obs_cache`), and so are the searches made ready with."""
+    from the cache (:mod:`~markergraph.obs_cache`), and so are the searches made ready with.
+    With ``readout_share``, a log whose rolling shutter's readout is not given is also made
+    ready as if it were :data:`READOUT_MAX_S` (``_Read.at_longest_readout``)."""
     start = time.perf_counter()  # the cache's look-up counts as the front end's time
     cache = cache and cache_enabled()
     keys = [_key(Path(log), config) if cache else "" for log in logs]
@@ -116,6 +128,9 @@ def _read(
             entries[i] = CacheEntry(CACHE_VERSION, keys[i], extraction)
     seconds["front end"] = time.perf_counter() - start
     read = []
+    longest = None
+    if readout_share and config.camera.readout_ns is None:
+        longest = MapConfig.from_values({**config.values, "camera.readout_ms": READOUT_MAX_S * 1e3})
     for log, entry, home in zip(logs, entries, homes, strict=True):
         assert entry is not None  # every miss was just read
         before = dict(entry.searches)
@@ -124,10 +139,19 @@ def _read(
             kept = [note for note in extraction.notes if not note.kind.startswith("workers.")]
             extraction = replace(extraction, notes=[_cache_note(entry), *kept])
         prepared = prepare(log, extraction, config, stage, home, entry.searches)
+        at_longest = None
+        if longest is not None:
+            at_longest = prepare(log, extraction, longest, _for_longest_readout(stage), home,
+                                 entry.searches)  # fmt: skip
         if entry.key and (not entry.hit or entry.searches != before):
             store_entry(entry)
-        read.append(_Read(Path(log), extraction, prepared))
+        read.append(_Read(Path(log), extraction, prepared, at_longest))
     return read
+
+
+def _for_longest_readout(stage: Stage) -> Stage:
+    """``stage`` with its names saying they are for the longest readout."""
+    return lambda name: stage(f"{name}, with a {READOUT_MAX_S * 1e3:.0f} ms readout")
 
 
 def _key(log: Path, config: MapConfig) -> str:
@@ -208,7 +232,8 @@ def map_logs(
     homes = [config.home_id if i == 0 and prior is None else None for i in range(len(logs))]
     methods = _several_log_methods(config) if several else list(config.methods)
     read = _read(logs, config, homes, seconds, executor=executor, address=address,
-                 progress=progress, stage=stage, cache=cache)  # fmt: skip
+                 progress=progress, stage=stage, cache=cache,
+                 readout_share=not several)  # fmt: skip
     if several:
         solved = _solve_several(read, config, methods, prior, stage, seconds)
     else:
@@ -249,12 +274,40 @@ def _solve_one(read: _Read, config: MapConfig, stage: Stage, seconds: dict[str, 
                 frames, method, extraction.mount.T_base_camera, form=Form.SIGNED,
                 robust=config.noise.robust,
             )  # fmt: skip
+            if read.at_longest_readout is not None:
+                moved = estimate_frames(
+                    read.at_longest_readout.frames, method, extraction.mount.T_base_camera,
+                    form=Form.SIGNED, robust=config.noise.robust,
+                )  # fmt: skip
+                estimate = _with_readout_share(estimate, moved)
         except EstimationError as error:
             raise EstimationError(f"{read.log}: {method.value}: {error}") from None
         seconds[method.value] = time.perf_counter() - start
         marker_map = marker_map_of(estimate, str(read.log), config, heights, extraction)
         results.append(MethodResult(method, estimate, marker_map))
     return _Solved(results, frames.home_id)
+
+
+def _with_readout_share(estimate: Estimate, moved: Estimate) -> Estimate:
+    """``estimate`` (a rolling shutter's readout taken as 0) with its markers' covariances
+    grown by the readout's share: the true readout is anywhere up to :data:`READOUT_MAX_S`,
+    where ``moved`` was solved (:func:`~markergraph.estimator.consider.with_considered`), and
+    a note saying how far the markers moved."""
+    moves = marker_moves(estimate, moved)
+    considered = with_considered(estimate, moved, AT_ONE_END)
+    if moves:
+        far = max(float(np.hypot(d[0], d[1])) for d in moves.values())
+        carried = any(m.covariance is not None for m in estimate.markers.values())
+        considered.notes.append(Note(
+            "camera.readout_share",
+            f"the rolling shutter's readout not given: the markers move by up to "
+            f"{shown(far, '.3f')} m between a readout of 0 and of {READOUT_MAX_S * 1e3:.0f} ms"
+            + (", and their covariances include it" if carried else " (no covariance to "
+               "carry it)")
+            + " (--readout MS gives the camera's, 0 a global shutter)",
+            figure=far,
+        ))  # fmt: skip
+    return considered
 
 
 def _several_log_methods(config: MapConfig) -> list[Method]:

@@ -195,7 +195,8 @@ SETTINGS: tuple[Setting, ...] = (
             flag=Flag("--camera-delay", "MS", type=float, commands=_MAP)),
     Setting("camera.readout_ms", None, optional(bounded(0.0, 200.0)),
             "rolling shutter: time to read the rows out, top to bottom [ms]; 0: a global "
-            "shutter (default: unknown, theta's sigma covers up to 33 ms in turns)",
+            "shutter (default: unknown: theta's sigma covers up to 33 ms in turns, and each "
+            "marker's covariance its move between 0 and 33 ms)",
             flag=Flag("--readout", "MS", type=float, commands=_MAP)),
     Setting("camera.shutter", "model", nonempty,
             "a rolling shutter's row delay: model (each marker at its row's time) or widen "

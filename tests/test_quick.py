@@ -69,11 +69,12 @@ def test_estimator_setting_changed_reuses_the_searches(
 ) -> None:
     """A tenfold odometry noise and another robust kernel take the delay and scale from the
     cache (no search runs; the notes say so), and the map is the one a fresh run with those
-    settings makes: markers moved, wider ellipses where odometry weighs less."""
-    first, first_report = _map(log, tmp_path / "one")
+    settings makes: markers moved, wider ellipses where odometry weighs less (a global shutter:
+    the odometry alone widens them, not an unknown readout's share)."""
+    first, first_report = _map(log, tmp_path / "one", "--readout", "0")
     monkeypatch.setattr(prepare_module, "camera_delay_by_residuals", _no_search)
     monkeypatch.setattr(prepare_module, "odometry_scale_by_residuals", _no_search)
-    flags = ("--odometry-noise", "0.12", "--robust", "cauchy")
+    flags = ("--odometry-noise", "0.12", "--robust", "cauchy", "--readout", "0")
     again, report = _map(log, tmp_path / "two", *flags)
     assert report["camera_delay_ms"] == first_report["camera_delay_ms"]
     assert report["odometry_scale"] == first_report["odometry_scale"]
@@ -91,6 +92,23 @@ def test_estimator_setting_changed_reuses_the_searches(
     assert fresh_report["odometry_scale"] == report["odometry_scale"]
     c = _positions(fresh)
     assert max(float(np.linalg.norm(b[i] - c[i])) for i in b) < SAME_MAP_M
+
+
+def test_an_unknown_readouts_searches_are_cached_too(
+    log: Path, tmp_path: Path, cached: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The readout not given, the map is also made ready as if it were 33 ms (for the
+    readout's share of the covariances): those searches too come from the cache when only an
+    estimator setting changed, and the covariances are those a fresh run makes."""
+    _map(log, tmp_path / "one")
+    monkeypatch.setattr(prepare_module, "camera_delay_by_residuals", _no_search)
+    monkeypatch.setattr(prepare_module, "odometry_scale_by_residuals", _no_search)
+    again, _ = _map(log, tmp_path / "two", "--odometry-noise", "0.12")
+    monkeypatch.undo()
+    fresh, _ = _map(log, tmp_path / "three", "--no-cache", "--odometry-noise", "0.12")
+    a, b = _position_variances(again), _position_variances(fresh)
+    assert a.keys() == b.keys() and a
+    assert max(abs(a[i] - b[i]) for i in a) < SAME_MAP_M
 
 
 def _trajectory(seed: int, n: int) -> Trajectory:

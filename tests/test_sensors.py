@@ -229,3 +229,25 @@ def test_depth_scale_is_the_steady_markers_robust_mean_ratio() -> None:
     scale, used = depth_scale_from_markers(pairs, odometry)
     assert used == np.count_nonzero(~turning)
     assert scale == pytest.approx(k, rel=5e-4)
+
+
+def test_an_unknown_readout_widens_the_map_by_how_far_it_moves(realistic_log) -> None:
+    """The D435i's readout not given: SLAM's markers carry the readout's share of their
+    covariance, and its note says how far they move between a readout of 0 and of 33 ms, which
+    a map made with 33 ms given (a separate run) confirms."""
+    log = realistic_log[1]
+    unknown = mg.map_log(log, mg.MapConfig.from_values({"method": "slam"}))
+    longest = mg.map_log(
+        log, mg.MapConfig.from_values({"method": "slam", "camera.readout_ms": 1e3 / 30})
+    )
+    (result,), (other,) = unknown.results, longest.results
+    (note,) = [n for n in result.estimate.notes if n.kind == "camera.readout_share"]
+    moves = [
+        math.dist(
+            m.T_map_marker.translation(), other.estimate.markers[i].T_map_marker.translation()
+        )
+        for i, m in result.estimate.markers.items()
+        if i in other.estimate.markers
+    ]
+    assert note.figure == pytest.approx(max(moves), abs=1e-5)  # the searches warm-start apart
+    assert not [n for n in other.estimate.notes if n.kind == "camera.readout_share"]

@@ -1,0 +1,71 @@
+"""The share of a map's uncertainty that a parameter held fixed brings (a *consider* covariance,
+after Schmidt): a sensor setting the data cannot choose, such as a rolling shutter's readout,
+moves every marker together, so its error is common to the whole map, and no residual shows it.
+
+The map is solved twice, with the parameter at either end of its plausible range: each
+marker's move between the two, ``d`` (in its tangent space), times the parameter's uncertainty
+over that range, is the covariance it adds. For a solution at one end of a uniform range the
+true value lies anywhere up to the other end, and the error's second moment is ``d d^T / 3``;
+for a solution in the middle it is ``d d^T / 12``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from markergraph.estimator.estimate import Estimate
+
+__all__ = ["AT_ONE_END", "marker_moves", "with_considered"]
+
+AT_ONE_END = 1.0 / 3.0
+"""The second moment of a uniform value's distance from one end of its range, per range^2."""
+
+
+def marker_moves(estimate: Estimate, moved: Estimate) -> dict[int, NDArray[np.float64]]:
+    """Each marker's move from ``estimate`` to ``moved`` (the same map solved with the
+    parameter elsewhere) in its own tangent space, ``Logmap(T^-1 T')`` (x, y, yaw): markers in
+    both, but the home marker (each map's origin)."""
+    return {
+        i: np.asarray(gtsam.Pose2.Logmap(m.T_map_marker.between(moved.markers[i].T_map_marker)))
+        for i, m in estimate.markers.items()
+        if i in moved.markers and i != estimate.home_id
+    }
+
+
+def with_considered(estimate: Estimate, moved: Estimate, fraction: float) -> Estimate:
+    """``estimate`` with each marker's covariance grown by ``fraction * d d^T``, ``d`` its move
+    to ``moved`` (:func:`marker_moves`); its relative covariance (the map's common rigid motion
+    removed: :mod:`~markergraph.estimator.gauge`) by the moves less the rigid motion that best
+    explains them. Markers without a covariance, or not in ``moved``, are left as they are."""
+    moves = marker_moves(estimate, moved)
+    relative = _less_rigid_motion(estimate, moves)
+    markers = dict(estimate.markers)
+    for i, d in moves.items():
+        marker = markers[i]
+        if marker.covariance is None:
+            continue
+        grown = marker.covariance + fraction * np.outer(d, d)
+        relative_grown = marker.relative_covariance
+        if relative_grown is not None:
+            relative_grown = relative_grown + fraction * np.outer(relative[i], relative[i])
+        markers[i] = replace(marker, covariance=grown, relative_covariance=relative_grown)
+    return replace(estimate, markers=markers)
+
+
+def _less_rigid_motion(
+    estimate: Estimate, moves: dict[int, NDArray[np.float64]]
+) -> dict[int, NDArray[np.float64]]:
+    """The moves with the map's rigid motion that best explains them taken out, ``P d`` with
+    the projection of :func:`~markergraph.estimator.gauge.relative_covariances` (a rigid motion
+    of the map moves marker i's tangent space by ``Ad(T_i^-1)``)."""
+    ids = sorted(moves)
+    if len(ids) < 2:
+        return {i: np.zeros(3) for i in ids}
+    G = np.stack([estimate.markers[i].T_map_marker.inverse().AdjointMap() for i in ids])
+    d = np.stack([moves[i] for i in ids])
+    rigid = np.linalg.solve(np.einsum("nji,njk->ik", G, G), np.einsum("nji,nj->i", G, d))
+    return dict(zip(ids, d - G @ rigid, strict=True))
