@@ -140,9 +140,9 @@ def _read(
             extraction = replace(extraction, notes=[_cache_note(entry), *kept])
         prepared = prepare(log, extraction, config, stage, home, entry.searches)
         at_longest = None
-        if longest is not None:
-            at_longest = prepare(log, extraction, longest, _for_longest_readout(stage), home,
-                                 entry.searches)  # fmt: skip
+        if longest is not None:  # on the same home marker: the same frame for both maps
+            at_longest = prepare(log, extraction, longest, _for_longest_readout(stage),
+                                 prepared.frames.home_id, entry.searches)  # fmt: skip
         if entry.key and (not entry.hit or entry.searches != before):
             store_entry(entry)
         read.append(_Read(Path(log), extraction, prepared, at_longest))
@@ -296,7 +296,13 @@ def _with_readout_share(estimate: Estimate, moved: Estimate) -> Estimate:
     moves = marker_moves(estimate, moved)
     considered = with_considered(estimate, moved, AT_ONE_END)
     if moves:
-        far = max(float(np.hypot(d[0], d[1])) for d in moves.values())
+        far = max(
+            float(np.linalg.norm(
+                moved.markers[i].T_map_marker.translation()
+                - estimate.markers[i].T_map_marker.translation()
+            ))
+            for i in moves
+        )  # fmt: skip
         carried = any(m.covariance is not None for m in estimate.markers.values())
         considered.notes.append(Note(
             "camera.readout_share",

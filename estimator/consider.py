@@ -28,7 +28,16 @@ AT_ONE_END = 1.0 / 3.0
 def marker_moves(estimate: Estimate, moved: Estimate) -> dict[int, NDArray[np.float64]]:
     """Each marker's move from ``estimate`` to ``moved`` (the same map solved with the
     parameter elsewhere) in its own tangent space, ``Logmap(T^-1 T')`` (x, y, yaw): markers in
-    both, but the home marker (each map's origin)."""
+    both, but the home marker (each map's origin).
+
+    Raises:
+        ValueError: the two maps are on different home markers (in different frames, their
+            moves would be the change of frame).
+    """
+    if estimate.home_id != moved.home_id:
+        raise ValueError(
+            f"maps on home markers {estimate.home_id} and {moved.home_id}: not one frame"
+        )
     return {
         i: np.asarray(gtsam.Pose2.Logmap(m.T_map_marker.between(moved.markers[i].T_map_marker)))
         for i, m in estimate.markers.items()

@@ -56,6 +56,14 @@ def test_each_marker_grows_by_its_own_move_in_its_tangent_space() -> None:
     np.testing.assert_array_equal(base.markers[3].covariance, 1e-4 * np.eye(3))
 
 
+def test_maps_on_different_home_markers_are_refused() -> None:
+    """Two maps in different frames (another home marker) have no moves to compare."""
+    other = estimate_at(POSES)
+    other.home_id = 3
+    with pytest.raises(ValueError, match="home markers 0 and 3"):
+        with_considered(estimate_at(POSES), other, AT_ONE_END)
+
+
 def test_a_rigid_motion_of_the_whole_map_leaves_the_relative_covariance() -> None:
     """The map turned and shifted as a whole (the home marker too is only a marker here):
     each covariance grows by its move, the relative covariances (the map's own shape) not at
@@ -64,6 +72,7 @@ def test_a_rigid_motion_of_the_whole_map_leaves_the_relative_covariance() -> Non
     base = estimate_at(POSES)
     base.home_id = -1  # no marker pinned: every one moves with the map
     rigid = estimate_at({i: motion.compose(T) for i, T in POSES.items()})
+    rigid.home_id = -1
     grown = with_considered(base, rigid, 1.0)
     for i in (3, 5):
         move = marker_moves(base, rigid)[i]
