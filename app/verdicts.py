@@ -53,6 +53,7 @@ from markergraph.estimator.odometry_scale import SCALES
 from markergraph.estimator.tags3d import TagMap3d
 from markergraph.estimator.timing import DELAYS_S
 from markergraph.frontend import Extraction
+from markergraph.frontend.dictionary_check import markers_beyond
 
 __all__ = ["Judgement", "Reason", "Verdict", "judge_run", "judge_tag_map", "worst"]
 
@@ -355,6 +356,14 @@ def _input_reasons(
         for check, part, whole, line, what, consequence in shares
         if whole and part / whole > line
     ]  # fmt: skip
+    beyond = markers_beyond(extraction.ids_beyond_dictionary)
+    if beyond:
+        reasons.append(_suspect(
+            "dictionary", float(len(beyond)),
+            f"the images show {len(beyond)} marker(s) of a larger dictionary of the same family "
+            f"(ids {', '.join(map(str, beyond[:8]))}{' ...' if len(beyond) > 8 else ''}), which "
+            "the map leaves out: the dictionary given may be too small (see its note)",
+        ))  # fmt: skip
     if delay_searched:
         delay_s = camera_delay_ns * 1e-9
         if (

@@ -112,6 +112,11 @@ class Extraction:
     """Depth images skipped (undecodable, empty, or not the colour's size)."""
     ids_left_out: Counter[int] = field(metadata=_SUM, default_factory=Counter)
     """Detections dropped by the allowed ids, by marker id."""
+    ids_beyond_dictionary: Counter[int] = field(metadata=_SUM, default_factory=Counter)
+    """Ids beyond the dictionary's that its larger family found, by the number of checked
+    frames each was in (:mod:`~markergraph.frontend.dictionary_check`)."""
+    dictionary_checks: int = field(metadata=_SUM, default=0)
+    """Colour frames searched for a larger dictionary's markers."""
     depth_misses: int = field(metadata=_SUM, default=0)
     """Observations in frames with depth whose marker held no valid depth pixel (0, NaN,
     negative or beyond the depth model's range), of ``depth_tries``."""

@@ -25,6 +25,7 @@ from markergraph.frontend.camera import CameraMount
 from markergraph.frontend.cleaning import clean_path, drop_frames_by_stamp
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.depth_scale import correct_depth_scale
+from markergraph.frontend.dictionary_check import beyond_note
 from markergraph.frontend.extraction import Extraction, Part, merge_parts
 from markergraph.frontend.inputs import CameraJudgement, judge_camera_info
 from markergraph.frontend.logs import DecodeFailures, Log, LogError, open_log
@@ -196,6 +197,9 @@ def _extract_once(
     _clean(part, choice)
     correct_depth_scale(result, config.depth_scale, choice.depth)
     _tally(result, choice)
+    note = beyond_note(config.dictionary, result.ids_beyond_dictionary, result.dictionary_checks)
+    if note is not None:
+        result.notes.append(note)
     return result
 
 

@@ -30,6 +30,7 @@ from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_image
 from markergraph.frontend.detect import Detection
 from markergraph.frontend.detectors import MarkerDetector
+from markergraph.frontend.dictionary_check import BeyondDictionary
 from markergraph.frontend.logs import LogError, Message
 from markergraph.frontend.observe import ObservationModel, observe_detections
 from markergraph.frontend.posed import LevelledCamera, LevelledFrame, observe_levelled_frame
@@ -45,6 +46,10 @@ class Seen:
     """The grey image's shape, or why it does not decode."""
     detections: list[Detection]
     """The markers found, sorted by id (none where the image does not decode)."""
+    beyond: tuple[int, ...] | None = None
+    """Where the frame was checked for a larger dictionary's markers, the ids it showed beyond
+    the given dictionary's (:class:`~.dictionary_check.BeyondDictionary`); None: not checked
+    (or the dictionary has no larger family)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,9 +103,10 @@ class SeeingPool:
         self._lock = threading.Lock()
         self._executor = ThreadPoolExecutor(max(1, threads), thread_name_prefix="markergraph-see")
 
-    def submit(self, message: Message) -> Future[Seen]:
-        """The frame of ``message`` decoded and detected, in a thread of the pool."""
-        return self._executor.submit(self._see, message)
+    def submit(self, message: Message, check_dictionary: bool = False) -> Future[Seen]:
+        """The frame of ``message`` decoded and detected, in a thread of the pool; also searched
+        for a larger dictionary's markers if ``check_dictionary``."""
+        return self._executor.submit(self._see, message, check_dictionary)
 
     def observe(self, frame: ToObserve) -> Future[Observed]:
         """A seen frame observed, in a thread of the pool. Its seeing was submitted first, so
@@ -113,12 +119,13 @@ class SeeingPool:
         with self._lock:
             return sum((Counter(d.left_out) for d in self._detectors), Counter())
 
-    def _see(self, message: Message) -> Seen:
+    def _see(self, message: Message, check_dictionary: bool) -> Seen:
         try:
             image: NDArray[np.uint8] = decode_image(message, self.camera_size)
         except LogError as error:
             return Seen(error, [])
-        return Seen(image.shape, self._detector().detect(image))
+        beyond = self._beyond().ids(image) if check_dictionary else None
+        return Seen(image.shape, self._detector().detect(image), beyond)
 
     def _detector(self) -> MarkerDetector:
         """This thread's detector, made on its first frame."""
@@ -129,6 +136,13 @@ class SeeingPool:
             with self._lock:
                 self._detectors.append(detector)
         return detector
+
+    def _beyond(self) -> BeyondDictionary:
+        """This thread's search for a larger dictionary's markers, made on first use."""
+        beyond: BeyondDictionary | None = getattr(self._local, "beyond", None)
+        if beyond is None:
+            beyond = self._local.beyond = BeyondDictionary(self.config.dictionary)
+        return beyond
 
     def __enter__(self) -> SeeingPool:
         return self

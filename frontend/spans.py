@@ -33,6 +33,7 @@ from markergraph.frontend.decode import (
 )
 from markergraph.frontend.detect import DetectorMode
 from markergraph.frontend.detectors import DetectorChoice, MarkerDetector
+from markergraph.frontend.dictionary_check import CHECK_EVERY
 from markergraph.frontend.extraction import Extraction, Part
 from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message, read_ahead
 from markergraph.frontend.observe import Flags
@@ -206,7 +207,8 @@ class SpanReader:
                     done += 1
                     if progress is not None and done % 10 == 0:
                         progress(done, total)
-                    self._take_frame(ColourFrame(message, pool.submit(message)))
+                    check = done % CHECK_EVERY == 1  # the first frame, then one in CHECK_EVERY
+                    self._take_frame(ColourFrame(message, pool.submit(message, check)))
                 else:
                     self._take(message, span.holds(message.log_time_ns))
             self._drain(0, flush=True)
@@ -368,6 +370,10 @@ class SpanReader:
         result, choice, depth = self.part.extraction, self.choice, paired.depth
         key = (paired.t_ns, paired.frame.message.log_time_ns)
         observed = paired.observed.result()
+        beyond = paired.frame.seen.result().beyond  # seen before it was observed
+        if beyond is not None:
+            result.dictionary_checks += 1
+            result.ids_beyond_dictionary.update(beyond)
         shape, observations = observed.shape, observed.observations
         if isinstance(shape, LogError):
             result.undecodable_frames += 1

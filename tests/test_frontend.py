@@ -514,7 +514,10 @@ def to_foxglove(source: Path, target: Path) -> None:
             m = message.decoded
             if message.topic.endswith("compressed"):
                 out = CompressedImage(
-                    timestamp=timestamp(m), frame_id=m.header.frame_id, data=m.data, format="jpeg"
+                    timestamp=timestamp(m),
+                    frame_id=m.header.frame_id,
+                    data=bytes(m.data),
+                    format="jpeg",
                 )
                 topic = "/front/image"
             elif message.topic.endswith("camera_info"):
@@ -538,7 +541,7 @@ def to_foxglove(source: Path, target: Path) -> None:
                     **_image_header(m, timestamp(m)),
                     encoding=m.encoding,
                     step=m.step,
-                    data=m.data,
+                    data=bytes(m.data),
                 )
                 topic = "/front/depth"
             writer.write_message(topic, out, log_time=message.log_time_ns)

@@ -3,7 +3,8 @@
 mcap-ros2-support decodes any message from its schema, in Python, field by field: about 0.25 ms
 for an odometry message, as long as detecting markers in a 640x480 frame when a log has a
 hundred of them per frame. These readers know their layouts and produce objects with the same
-attribute names (``header.stamp.sec``, ``data``, ...); every other type still goes through
+attribute names (``header.stamp.sec``, ``data``, ...), but an image's ``data`` is a read-only
+``memoryview`` into its chunk, not ``bytes``; every other type still goes through
 mcap-ros2-support.
 """
 
