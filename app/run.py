@@ -232,8 +232,7 @@ def map_logs(
     homes = [config.home_id if i == 0 and prior is None else None for i in range(len(logs))]
     methods = _several_log_methods(config) if several else list(config.methods)
     read = _read(logs, config, homes, seconds, executor=executor, address=address,
-                 progress=progress, stage=stage, cache=cache,
-                 readout_share=not several)  # fmt: skip
+                 progress=progress, stage=stage, cache=cache, readout_share=True)  # fmt: skip
     if several:
         solved = _solve_several(read, config, methods, prior, stage, seconds)
     else:
@@ -356,14 +355,20 @@ def _solve_several(
     heights = marker_heights([o for r in read for o in r.prepared.observations])
     logs = [r.log for r in read]
     results, first_solved = [], None
+    longest = [r.at_longest_readout for r in read]
     for method in methods:
         stage(f"estimating: {method.value} over every log")
         start = time.perf_counter()
         solved = solve_sessions(frames, mounts, robust=config.noise.robust, priors=priors,
                                 home_id=config.home_id, method=method)  # fmt: skip
-        seconds[method.value] = time.perf_counter() - start
         first_solved = first_solved or solved
         estimate = as_estimate(solved, method, home_id)
+        if all(p is not None for p in longest):
+            moved = solve_sessions([p.frames for p in longest if p is not None], mounts,
+                                   robust=config.noise.robust, priors=priors,
+                                   home_id=config.home_id, method=method)  # fmt: skip
+            estimate = _with_readout_share(estimate, as_estimate(moved, method, home_id))
+        seconds[method.value] = time.perf_counter() - start
         estimate.notes = notes + estimate.notes
         marker_map = marker_map_of(estimate, ", ".join(map(str, logs)), config, heights)
         results.append(MethodResult(method, estimate, marker_map))

@@ -153,6 +153,9 @@ def test_the_command_line_maps_two_logs_and_localises_a_third(room_logs, tmp_pat
     alone = json.loads((tmp_path / "one" / "report.json").read_text())["methods"]["slam"]
     merged = report["methods"]["slam"]
     assert merged["marker_rmse_m"] <= alone["marker_rmse_m"] + 0.002
+    # The readout not given, both maps carry its share (solved as if it were 33 ms too).
+    for method in (alone, merged):
+        assert [n for n in method["notes"] if "readout not given: the markers move" in n]
     located = run_cli("localize", str(room_logs[2]), "--map", str(tmp_path / "both" / "map.json"),
                       "--out", str(tmp_path / "loc"))  # fmt: skip
     assert located.returncode == 0, located.stderr
