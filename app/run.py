@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from markergraph.common import EstimationError, Note, SettingsError
+from markergraph.common import EstimationError, MarkerGraphError, Note, SettingsError
 from markergraph.common.numbers import shown
 from markergraph.estimator import (
     READOUT_MAX_S,
@@ -141,8 +141,11 @@ def _read(
         prepared = prepare(log, extraction, config, stage, home, entry.searches)
         at_longest = None
         if longest is not None:  # on the same home marker: the same frame for both maps
-            at_longest = prepare(log, extraction, longest, _for_longest_readout(stage),
-                                 prepared.frames.home_id, entry.searches)  # fmt: skip
+            try:
+                at_longest = prepare(log, extraction, longest, _for_longest_readout(stage),
+                                     prepared.frames.home_id, entry.searches)  # fmt: skip
+            except MarkerGraphError as error:  # the map stands; its covariances say less
+                prepared = replace(prepared, notes=(*prepared.notes, _no_share(error)))
         if entry.key and (not entry.hit or entry.searches != before):
             store_entry(entry)
         read.append(_Read(Path(log), extraction, prepared, at_longest))
@@ -273,18 +276,31 @@ def _solve_one(read: _Read, config: MapConfig, stage: Stage, seconds: dict[str, 
                 frames, method, extraction.mount.T_base_camera, form=Form.SIGNED,
                 robust=config.noise.robust,
             )  # fmt: skip
-            if read.at_longest_readout is not None:
+        except EstimationError as error:
+            raise EstimationError(f"{read.log}: {method.value}: {error}") from None
+        if read.at_longest_readout is not None:
+            try:
                 moved = estimate_frames(
                     read.at_longest_readout.frames, method, extraction.mount.T_base_camera,
                     form=Form.SIGNED, robust=config.noise.robust,
                 )  # fmt: skip
                 estimate = _with_readout_share(estimate, moved)
-        except EstimationError as error:
-            raise EstimationError(f"{read.log}: {method.value}: {error}") from None
+            except (EstimationError, ValueError) as error:
+                estimate.notes.append(_no_share(error))
         seconds[method.value] = time.perf_counter() - start
         marker_map = marker_map_of(estimate, str(read.log), config, heights, extraction)
         results.append(MethodResult(method, estimate, marker_map))
     return _Solved(results, frames.home_id)
+
+
+def _no_share(error: Exception) -> Note:
+    """Why the map's covariances lack an unknown readout's share."""
+    return Note(
+        "camera.readout_share_unknown",
+        f"the rolling shutter's readout not given, and the map could not be made as if it were "
+        f"{READOUT_MAX_S * 1e3:.0f} ms ({error}): its covariances lack the readout's share "
+        "(--readout MS gives the camera's, 0 a global shutter)",
+    )
 
 
 def _with_readout_share(estimate: Estimate, moved: Estimate) -> Estimate:
@@ -364,10 +380,13 @@ def _solve_several(
         first_solved = first_solved or solved
         estimate = as_estimate(solved, method, home_id)
         if all(p is not None for p in longest):
-            moved = solve_sessions([p.frames for p in longest if p is not None], mounts,
-                                   robust=config.noise.robust, priors=priors,
-                                   home_id=config.home_id, method=method)  # fmt: skip
-            estimate = _with_readout_share(estimate, as_estimate(moved, method, home_id))
+            try:
+                moved = solve_sessions([p.frames for p in longest if p is not None], mounts,
+                                       robust=config.noise.robust, priors=priors,
+                                       home_id=config.home_id, method=method)  # fmt: skip
+                estimate = _with_readout_share(estimate, as_estimate(moved, method, home_id))
+            except (EstimationError, ValueError) as error:
+                estimate.notes.append(_no_share(error))
         seconds[method.value] = time.perf_counter() - start
         estimate.notes = notes + estimate.notes
         marker_map = marker_map_of(estimate, ", ".join(map(str, logs)), config, heights)

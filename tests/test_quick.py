@@ -17,11 +17,14 @@ from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
 import markergraph.prepare as prepare_module
+import markergraph.run as run_module
 from markergraph.cli import main
+from markergraph.common import MarkerGraphError
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.formats.cdr import CdrWriter, layout, string_fields
 from markergraph.markermap import MapMarker, MarkerMap
 from markergraph.overlay import PATH_TOPIC, POSE_TOPIC, TF_TOPIC, write_overlay
+from markergraph.settings import MapConfig
 
 SAME_MAP_M = 1e-9  # the same inputs through the same optimiser: the same numbers
 MOVED_M = 1e-4  # a tenfold odometry noise moves some marker by more than this
@@ -109,6 +112,26 @@ def test_an_unknown_readouts_searches_are_cached_too(
     a, b = _position_variances(again), _position_variances(fresh)
     assert a.keys() == b.keys() and a
     assert max(abs(a[i] - b[i]) for i in a) < SAME_MAP_M
+
+
+def test_a_readout_map_that_cannot_be_made_costs_only_its_share(
+    log: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Where the map cannot be made ready as if the readout were 33 ms, the map is still made,
+    its covariances those of the map with the readout taken as 0, and a note says what they
+    lack."""
+    real = run_module.prepare
+
+    def failing(log: Path, extraction: object, config: MapConfig, *args: object) -> object:
+        if config.camera.readout_ns is not None:
+            raise MarkerGraphError("no odometry at the moved stamps")
+        return real(log, extraction, config, *args)
+
+    monkeypatch.setattr(run_module, "prepare", failing)
+    _, report = _map(log, tmp_path / "lacking", "--no-cache")
+    notes = report["methods"]["slam"]["notes"] + report["notes"]
+    assert [n for n in notes if "could not be made as if it were 33 ms" in n], notes
+    assert not [n for n in notes if "readout not given: the markers move" in n]
 
 
 def _trajectory(seed: int, n: int) -> Trajectory:
