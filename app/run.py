@@ -28,7 +28,7 @@ from markergraph.estimator import (
     marker_heights,
     odometry_in_map,
 )
-from markergraph.estimator.consider import AT_ONE_END, marker_moves, with_considered
+from markergraph.estimator.consider import AT_ONE_END, with_considered
 from markergraph.estimator.localization import localize
 from markergraph.estimator.sessions import solve_sessions
 from markergraph.executors import extract_logs
@@ -308,15 +308,15 @@ def _with_readout_share(estimate: Estimate, moved: Estimate) -> Estimate:
     grown by the readout's share: the true readout is anywhere up to :data:`READOUT_MAX_S`,
     where ``moved`` was solved (:func:`~markergraph.estimator.consider.with_considered`), and
     a note saying how far the markers moved."""
-    moves = marker_moves(estimate, moved)
     considered = with_considered(estimate, moved, AT_ONE_END)
-    if moves:
+    both = set(estimate.markers) & set(moved.markers)
+    if both:
         far = max(
             float(np.linalg.norm(
                 moved.markers[i].T_map_marker.translation()
                 - estimate.markers[i].T_map_marker.translation()
             ))
-            for i in moves
+            for i in both
         )  # fmt: skip
         carried = any(m.covariance is not None for m in estimate.markers.values())
         considered.notes.append(Note(

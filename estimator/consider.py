@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.estimator.estimate import Estimate
+from markergraph.estimator.gauge import rigid_motion_maps
 
 __all__ = ["AT_ONE_END", "marker_moves", "with_considered"]
 
@@ -68,13 +69,11 @@ def with_considered(estimate: Estimate, moved: Estimate, fraction: float) -> Est
 def _less_rigid_motion(
     estimate: Estimate, moves: dict[int, NDArray[np.float64]]
 ) -> dict[int, NDArray[np.float64]]:
-    """The moves with the map's rigid motion that best explains them taken out, ``P d`` with
-    the projection of :func:`~markergraph.estimator.gauge.relative_covariances` (a rigid motion
-    of the map moves marker i's tangent space by ``Ad(T_i^-1)``)."""
+    """The moves with the map's rigid motion that best explains them taken out (the projection
+    :func:`~markergraph.estimator.gauge.relative_covariances` applies to a covariance)."""
     ids = sorted(moves)
     if len(ids) < 2:
         return {i: np.zeros(3) for i in ids}
-    G = np.stack([estimate.markers[i].T_map_marker.inverse().AdjointMap() for i in ids])
+    G, M = rigid_motion_maps([estimate.markers[i].T_map_marker for i in ids])
     d = np.stack([moves[i] for i in ids])
-    rigid = np.linalg.solve(np.einsum("nji,njk->ik", G, G), np.einsum("nji,nj->i", G, d))
-    return dict(zip(ids, d - G @ rigid, strict=True))
+    return dict(zip(ids, d - G @ np.einsum("iab,ib->a", M, d), strict=True))

@@ -18,7 +18,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["relative_covariances", "relative_covariances_of_groups"]
+__all__ = ["relative_covariances", "relative_covariances_of_groups", "rigid_motion_maps"]
 
 
 def relative_covariances(
@@ -49,9 +49,7 @@ def relative_covariances_of_groups(
     n = len(poses)
     if n < 2:
         return [groups[0][1][:3, :3]] if n else []
-    G = np.stack([T.inverse().AdjointMap() for T in poses])  # (n, 3, 3)
-    M = np.linalg.solve(np.einsum("nji,njk->ik", G, G), G.reshape(n * 3, 3).T)  # (G^T G)^-1 G^T
-    M = M.reshape(3, n, 3).transpose(1, 0, 2)  # M[i] = (G^T G)^-1 G_i^T
+    G, M = rigid_motion_maps(poses)
     B = np.zeros((n, 3, 3))
     S_ii = np.zeros((n, 3, 3))
     for indices, joint in groups:
@@ -62,6 +60,19 @@ def relative_covariances_of_groups(
     C = np.einsum("iab,icb->ac", B, M)
     relative = S_ii - G @ B - (G @ B).transpose(0, 2, 1) + G @ C @ G.transpose(0, 2, 1)
     return [_positive(block) for block in relative]
+
+
+def rigid_motion_maps(
+    poses: Sequence[gtsam.Pose2],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """How a rigid motion of the map moves each marker's tangent space, ``G_i = Ad(T_i^-1)``,
+    and the blocks of its least-squares inverse, ``M_i = (G^T G)^-1 G_i^T``: both (n, 3, 3),
+    ``sum_i M_i d_i`` the rigid motion that best explains moves ``d_i`` of the markers. Needs
+    two markers or more."""
+    n = len(poses)
+    G = np.stack([T.inverse().AdjointMap() for T in poses])
+    M = np.linalg.solve(np.einsum("nji,njk->ik", G, G), G.reshape(n * 3, 3).T)
+    return G, M.reshape(3, n, 3).transpose(1, 0, 2)
 
 
 def _positive(covariance: NDArray[np.float64]) -> NDArray[np.float64]:
