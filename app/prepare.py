@@ -59,6 +59,10 @@ class Prepared:
         odometry_scale: what the odometry's distances were multiplied by.
         notes: what this stage noticed and chose.
         misreads: the observations left out as misread ids.
+        misread_at: their places in the extraction's observations.
+        odometry_scale_sigma: the scale's standard deviation where SLAM's residuals chose it.
+        frames_scale_sigma_longer: the estimators' input with the odometry scaled one
+            ``odometry_scale_sigma`` more, for the scale's share of the covariances.
     """
 
     observations: list[Observation]
@@ -69,6 +73,9 @@ class Prepared:
     odometry_scale: float
     notes: tuple[Note, ...]
     misreads: tuple[Misread, ...] = ()
+    misread_at: frozenset[int] = frozenset()
+    odometry_scale_sigma: float | None = None
+    frames_scale_sigma_longer: Frames | None = None
 
 
 def prepare(
@@ -78,6 +85,7 @@ def prepare(
     stage: Callable[[str], None] = lambda name: None,
     home_id: int | None = None,
     searches: dict[str, Any] | None = None,
+    misreads_of: Prepared | None = None,
 ) -> Prepared:
     """One log's extraction made ready for the estimators: checked, odometry jumps released,
     its noise model chosen, the camera's delay and the odometry's scale applied (each chosen by
@@ -87,6 +95,9 @@ def prepare(
         searches: the delay and scale searches already run on this extraction, by the settings
             they depend on (:func:`~markergraph.obs_cache.search_key`); searches run here are
             added to it.
+        misreads_of: an earlier preparation of the same extraction whose misread observations
+            are left out here too, without searching again: two preparations that differ in a
+            sensor setting then differ in nothing else.
 
     Raises:
         MarkerGraphError: no marker observations, or no odometry.
@@ -109,12 +120,12 @@ def prepare(
     observations, delay_ns, near = _timed(
         extraction, config, ODOMETRY_NOISE[source], breaks, home_id, notes, searches, delay_key
     )
-    scale = _odometry_scale(
+    scale, scale_sigma = _odometry_scale(
         extraction, config, observations, ODOMETRY_NOISE[source], breaks, home_id, stage, notes,
-        searches, search_key("scale", *basis, delay_ns), near,
+        searches, search_key("scale and sigma", *basis, delay_ns), near,
     )  # fmt: skip
 
-    def framed(observations: list[Observation]) -> Frames:
+    def framed(observations: list[Observation], scale: float = scale) -> Frames:
         return build_frames(
             observations,
             extraction.odometry.scaled(scale),
@@ -123,22 +134,38 @@ def prepare(
             odometry_breaks=breaks,
         )
 
-    frames = framed(observations)
-    misread_key = search_key("misreads", *basis, delay_ns, scale)
-    if misread_key not in searches:
-        stage("looking for misread marker ids")
-        found = misread_observations(frames, extraction.mount.T_base_camera, SEARCH_ROBUST)
-        searches[misread_key] = [(m.t_ns, m.read_as, m.stands_on, m.kind) for m in found]
-    misreads = [Misread(*m) for m in searches[misread_key]]
+    if misreads_of is not None:
+        misreads, misread_at = misreads_of.misreads, misreads_of.misread_at
+    else:
+        key = search_key("misreads", *basis, delay_ns, scale)
+        if key not in searches:
+            stage("looking for misread marker ids")
+            found = misread_observations(
+                framed(observations), extraction.mount.T_base_camera, SEARCH_ROBUST
+            )
+            searches[key] = [(m.t_ns, m.read_as, m.stands_on, m.kind) for m in found]
+        misreads, misread_at = _misreads_in(observations, searches[key])
     if misreads:
-        left_out = {(m.t_ns, m.read_as) for m in misreads}
-        observations = [o for o in observations if (o.t_ns, o.marker_id) not in left_out]
-        frames = framed(observations)
+        observations = [o for i, o in enumerate(observations) if i not in misread_at]
         notes.append(Note("observations.misread_ids", describe_misreads(misreads),
                           figure=len(misreads)))  # fmt: skip
+    frames = framed(observations)
+    longer = None if scale_sigma is None else framed(observations, scale + scale_sigma)
     return Prepared(
-        observations, frames, delay_ns, source, why, scale, tuple(notes), tuple(misreads)
-    )
+        observations, frames, delay_ns, source, why, scale, tuple(notes), misreads, misread_at,
+        scale_sigma, longer,
+    )  # fmt: skip
+
+
+def _misreads_in(
+    observations: list[Observation], found: list[tuple[Any, ...]]
+) -> tuple[tuple[Misread, ...], frozenset[int]]:
+    """The misreads a search found (as the cache keeps them), and their places in
+    ``observations``."""
+    misreads = tuple(Misread(*m) for m in found)
+    left_out = {(m.t_ns, m.read_as) for m in misreads}
+    at = frozenset(i for i, o in enumerate(observations) if (o.t_ns, o.marker_id) in left_out)
+    return misreads, at
 
 
 def _check_usable(log: Path, extraction: Extraction, config: MapConfig) -> None:
@@ -311,21 +338,23 @@ def _odometry_scale(
     searches: dict[str, Any],
     key: str,
     near: gtsam.Values | None,
-) -> float:
+) -> tuple[float, float | None]:
     """The factor the odometry's distances are multiplied by: as set, or chosen by SLAM's
     residuals (1 where they have no minimum; the search starts from ``near``, the delay
-    search's solution on the same frames), and said in the notes."""
+    search's solution on the same frames), and said in the notes; and its standard deviation
+    where it was chosen (None otherwise)."""
     configured = config.odometry.scale
     if configured is not None:
-        return float(configured)
+        return float(configured), None
     cached = _CACHED if key in searches else ""
     if not cached:
         stage("choosing the odometry's scale by SLAM's residuals")
-        searches[key] = odometry_scale_by_residuals(
+        found = odometry_scale_by_residuals(
             SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
                        noise, breaks, SEARCH_ROBUST), near,
-        ).chosen  # fmt: skip
-    chosen: float | None = searches[key]
+        )  # fmt: skip
+        searches[key] = (found.chosen, found.sigma)
+    chosen, sigma = searches[key]
     topic = extraction.topics.odom
     if chosen is None:
         notes.append(Note(
@@ -334,7 +363,7 @@ def _odometry_scale(
             f"0.95 and 1.05{cached} (--odometry-scale sets one)",
             topic=topic,
         ))  # fmt: skip
-        return 1.0
+        return 1.0, None
     off = 100 * (1 / chosen - 1)
     notes.append(Note(
         "odometry.scale_chosen",
@@ -343,4 +372,4 @@ def _odometry_scale(
         f"0.95..1.05{cached}; --odometry-scale sets it)",
         topic=topic, figure=chosen,
     ))  # fmt: skip
-    return chosen
+    return chosen, sigma

@@ -82,6 +82,7 @@ _LOG_ROWS: tuple[tuple[str, str], ...] = (
     ("odometry_samples", "odometry samples"),
     ("odometry_source", "odometry noise model"),
     ("odometry_scale", "odometry scale applied"),
+    ("odometry_scale_sigma", "odometry scale's sigma (SLAM's residuals)"),
     ("camera_delay_ms", "camera delay against odometry [ms]"),
     ("depth_scale", "depth scale applied"),
     ("measured_depth_scale", "depth scale measured"),

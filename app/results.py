@@ -78,6 +78,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         "camera_delay_ms": run.camera_delay_ns / 1e6,
         "odometry_source": run.odometry_source,
         "odometry_scale": run.odometry_scale,
+        "odometry_scale_sigma": run.odometry_scale_sigma,
         "levelled_frames": extraction.levelled_frames,
         "marker_detections": {
             str(i): {

@@ -14,21 +14,18 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import numpy as np
-
 from markergraph.common import EstimationError, MarkerGraphError, Note, SettingsError
-from markergraph.common.numbers import shown
 from markergraph.estimator import (
     READOUT_MAX_S,
     Estimate,
     Form,
+    Frames,
     Method,
     corrected_odometry,
     estimate_frames,
     marker_heights,
     odometry_in_map,
 )
-from markergraph.estimator.consider import AT_ONE_END, with_considered
 from markergraph.estimator.localization import localize
 from markergraph.estimator.sessions import solve_sessions
 from markergraph.executors import extract_logs
@@ -49,6 +46,12 @@ from markergraph.records import LocalizationRun, MapRun, MethodResult, Session, 
 from markergraph.scoring import path_error, score, truth_in_home_frame
 from markergraph.sessions import SESSION_METHODS, as_estimate, priors_of, separate_maps
 from markergraph.settings import MapConfig
+from markergraph.shares import (
+    no_readout_share,
+    no_scale_share,
+    with_readout_share,
+    with_scale_share,
+)
 from markergraph.verdicts import judge_run
 
 __all__ = ["judge", "localize_log", "map_log", "map_logs"]
@@ -143,9 +146,10 @@ def _read(
         if longest is not None:  # on the same home marker: the same frame for both maps
             try:
                 at_longest = prepare(log, extraction, longest, _for_longest_readout(stage),
-                                     prepared.frames.home_id, entry.searches)  # fmt: skip
+                                     prepared.frames.home_id, entry.searches,
+                                     misreads_of=prepared)  # fmt: skip
             except MarkerGraphError as error:  # the map stands; its covariances say less
-                prepared = replace(prepared, notes=(*prepared.notes, _no_share(error)))
+                prepared = replace(prepared, notes=(*prepared.notes, no_readout_share(error)))
         if entry.key and (not entry.hit or entry.searches != before):
             store_entry(entry)
         read.append(_Read(Path(log), extraction, prepared, at_longest))
@@ -253,7 +257,8 @@ def map_logs(
         first.log, config, first.extraction, prepared.frames, solved.results, truth, true_path,
         camera_delay_ns=prepared.camera_delay_ns, odometry_source=prepared.odometry_source,
         odometry_model_reason=prepared.odometry_model_reason,
-        odometry_scale=prepared.odometry_scale, notes=first.notes, seconds=seconds,
+        odometry_scale=prepared.odometry_scale,
+        odometry_scale_sigma=prepared.odometry_scale_sigma, notes=first.notes, seconds=seconds,
         sessions=solved.sessions, separate=solved.separate,
         misread_markers=frozenset(
             {m.read_as for r in read for m in r.prepared.misreads}
@@ -284,51 +289,45 @@ def _solve_one(read: _Read, config: MapConfig, stage: Stage, seconds: dict[str, 
                     read.at_longest_readout.frames, method, extraction.mount.T_base_camera,
                     form=Form.SIGNED, robust=config.noise.robust,
                 )  # fmt: skip
-                estimate = _with_readout_share(estimate, moved)
+                estimate = with_readout_share(estimate, moved)
             except (EstimationError, ValueError) as error:
-                estimate.notes.append(_no_share(error))
+                estimate.notes.append(no_readout_share(error))
+        prepared = read.prepared
+        if prepared.frames_scale_sigma_longer is not None:
+            assert prepared.odometry_scale_sigma is not None  # set together
+            try:
+                moved = estimate_frames(
+                    prepared.frames_scale_sigma_longer, method, extraction.mount.T_base_camera,
+                    form=Form.SIGNED, robust=config.noise.robust,
+                )  # fmt: skip
+                estimate = with_scale_share(
+                    estimate, moved, prepared.odometry_scale_sigma, extraction.topics.odom or ""
+                )
+            except (EstimationError, ValueError) as error:
+                estimate.notes.append(no_scale_share(error))
         seconds[method.value] = time.perf_counter() - start
         marker_map = marker_map_of(estimate, str(read.log), config, heights, extraction)
         results.append(MethodResult(method, estimate, marker_map))
     return _Solved(results, frames.home_id)
 
 
-def _no_share(error: Exception) -> Note:
-    """Why the map's covariances lack an unknown readout's share."""
-    return Note(
-        "camera.readout_share_unknown",
-        f"the rolling shutter's readout not given, and the map could not be made as if it were "
-        f"{READOUT_MAX_S * 1e3:.0f} ms ({error}): its covariances lack the readout's share "
-        "(--readout MS gives the camera's, 0 a global shutter)",
-    )
-
-
-def _with_readout_share(estimate: Estimate, moved: Estimate) -> Estimate:
-    """``estimate`` (a rolling shutter's readout taken as 0) with its markers' covariances
-    grown by the readout's share: the true readout is anywhere up to :data:`READOUT_MAX_S`,
-    where ``moved`` was solved (:func:`~markergraph.estimator.consider.with_considered`), and
-    a note saying how far the markers moved."""
-    considered = with_considered(estimate, moved, AT_ONE_END)
-    both = set(estimate.markers) & set(moved.markers)
-    if both:
-        far = max(
-            float(np.linalg.norm(
-                moved.markers[i].T_map_marker.translation()
-                - estimate.markers[i].T_map_marker.translation()
-            ))
-            for i in both
-        )  # fmt: skip
-        carried = any(m.covariance is not None for m in estimate.markers.values())
-        considered.notes.append(Note(
-            "camera.readout_share",
-            f"the rolling shutter's readout not given: the markers move by up to "
-            f"{shown(far, '.3f')} m between a readout of 0 and of {READOUT_MAX_S * 1e3:.0f} ms"
-            + (", and their covariances include it" if carried else " (no covariance to "
-               "carry it)")
-            + " (--readout MS gives the camera's, 0 a global shutter)",
-            figure=far,
-        ))  # fmt: skip
-    return considered
+def _with_scale_shares(
+    estimate: Estimate, read: Sequence[_Read], solve: Callable[[list[Frames]], Estimate]
+) -> Estimate:
+    """``estimate`` of several logs (``solve`` solves such frames) with each log's odometry
+    scale's share: the logs solved again with that log's scale one sigma longer (the scales
+    were chosen apart, so their errors are independent and their shares add)."""
+    for i, r in enumerate(read):
+        longer, sigma = r.prepared.frames_scale_sigma_longer, r.prepared.odometry_scale_sigma
+        if longer is None or sigma is None:
+            continue
+        try:
+            moved = solve([longer if j == i else o.prepared.frames for j, o in enumerate(read)])
+            of = f"{r.extraction.topics.odom or 'odometry'} of {r.log.name}"
+            estimate = with_scale_share(estimate, moved, sigma, of)
+        except (EstimationError, ValueError) as error:
+            estimate.notes.append(no_scale_share(error))
+    return estimate
 
 
 def _several_log_methods(config: MapConfig) -> list[Method]:
@@ -379,14 +378,19 @@ def _solve_several(
                                 home_id=config.home_id, method=method)  # fmt: skip
         first_solved = first_solved or solved
         estimate = as_estimate(solved, method, home_id)
+
+        def solve(frames: list[Frames], method: Method = method) -> Estimate:
+            solved = solve_sessions(frames, mounts, robust=config.noise.robust, priors=priors,
+                                    home_id=config.home_id, method=method)  # fmt: skip
+            return as_estimate(solved, method, home_id)
+
         if all(p is not None for p in longest):
             try:
-                moved = solve_sessions([p.frames for p in longest if p is not None], mounts,
-                                       robust=config.noise.robust, priors=priors,
-                                       home_id=config.home_id, method=method)  # fmt: skip
-                estimate = _with_readout_share(estimate, as_estimate(moved, method, home_id))
+                moved = solve([p.frames for p in longest if p is not None])
+                estimate = with_readout_share(estimate, moved)
             except (EstimationError, ValueError) as error:
-                estimate.notes.append(_no_share(error))
+                estimate.notes.append(no_readout_share(error))
+        estimate = _with_scale_shares(estimate, read, solve)
         seconds[method.value] = time.perf_counter() - start
         estimate.notes = notes + estimate.notes
         marker_map = marker_map_of(estimate, ", ".join(map(str, logs)), config, heights)

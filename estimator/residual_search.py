@@ -36,12 +36,16 @@ class GridMinimum:
         tried, costs: each value tried and SLAM's final cost with it.
         solution: SLAM's solution at the grid value of least cost (None where it had none):
             a start for a search of another setting on the same frames.
+        sigma: the chosen value's standard deviation, from the parabola's curvature: the cost
+            is half the whitened residuals' squared sum, so its second derivative is the
+            value's information (Laplace); None where ``chosen`` is.
     """
 
     chosen: float | None
     tried: tuple[float, ...]
     costs: tuple[float, ...]
     solution: gtsam.Values | None = None
+    sigma: float | None = None
 
 
 def search_sample(observations: Sequence[Observation], home_id: int | None) -> list[Observation]:
@@ -174,9 +178,11 @@ def _refined(
     values, tried_costs = tuple(grid[i] for i in tried), tuple(costs[i] for i in tried)
     if best in (0, len(grid) - 1) or not math.isfinite(costs[best]):
         return GridMinimum(None, values, tried_costs, solutions[best])
-    chosen = grid[best]
+    chosen, sigma = grid[best], None
     c0, c1, c2 = costs[best - 1], costs[best], costs[best + 1]
-    curvature = c0 - 2 * c1 + c2
+    curvature = c0 - 2 * c1 + c2  # the cost's second derivative times the grid's step squared
     if math.isfinite(c0) and math.isfinite(c2) and curvature > 0:
-        chosen += 0.5 * (grid[best + 1] - grid[best]) * (c0 - c2) / curvature
-    return GridMinimum(chosen, values, tried_costs, solutions[best])
+        step = grid[best + 1] - grid[best]
+        chosen += 0.5 * step * (c0 - c2) / curvature
+        sigma = step / math.sqrt(curvature)
+    return GridMinimum(chosen, values, tried_costs, solutions[best], sigma)

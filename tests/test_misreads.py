@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,12 +16,17 @@ from markergraph.estimator import (
     Method,
     Misread,
     Observation,
+    Trajectory,
     build_frames,
     describe_misreads,
     estimate,
     map_error,
     misread_observations,
 )
+from markergraph.frontend import Extraction
+from markergraph.frontend.topics import TopicChoice
+from markergraph.prepare import prepare
+from markergraph.settings import MapConfig
 
 PHANTOM_ID = 49  # in DICT_4X4_50, and not in the corridor loop's world
 
@@ -174,3 +180,30 @@ def test_only_small_sightings_are_taken_for_misread(run: SimulatedRun) -> None:
     assert {(m.t_ns, m.read_as) for m in found(run, observations)} == stray
     large = [replace(o, flags=frozenset()) if "small" in o.flags else o for o in observations]
     assert found(run, large) == []
+
+
+def test_a_second_preparation_leaves_out_the_first_ones_misreads_without_searching(
+    run: SimulatedRun,
+) -> None:
+    """The log made ready again under another sensor setting (the longest readout, for its
+    share of the covariances) leaves out exactly the sightings the first preparation found
+    misread, by their place in the log, and does not search again: the two maps then differ
+    in the setting alone."""
+    busiest, far = busiest_and_far(run)
+    observations, stray = relabelled(run, busiest, far, 3)
+    extraction = Extraction(
+        observations, Trajectory.from_samples(run.odometry), None, run.mount,
+        TopicChoice(None, None, None, "/odom", None), frames=len(run.frame_t_ns),
+    )  # fmt: skip
+    settings = {"camera.delay_ms": 0.0, "odometry.scale": 1.0}
+    home = run.observations[0].marker_id
+    first = prepare(Path("sim.mcap"), extraction, MapConfig.from_values(settings), home_id=home)
+    stages: list[str] = []
+    longest = MapConfig.from_values({**settings, "camera.readout_ms": 33.3})
+    second = prepare(Path("sim.mcap"), extraction, longest, stages.append, home, misreads_of=first)
+
+    at = {i for i, o in enumerate(observations) if (o.t_ns, o.marker_id) in stray}
+    assert first.misread_at == second.misread_at == at
+    assert len(second.observations) == len(observations) - 3
+    assert not any("misread" in stage for stage in stages)
+    assert "observations.misread_ids" in {note.kind for note in second.notes}

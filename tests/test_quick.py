@@ -122,10 +122,12 @@ def test_a_readout_map_that_cannot_be_made_costs_only_its_share(
     lack."""
     real = run_module.prepare
 
-    def failing(log: Path, extraction: object, config: MapConfig, *args: object) -> object:
+    def failing(
+        log: Path, extraction: object, config: MapConfig, *args: object, **kwargs: object
+    ) -> object:
         if config.camera.readout_ns is not None:
             raise MarkerGraphError("no odometry at the moved stamps")
-        return real(log, extraction, config, *args)
+        return real(log, extraction, config, *args, **kwargs)
 
     monkeypatch.setattr(run_module, "prepare", failing)
     _, report = _map(log, tmp_path / "lacking", "--no-cache")

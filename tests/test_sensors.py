@@ -20,7 +20,8 @@ from markergraph.datasets import Marker, Wall, World, scenario, write_log
 from markergraph.datasets.capture import capture
 from markergraph.datasets.render import Renderer
 from markergraph.datasets.sensors import D435_DISTORTION, D435I_ON_DIFF_DRIVE, SensorEffects
-from markergraph.estimator import Trajectory
+from markergraph.estimator import Estimate, Trajectory
+from markergraph.estimator.consider import marker_moves
 from markergraph.frontend import FrontendConfig, extract
 from markergraph.frontend.depth_scale import DEPTH_SCALE_RESOLUTION
 from markergraph.frontend.detect import Detector
@@ -251,3 +252,39 @@ def test_an_unknown_readout_widens_the_map_by_how_far_it_moves(realistic_log) ->
     ]
     assert note.figure == pytest.approx(max(moves), abs=1e-5)  # the searches warm-start apart
     assert not [n for n in other.estimate.notes if n.kind == "camera.readout_share"]
+
+
+def test_a_searched_odometry_scale_widens_the_map_by_how_far_one_sigma_moves_it(
+    realistic_log,
+) -> None:
+    """The odometry's scale chosen by SLAM's residuals, known to the sigma their curvature
+    gives: SLAM's markers carry the scale's share, exactly d d^T for each marker's move d
+    between maps made with the scale given at the chosen value and at one sigma more
+    (separate runs), and its note gives the largest move."""
+    log = realistic_log[1]
+    settings = {"method": "slam", "camera.readout_ms": 25.0}  # no readout share beside it
+    searched = mg.map_log(log, mg.MapConfig.from_values(settings))
+    scale, sigma = searched.odometry_scale, searched.odometry_scale_sigma
+    assert sigma is not None and 0.0 < sigma < 0.05
+
+    def given(factor: float) -> Estimate:
+        values = {**settings, "odometry.scale": factor,
+                  "camera.delay_ms": searched.camera_delay_ns / 1e6}  # fmt: skip
+        (result,) = mg.map_log(log, mg.MapConfig.from_values(values)).results
+        assert not [n for n in result.estimate.notes if n.kind == "odometry.scale_share"]
+        return result.estimate
+
+    (result,), at_chosen, longer = searched.results, given(scale), given(scale + sigma)
+    moves = marker_moves(at_chosen, longer)
+    assert set(moves) == set(result.estimate.markers) - {result.estimate.home_id}
+    for i, marker in result.estimate.markers.items():
+        assert marker.T_map_marker.equals(at_chosen.markers[i].T_map_marker, 1e-9)
+        grown = marker.covariance - at_chosen.markers[i].covariance
+        d = moves.get(i, np.zeros(3))  # the home marker: the map's origin, never moved
+        np.testing.assert_allclose(grown, np.outer(d, d), atol=1e-12)
+    (note,) = [n for n in result.estimate.notes if n.kind == "odometry.scale_share"]
+    far = max(
+        math.dist(m.T_map_marker.translation(), longer.markers[i].T_map_marker.translation())
+        for i, m in at_chosen.markers.items()
+    )
+    assert note.figure == pytest.approx(far, abs=1e-12)

@@ -1,0 +1,97 @@
+"""The covariances' share of settings the data leave uncertain (a *consider* covariance, after
+Schmidt: :mod:`~markergraph.estimator.consider`): the map is solved again at another value of
+the setting, and each marker's move between the two maps grows its covariance.
+
+- A rolling shutter's readout, when not given: anywhere from 0 to :data:`READOUT_MAX_S`, no
+  residual can choose it; the map solved at the longest, each move d adds d dᵀ/3 (a uniform
+  error's second moment, measured from one end of its range).
+- The odometry's scale, when SLAM's residuals chose it: known to a standard deviation, from
+  the cost's curvature at its minimum; the map solved at one sigma more, each move d adds
+  d dᵀ (a Gaussian error's, to first order).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from markergraph.common import Note
+from markergraph.common.numbers import shown
+from markergraph.estimator import Estimate
+from markergraph.estimator.consider import AT_ONE_END, with_considered
+from markergraph.estimator.timing import READOUT_MAX_S
+
+__all__ = ["no_readout_share", "no_scale_share", "with_readout_share", "with_scale_share"]
+
+
+def with_readout_share(estimate: Estimate, moved: Estimate) -> Estimate:
+    """``estimate`` (a rolling shutter's readout taken as 0) with its markers' covariances
+    grown by the readout's share, ``moved`` solved as if it were :data:`READOUT_MAX_S`, and a
+    note saying how far the markers moved."""
+    considered = with_considered(estimate, moved, AT_ONE_END)
+    far = _farthest(estimate, moved)
+    if far is not None:
+        considered.notes.append(Note(
+            "camera.readout_share",
+            f"the rolling shutter's readout not given: the markers move by up to "
+            f"{shown(far, '.3f')} m between a readout of 0 and of {READOUT_MAX_S * 1e3:.0f} ms"
+            + _carried(estimate) + " (--readout MS gives the camera's, 0 a global shutter)",
+            figure=far,
+        ))  # fmt: skip
+    return considered
+
+
+def no_readout_share(error: Exception) -> Note:
+    """Why the map's covariances lack an unknown readout's share."""
+    return Note(
+        "camera.readout_share_unknown",
+        f"the rolling shutter's readout not given, and the map could not be made as if it were "
+        f"{READOUT_MAX_S * 1e3:.0f} ms ({error}): its covariances lack the readout's share "
+        "(--readout MS gives the camera's, 0 a global shutter)",
+    )
+
+
+def with_scale_share(estimate: Estimate, moved: Estimate, sigma: float, of: str) -> Estimate:
+    """``estimate`` with its markers' covariances grown by the odometry scale's share,
+    ``moved`` solved with the scale one ``sigma`` more, and a note (``of``: whose odometry)
+    saying how far the markers moved."""
+    considered = with_considered(estimate, moved, 1.0)
+    far = _farthest(estimate, moved)
+    if far is not None:
+        considered.notes.append(Note(
+            "odometry.scale_share",
+            f"the odometry's scale ({of}) is known to {100 * sigma:.2f} % (1 sigma, from SLAM's "
+            f"residuals): the markers move by up to {shown(far, '.3f')} m over one sigma of it"
+            + _carried(estimate) + " (--odometry-scale sets a scale known exactly)",
+            figure=far,
+        ))  # fmt: skip
+    return considered
+
+
+def no_scale_share(error: Exception) -> Note:
+    """Why the map's covariances lack the odometry scale's share."""
+    return Note(
+        "odometry.scale_share_unknown",
+        f"the map could not be solved again with the odometry's scale one sigma longer "
+        f"({error}): its covariances lack the scale's share",
+    )
+
+
+def _farthest(estimate: Estimate, moved: Estimate) -> float | None:
+    """The largest move of a marker in both maps [m]; None where they share none."""
+    both = set(estimate.markers) & set(moved.markers)
+    if not both:
+        return None
+    return max(
+        float(np.linalg.norm(
+            moved.markers[i].T_map_marker.translation()
+            - estimate.markers[i].T_map_marker.translation()
+        ))
+        for i in both
+    )  # fmt: skip
+
+
+def _carried(estimate: Estimate) -> str:
+    """Whether the map's covariances carry a share, as a note's clause."""
+    if any(m.covariance is not None for m in estimate.markers.values()):
+        return ", and their covariances include it"
+    return " (no covariance to carry it)"
