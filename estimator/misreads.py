@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter, defaultdict
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
 import gtsam
@@ -259,7 +259,7 @@ def _mahalanobis2(difference: NDArray[np.float64], S: NDArray[np.float64]) -> fl
     return float(difference @ np.linalg.solve(S, difference))
 
 
-def describe_misreads(misreads: list[Misread]) -> str:
+def describe_misreads(misreads: Sequence[Misread]) -> str:
     """One sentence for a note: which ids were read where which markers stand."""
     pairs = Counter(
         (m.read_as, -1 if m.stands_on is None else m.stands_on, m.kind) for m in misreads
