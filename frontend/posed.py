@@ -9,8 +9,8 @@ them with the identity mount whatever camera saw them:
 
 - bearing and range: the marker centre's direction and horizontal distance from the body origin;
 - theta: from the marker's normal (its z axis, out of the marker), turned into the plane;
-- sigmas: the corners' noise carried through PnP by a numerical Jacobian (correlations
-  dropped), and widened to cover IPPE's second solution when the two are alike;
+- sigmas: the corners' noise carried through PnP's least-squares fit (correlations dropped),
+  and widened to cover IPPE's second solution when the two are alike;
 - markers whose normal is more than 45 degrees from horizontal (ceiling, floor) are not on a
   wall: those detections are dropped, each with the elevation its normal read;
 - a marker is printed on one side only, so the camera that saw it is in front of it: corners
@@ -26,6 +26,7 @@ from collections import Counter
 from dataclasses import dataclass
 from enum import Enum
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -44,7 +45,7 @@ from markergraph.frontend.observe import (
     theta_shared_sigma,
 )
 from markergraph.frontend.tf import rot_z
-from markergraph.frontend.yaw import pnp_solutions
+from markergraph.frontend.yaw import marker_object_points, pnp_solutions
 
 __all__ = [
     "LEVEL_TOLERANCE_RAD",
@@ -66,7 +67,8 @@ WALL_TILT_RAD = math.radians(45.0)
 # height-and-pitch model is exact to well under a millimetre at the ranges markers are seen.
 LEVEL_TOLERANCE_RAD = math.radians(0.5)
 MAX_ATTITUDE_GAP_NS = 100_000_000  # the odometry attitude nearest a frame levels it within this
-JACOBIAN_STEP_PX = 0.05
+UNDISTORT_STEP_PX = 0.05  # the undistortion's central differences [px]
+POSE_STEP = 1e-6  # (bearing, theta, range)'s central differences in (rvec [rad], t [m])
 
 
 @dataclass(frozen=True)
@@ -187,26 +189,55 @@ def levelled_view(
 
 
 def _jacobian(
-    corners_px: NDArray[np.float64], view: LevelledCamera, side_m: float, at: NDArray[np.float64]
+    corners_px: NDArray[np.float64],
+    view: LevelledCamera,
+    side_m: float,
+    R_optical_marker: NDArray[np.float64],
+    t_optical_marker: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """d(bearing, theta, range)/d(corner pixels), (3, 8), by central differences; each step
-    keeps the IPPE solution nearest the one it starts from."""
-    J = np.zeros((3, 8))
-    for k in range(8):
-        values = []
-        for sign in (1.0, -1.0):
-            moved = corners_px.copy().reshape(-1)
-            moved[k] += sign * JACOBIAN_STEP_PX
-            candidates = [
-                np.array(_polar(R, t, view)[:3])
-                for _, R, t in _solutions(moved.reshape(4, 2), view, side_m)
-            ]
-            nearest = min(candidates, key=lambda c: abs(math.remainder(c[1] - at[1], math.tau)))
-            values.append(nearest)
-        step = values[0] - values[1]
-        step[:2] = [math.remainder(v, math.tau) for v in step[:2]]
-        J[:, k] = step / (2.0 * JACOBIAN_STEP_PX)
-    return J
+    """d(bearing, theta, range)/d(corner pixels), (3, 8), at the pose PnP found: PnP fits the
+    pose to the undistorted corners by least squares, so their change du moves it by
+    ``(J^T J)^-1 J^T du``, J the projection's Jacobian in (rvec, t) (``projectPoints`` gives
+    it); the undistortion's 2x2 per corner comes before it and (bearing, theta, range)'s change
+    with the pose after it, both by central differences. One solve where re-solving IPPE for
+    each corner's step took sixteen (a tenth of the time): on 400 random views their sigmas
+    agree to 0.3 % (median; 5 % at the 95th percentile, theta's, where IPPE's two solutions
+    are alike), and both match the spread of IPPE's poses under sampled corner noise
+    (``tests/test_levelled_counts.py``)."""
+    camera = view.camera
+    rvec, _ = cv2.Rodrigues(R_optical_marker)
+    _, projection = cv2.projectPoints(
+        marker_object_points(side_m), rvec, t_optical_marker, camera.K, None
+    )
+    J = projection[:, :6]
+    pose_per_corner = np.linalg.solve(J.T @ J, J.T)  # (6, 8): d(rvec, t)/d(undistorted)
+    if camera.distortion:  # each corner's undistorted pixel moves with its own pixel alone
+        steps = np.repeat(corners_px[None], 4, axis=0)  # +u, -u, +v, -v of every corner
+        steps[0, :, 0] += UNDISTORT_STEP_PX
+        steps[1, :, 0] -= UNDISTORT_STEP_PX
+        steps[2, :, 1] += UNDISTORT_STEP_PX
+        steps[3, :, 1] -= UNDISTORT_STEP_PX
+        moved = camera.undistort(steps.reshape(-1, 2)).reshape(4, 4, 2)
+        d_u, d_v = (moved[0] - moved[1]), (moved[2] - moved[3])  # (4, 2) each
+        undistortion = np.zeros((8, 8))
+        for i in range(4):
+            undistortion[2 * i : 2 * i + 2, 2 * i] = d_u[i] / (2 * UNDISTORT_STEP_PX)
+            undistortion[2 * i : 2 * i + 2, 2 * i + 1] = d_v[i] / (2 * UNDISTORT_STEP_PX)
+        pose_per_corner = pose_per_corner @ undistortion
+    pose = np.concatenate([rvec.ravel(), t_optical_marker])
+
+    def polar(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        R, _ = cv2.Rodrigues(x[:3])
+        return np.array(_polar(np.asarray(R, dtype=np.float64), x[3:], view)[:3])
+
+    polar_per_pose = np.zeros((3, 6))
+    for k in range(6):
+        step = np.zeros(6)
+        step[k] = POSE_STEP
+        change = polar(pose + step) - polar(pose - step)
+        change[:2] = [math.remainder(v, math.tau) for v in change[:2]]
+        polar_per_pose[:, k] = change / (2.0 * POSE_STEP)
+    return np.asarray(polar_per_pose @ pose_per_corner, dtype=np.float64)
 
 
 def observe_levelled_frame(
@@ -229,7 +260,7 @@ def observe_levelled_frame(
         if abs(elevation) > WALL_TILT_RAD:
             dropped.append(Dropped(detection.marker_id, DropReason.OFF_WALL, elevation))
             continue
-        J = _jacobian(corners, view, side, np.array([bearing, theta, range_m]))
+        J = _jacobian(corners, view, side, R, t)
         covariance = model.corner_sigma_px**2 * (J @ J.T)
         sigma_bearing, sigma_theta, sigma_range = np.sqrt(np.maximum(np.diag(covariance), 1e-12))
         sigma_theta = math.hypot(sigma_theta, THETA_FLOOR_RAD)
