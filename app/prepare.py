@@ -47,6 +47,26 @@ _CACHED = ", on an earlier run: from the cache"  # said of a search's result tak
 
 
 @dataclass(frozen=True)
+class Considered:
+    """The log made ready with one setting SLAM's residuals chose moved one standard
+    deviation further (:mod:`~markergraph.shares` grows the covariances by what it moves).
+
+    Attributes:
+        kind: the kind of the note that says its share (``odometry.scale_share``).
+        setting: the setting, as the note names it.
+        sigma: its standard deviation, as the note gives it.
+        flag: the flag that sets it instead.
+        frames: the estimators' input with the setting one sigma further.
+    """
+
+    kind: str
+    setting: str
+    sigma: str
+    flag: str
+    frames: Frames
+
+
+@dataclass(frozen=True)
 class Prepared:
     """One log made ready for the estimators (:func:`prepare`).
 
@@ -61,8 +81,9 @@ class Prepared:
         misreads: the observations left out as misread ids.
         misread_at: their places in the extraction's observations.
         odometry_scale_sigma: the scale's standard deviation where SLAM's residuals chose it.
-        frames_scale_sigma_longer: the estimators' input with the odometry scaled one
-            ``odometry_scale_sigma`` more, for the scale's share of the covariances.
+        camera_delay_sigma_ns: the delay's standard deviation where they chose it [ns].
+        considered: the log made ready again with each setting they chose one sigma further,
+            for its share of the covariances.
     """
 
     observations: list[Observation]
@@ -75,7 +96,8 @@ class Prepared:
     misreads: tuple[Misread, ...] = ()
     misread_at: frozenset[int] = frozenset()
     odometry_scale_sigma: float | None = None
-    frames_scale_sigma_longer: Frames | None = None
+    camera_delay_sigma_ns: float | None = None
+    considered: tuple[Considered, ...] = ()
 
 
 def prepare(
@@ -97,15 +119,15 @@ def prepare(
             added to it.
         misreads_of: an earlier preparation of the same extraction whose misread observations
             are left out here too, without searching again: two preparations that differ in a
-            sensor setting then differ in nothing else.
+            sensor setting then differ in nothing else. Made to be compared, such a one has
+            nothing ``considered`` of its own.
 
     Raises:
         MarkerGraphError: no marker observations, or no odometry.
     """
     _check_usable(log, extraction, config)
     notes = _content_notes(extraction)
-    jumps = extraction.odometry.jumps()
-    breaks = [t for t, _ in jumps]
+    breaks = [t for t, _ in extraction.odometry.jumps()]
     evidence = extraction.odometry_evidence
     source, why = config.odometry_source(extraction.topics.odom, evidence)
     _, noise = config.odometry_noise(extraction.topics.odom, evidence)
@@ -114,15 +136,16 @@ def prepare(
     # The searches weigh the residuals by the source's preset, not the noise asked for: the
     # delay and the scale are the sensors' own, so a changed estimator setting reuses them.
     basis = (source, ODOMETRY_NOISE[source], SEARCH_ROBUST, home_id, config.camera)
-    delay_key = search_key("delay", *basis)
+    delay_key = search_key("delay and sigma", *basis)
     if config.camera.delay_ns is None and delay_key not in searches:
         stage("choosing the camera's delay by SLAM's residuals")
-    observations, delay_ns, near = _timed(
+    timed = _timed(
         extraction, config, ODOMETRY_NOISE[source], breaks, home_id, notes, searches, delay_key
     )
+    observations, delay_ns = timed.observations, timed.delay_ns
     scale, scale_sigma = _odometry_scale(
         extraction, config, observations, ODOMETRY_NOISE[source], breaks, home_id, stage, notes,
-        searches, search_key("scale and sigma", *basis, delay_ns), near,
+        searches, search_key("scale and sigma", *basis, delay_ns), timed.near,
     )  # fmt: skip
 
     def framed(observations: list[Observation], scale: float = scale) -> Frames:
@@ -140,21 +163,53 @@ def prepare(
         key = search_key("misreads", *basis, delay_ns, scale)
         if key not in searches:
             stage("looking for misread marker ids")
-            found = misread_observations(
-                framed(observations), extraction.mount.T_base_camera, SEARCH_ROBUST
-            )
-            searches[key] = [(m.t_ns, m.read_as, m.stands_on, m.kind) for m in found]
+            searches[key] = _misread_search(framed(observations), extraction)
         misreads, misread_at = _misreads_in(observations, searches[key])
     if misreads:
-        observations = [o for i, o in enumerate(observations) if i not in misread_at]
         notes.append(Note("observations.misread_ids", describe_misreads(misreads),
                           figure=len(misreads)))  # fmt: skip
-    frames = framed(observations)
-    longer = None if scale_sigma is None else framed(observations, scale + scale_sigma)
+
+    def kept(observations: list[Observation]) -> list[Observation]:
+        return [o for i, o in enumerate(observations) if i not in misread_at]
+
+    considered = (
+        () if misreads_of is not None else _considered(timed, scale, scale_sigma, kept, framed)
+    )
     return Prepared(
-        observations, frames, delay_ns, source, why, scale, tuple(notes), misreads, misread_at,
-        scale_sigma, longer,
+        kept(observations), framed(kept(observations)), delay_ns, source, why, scale,
+        tuple(notes), misreads, misread_at, scale_sigma, timed.sigma_ns, considered,
     )  # fmt: skip
+
+
+def _considered(
+    timed: _Timed,
+    scale: float,
+    scale_sigma: float | None,
+    kept: Callable[[list[Observation]], list[Observation]],
+    framed: Callable[[list[Observation], float], Frames],
+) -> tuple[Considered, ...]:
+    """The log made ready again with each setting SLAM's residuals chose one sigma further:
+    the odometry's scale (``framed`` builds frames at a scale), the camera's delay (``timed``
+    retimes at a delay); ``kept`` leaves the misread observations out."""
+    considered = []
+    if scale_sigma is not None:
+        considered.append(Considered(
+            "odometry.scale_share", "the odometry's scale", f"{100 * scale_sigma:.2f} %",
+            "--odometry-scale", framed(kept(timed.observations), scale + scale_sigma),
+        ))  # fmt: skip
+    if timed.sigma_ns is not None:
+        later = timed.at(round(timed.delay_ns + timed.sigma_ns))
+        considered.append(Considered(
+            "camera.delay_share", "the camera's delay", f"{timed.sigma_ns / 1e6:.1f} ms",
+            "--camera-delay", framed(kept(later), scale),
+        ))  # fmt: skip
+    return tuple(considered)
+
+
+def _misread_search(frames: Frames, extraction: Extraction) -> list[tuple[Any, ...]]:
+    """The observations SLAM's residuals find misread, as the cache keeps them."""
+    found = misread_observations(frames, extraction.mount.T_base_camera, SEARCH_ROBUST)
+    return [(m.t_ns, m.read_as, m.stands_on, m.kind) for m in found]
 
 
 def _misreads_in(
@@ -237,6 +292,25 @@ def _noise_note(
     )
 
 
+@dataclass(frozen=True)
+class _Timed:
+    """The observations at their capture times (:func:`_timed`).
+
+    Attributes:
+        observations: at the camera's delay used.
+        delay_ns: that delay [ns].
+        sigma_ns: its standard deviation where SLAM's residuals chose it [ns].
+        near: the delay search's solution where it ran, for the scale's search to start from.
+        at: the observations at another delay, made as these were (notes left unsaid).
+    """
+
+    observations: list[Observation]
+    delay_ns: int
+    sigma_ns: float | None
+    near: gtsam.Values | None
+    at: Callable[[int], list[Observation]]
+
+
 def _timed(
     extraction: Extraction,
     config: MapConfig,
@@ -246,11 +320,10 @@ def _timed(
     notes: list[Note],
     searches: dict[str, Any],
     key: str,
-) -> tuple[list[Observation], int, gtsam.Values | None]:
+) -> _Timed:
     """The observations at their capture times (the camera's delay, chosen by the residuals
     unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked, for
-    the shutter instead; the camera's delay used [ns]; and the delay search's solution where it
-    ran (None otherwise), for the scale's search to start from."""
+    the shutter instead."""
     camera = config.camera
     observations = extraction.observations
     readout_ns = camera.readout_ns or 0
@@ -261,10 +334,13 @@ def _timed(
         readout_ns = 0
     if window_s > 0:
         observations = widened_for_motion(observations, extraction.odometry, window_s)
-    if camera.delay_ns is not None:
-        delay_ns = camera.delay_ns
+
+    def at(delay_ns: int, notes: list[Note] | None = None) -> list[Observation]:
         moved = retimed(observations, delay_ns, readout_ns, height)
-        return _unleaned(moved, extraction.odometry, camera, notes), delay_ns, None
+        return _unleaned(moved, extraction.odometry, camera, [] if notes is None else notes)
+
+    if camera.delay_ns is not None:
+        return _Timed(at(camera.delay_ns, notes), camera.delay_ns, None, None, at)
     mount = extraction.mount.T_base_camera
     inputs = SlamInputs(
         observations, extraction.odometry, home_id, mount, noise, breaks, SEARCH_ROBUST
@@ -273,8 +349,8 @@ def _timed(
     near = None
     if not cached:
         found = camera_delay_by_residuals(inputs, readout_ns=readout_ns, image_height=height)
-        searches[key], near = found.delay_ns, found.solution
-    chosen_ns: int | None = searches[key]
+        searches[key], near = (found.delay_ns, found.sigma_ns), found.solution
+    chosen_ns, sigma_ns = searches[key]
     topic = extraction.topics.odom
     delay_ns = 0 if chosen_ns is None else chosen_ns
     if chosen_ns is None:
@@ -292,8 +368,7 @@ def _timed(
             f"(chosen by SLAM's residuals over -50..+100 ms{cached}; --camera-delay sets it)",
             topic=topic, figure=delay_ns * 1e-9,
         ))  # fmt: skip
-    moved = retimed(observations, delay_ns, readout_ns, height)
-    return _unleaned(moved, extraction.odometry, camera, notes), delay_ns, near
+    return _Timed(at(delay_ns, notes), delay_ns, sigma_ns, near, at)
 
 
 def _unleaned(

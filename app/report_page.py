@@ -84,6 +84,7 @@ _LOG_ROWS: tuple[tuple[str, str], ...] = (
     ("odometry_scale", "odometry scale applied"),
     ("odometry_scale_sigma", "odometry scale's sigma (SLAM's residuals)"),
     ("camera_delay_ms", "camera delay against odometry [ms]"),
+    ("camera_delay_sigma_ms", "camera delay's sigma (SLAM's residuals) [ms]"),
     ("depth_scale", "depth scale applied"),
     ("measured_depth_scale", "depth scale measured"),
     ("levelled_frames", "frames levelled by the odometry's attitude"),

@@ -76,6 +76,9 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         "depth_scale": extraction.depth_scale,
         "measured_depth_scale": extraction.measured_depth_scale,
         "camera_delay_ms": run.camera_delay_ns / 1e6,
+        "camera_delay_sigma_ms": (
+            None if run.camera_delay_sigma_ns is None else run.camera_delay_sigma_ns / 1e6
+        ),
         "odometry_source": run.odometry_source,
         "odometry_scale": run.odometry_scale,
         "odometry_scale_sigma": run.odometry_scale_sigma,

@@ -48,9 +48,9 @@ from markergraph.sessions import SESSION_METHODS, as_estimate, priors_of, separa
 from markergraph.settings import MapConfig
 from markergraph.shares import (
     no_readout_share,
-    no_scale_share,
+    no_sigma_share,
     with_readout_share,
-    with_scale_share,
+    with_sigma_share,
 )
 from markergraph.verdicts import judge_run
 
@@ -258,7 +258,8 @@ def map_logs(
         camera_delay_ns=prepared.camera_delay_ns, odometry_source=prepared.odometry_source,
         odometry_model_reason=prepared.odometry_model_reason,
         odometry_scale=prepared.odometry_scale,
-        odometry_scale_sigma=prepared.odometry_scale_sigma, notes=first.notes, seconds=seconds,
+        odometry_scale_sigma=prepared.odometry_scale_sigma,
+        camera_delay_sigma_ns=prepared.camera_delay_sigma_ns, notes=first.notes, seconds=seconds,
         sessions=solved.sessions, separate=solved.separate,
         misread_markers=frozenset(
             {m.read_as for r in read for m in r.prepared.misreads}
@@ -292,41 +293,36 @@ def _solve_one(read: _Read, config: MapConfig, stage: Stage, seconds: dict[str, 
                 estimate = with_readout_share(estimate, moved)
             except (EstimationError, ValueError) as error:
                 estimate.notes.append(no_readout_share(error))
-        prepared = read.prepared
-        if prepared.frames_scale_sigma_longer is not None:
-            assert prepared.odometry_scale_sigma is not None  # set together
+        for considered in read.prepared.considered:
             try:
                 moved = estimate_frames(
-                    prepared.frames_scale_sigma_longer, method, extraction.mount.T_base_camera,
+                    considered.frames, method, extraction.mount.T_base_camera,
                     form=Form.SIGNED, robust=config.noise.robust,
                 )  # fmt: skip
-                estimate = with_scale_share(
-                    estimate, moved, prepared.odometry_scale_sigma, extraction.topics.odom or ""
-                )
+                estimate = with_sigma_share(estimate, moved, considered)
             except (EstimationError, ValueError) as error:
-                estimate.notes.append(no_scale_share(error))
+                estimate.notes.append(no_sigma_share(considered, error))
         seconds[method.value] = time.perf_counter() - start
         marker_map = marker_map_of(estimate, str(read.log), config, heights, extraction)
         results.append(MethodResult(method, estimate, marker_map))
     return _Solved(results, frames.home_id)
 
 
-def _with_scale_shares(
+def _with_sigma_shares(
     estimate: Estimate, read: Sequence[_Read], solve: Callable[[list[Frames]], Estimate]
 ) -> Estimate:
-    """``estimate`` of several logs (``solve`` solves such frames) with each log's odometry
-    scale's share: the logs solved again with that log's scale one sigma longer (the scales
-    were chosen apart, so their errors are independent and their shares add)."""
+    """``estimate`` of several logs (``solve`` solves such frames) with the share of each
+    setting SLAM's residuals chose on each log: the logs solved again with that one setting
+    one sigma further (chosen apart, their errors are independent and their shares add)."""
     for i, r in enumerate(read):
-        longer, sigma = r.prepared.frames_scale_sigma_longer, r.prepared.odometry_scale_sigma
-        if longer is None or sigma is None:
-            continue
-        try:
-            moved = solve([longer if j == i else o.prepared.frames for j, o in enumerate(read)])
-            of = f"{r.extraction.topics.odom or 'odometry'} of {r.log.name}"
-            estimate = with_scale_share(estimate, moved, sigma, of)
-        except (EstimationError, ValueError) as error:
-            estimate.notes.append(no_scale_share(error))
+        for considered in r.prepared.considered:
+            try:
+                moved = solve(
+                    [considered.frames if j == i else o.prepared.frames for j, o in enumerate(read)]
+                )
+                estimate = with_sigma_share(estimate, moved, considered, r.log.name)
+            except (EstimationError, ValueError) as error:
+                estimate.notes.append(no_sigma_share(considered, error))
     return estimate
 
 
@@ -390,7 +386,7 @@ def _solve_several(
                 estimate = with_readout_share(estimate, moved)
             except (EstimationError, ValueError) as error:
                 estimate.notes.append(no_readout_share(error))
-        estimate = _with_scale_shares(estimate, read, solve)
+        estimate = _with_sigma_shares(estimate, read, solve)
         seconds[method.value] = time.perf_counter() - start
         estimate.notes = notes + estimate.notes
         marker_map = marker_map_of(estimate, ", ".join(map(str, logs)), config, heights)

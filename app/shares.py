@@ -5,9 +5,10 @@ the setting, and each marker's move between the two maps grows its covariance.
 - A rolling shutter's readout, when not given: anywhere from 0 to :data:`READOUT_MAX_S`, no
   residual can choose it; the map solved at the longest, each move d adds d dᵀ/3 (a uniform
   error's second moment, measured from one end of its range).
-- The odometry's scale, when SLAM's residuals chose it: known to a standard deviation, from
-  the cost's curvature at its minimum; the map solved at one sigma more, each move d adds
-  d dᵀ (a Gaussian error's, to first order).
+- The odometry's scale and the camera's delay, where SLAM's residuals chose them: each known
+  to a standard deviation, from the cost's curvature at its minimum; the map solved with the
+  one at one sigma more, each move d adds d dᵀ (a Gaussian error's, to first order; the two
+  taken as independent).
 """
 
 from __future__ import annotations
@@ -19,8 +20,9 @@ from markergraph.common.numbers import shown
 from markergraph.estimator import Estimate
 from markergraph.estimator.consider import AT_ONE_END, with_considered
 from markergraph.estimator.timing import READOUT_MAX_S
+from markergraph.prepare import Considered
 
-__all__ = ["no_readout_share", "no_scale_share", "with_readout_share", "with_scale_share"]
+__all__ = ["no_readout_share", "no_sigma_share", "with_readout_share", "with_sigma_share"]
 
 
 def with_readout_share(estimate: Estimate, moved: Estimate) -> Estimate:
@@ -50,29 +52,32 @@ def no_readout_share(error: Exception) -> Note:
     )
 
 
-def with_scale_share(estimate: Estimate, moved: Estimate, sigma: float, of: str) -> Estimate:
-    """``estimate`` with its markers' covariances grown by the odometry scale's share,
-    ``moved`` solved with the scale one ``sigma`` more, and a note (``of``: whose odometry)
-    saying how far the markers moved."""
-    considered = with_considered(estimate, moved, 1.0)
+def with_sigma_share(
+    estimate: Estimate, moved: Estimate, considered: Considered, of: str | None = None
+) -> Estimate:
+    """``estimate`` with its markers' covariances grown by the share of a setting SLAM's
+    residuals chose, ``moved`` solved on ``considered`` (the setting one sigma further), and a
+    note (``of``: whose setting, in a map of several logs) saying how far the markers moved."""
+    grown = with_considered(estimate, moved, 1.0)
     far = _farthest(estimate, moved)
     if far is not None:
-        considered.notes.append(Note(
-            "odometry.scale_share",
-            f"the odometry's scale ({of}) is known to {100 * sigma:.2f} % (1 sigma, from SLAM's "
+        whose = "" if of is None else f" of {of}"
+        grown.notes.append(Note(
+            considered.kind,
+            f"{considered.setting}{whose} is known to {considered.sigma} (1 sigma, from SLAM's "
             f"residuals): the markers move by up to {shown(far, '.3f')} m over one sigma of it"
-            + _carried(estimate) + " (--odometry-scale sets a scale known exactly)",
+            + _carried(estimate) + f" ({considered.flag} sets it, taken as exact)",
             figure=far,
         ))  # fmt: skip
-    return considered
+    return grown
 
 
-def no_scale_share(error: Exception) -> Note:
-    """Why the map's covariances lack the odometry scale's share."""
+def no_sigma_share(considered: Considered, error: Exception) -> Note:
+    """Why the map's covariances lack the share of a setting SLAM's residuals chose."""
     return Note(
-        "odometry.scale_share_unknown",
-        f"the map could not be solved again with the odometry's scale one sigma longer "
-        f"({error}): its covariances lack the scale's share",
+        f"{considered.kind}_unknown",
+        f"the map could not be solved again with {considered.setting} one sigma further "
+        f"({error}): its covariances lack its share",
     )
 
 

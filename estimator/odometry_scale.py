@@ -9,7 +9,6 @@ each log's true factor within 0.25 %, ideal or under a D435i's effects.
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import gtsam
@@ -43,8 +42,4 @@ def odometry_scale_by_residuals(
     coarse = range(0, len(SCALES), COARSE_STRIDE)
     start = min(coarse, key=lambda i: abs(SCALES[i] - 1.0))
     found = cheapest_on_grid(SCALES, cost, coarse, start, near)
-    if found.sigma is None:
-        return found
-    # The sample's information, as the whole log's: each frame tells about as much.
-    share = len({o.t_ns for o in sampled.observations}) / len({o.t_ns for o in inputs.observations})
-    return replace(found, sigma=found.sigma * math.sqrt(share))
+    return found.for_frames(inputs.frame_share(sampled))

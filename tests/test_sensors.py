@@ -254,37 +254,48 @@ def test_an_unknown_readout_widens_the_map_by_how_far_it_moves(realistic_log) ->
     assert not [n for n in other.estimate.notes if n.kind == "camera.readout_share"]
 
 
-def test_a_searched_odometry_scale_widens_the_map_by_how_far_one_sigma_moves_it(
-    realistic_log,
+@pytest.mark.parametrize(
+    ("searched_key", "fixed", "note_kind"),
+    [
+        ("odometry.scale", {"camera.delay_ms": 35.0}, "odometry.scale_share"),
+        ("camera.delay_ms", {"odometry.scale": 1.0}, "camera.delay_share"),
+    ],
+)
+def test_a_searched_setting_widens_the_map_by_how_far_one_sigma_moves_it(
+    realistic_log, searched_key: str, fixed: dict, note_kind: str
 ) -> None:
-    """The odometry's scale chosen by SLAM's residuals, known to the sigma their curvature
-    gives: SLAM's markers carry the scale's share, exactly d d^T for each marker's move d
-    between maps made with the scale given at the chosen value and at one sigma more
-    (separate runs), and its note gives the largest move."""
+    """The odometry's scale, or the camera's delay, chosen by SLAM's residuals (the other
+    given), known to the sigma their curvature gives: SLAM's markers carry its share, exactly
+    d d^T for each marker's move d between maps made with the setting given at the chosen value
+    and at one sigma further (separate runs), and its note gives the largest move."""
     log = realistic_log[1]
-    settings = {"method": "slam", "camera.readout_ms": 25.0}  # no readout share beside it
+    settings = {"method": "slam", "camera.readout_ms": 25.0, **fixed}  # no readout share
     searched = mg.map_log(log, mg.MapConfig.from_values(settings))
-    scale, sigma = searched.odometry_scale, searched.odometry_scale_sigma
-    assert sigma is not None and 0.0 < sigma < 0.05
+    if searched_key == "odometry.scale":
+        chosen, sigma = searched.odometry_scale, searched.odometry_scale_sigma
+        assert sigma is not None and 0.0 < sigma < 0.05
+    else:
+        chosen, sigma_ns = searched.camera_delay_ns / 1e6, searched.camera_delay_sigma_ns
+        assert sigma_ns is not None and 0.0 < sigma_ns < 20e6
+        sigma = round(chosen * 1e6 + sigma_ns) / 1e6 - chosen  # the stamps move by whole ns
 
-    def given(factor: float) -> Estimate:
-        values = {**settings, "odometry.scale": factor,
-                  "camera.delay_ms": searched.camera_delay_ns / 1e6}  # fmt: skip
+    def given(value: float) -> Estimate:
+        values = {**settings, searched_key: value}
         (result,) = mg.map_log(log, mg.MapConfig.from_values(values)).results
-        assert not [n for n in result.estimate.notes if n.kind == "odometry.scale_share"]
+        assert not [n for n in result.estimate.notes if n.kind.endswith("_share")]
         return result.estimate
 
-    (result,), at_chosen, longer = searched.results, given(scale), given(scale + sigma)
-    moves = marker_moves(at_chosen, longer)
+    (result,), at_chosen, further = searched.results, given(chosen), given(chosen + sigma)
+    moves = marker_moves(at_chosen, further)
     assert set(moves) == set(result.estimate.markers) - {result.estimate.home_id}
     for i, marker in result.estimate.markers.items():
         assert marker.T_map_marker.equals(at_chosen.markers[i].T_map_marker, 1e-9)
         grown = marker.covariance - at_chosen.markers[i].covariance
         d = moves.get(i, np.zeros(3))  # the home marker: the map's origin, never moved
         np.testing.assert_allclose(grown, np.outer(d, d), atol=1e-12)
-    (note,) = [n for n in result.estimate.notes if n.kind == "odometry.scale_share"]
+    (note,) = [n for n in result.estimate.notes if n.kind == note_kind]
     far = max(
-        math.dist(m.T_map_marker.translation(), longer.markers[i].T_map_marker.translation())
+        math.dist(m.T_map_marker.translation(), further.markers[i].T_map_marker.translation())
         for i, m in at_chosen.markers.items()
     )
     assert note.figure == pytest.approx(far, abs=1e-12)

@@ -156,9 +156,10 @@ def test_the_command_line_maps_two_logs_and_localises_a_third(room_logs, tmp_pat
     # The readout not given, both maps carry its share (solved as if it were 33 ms too).
     for method in (alone, merged):
         assert [n for n in method["notes"] if "readout not given: the markers move" in n]
-    # Each log's odometry scale was searched apart: each brings its own share.
+    # Each log's odometry scale and camera delay were searched apart: each brings its share.
     for log in room_logs[:2]:
-        assert [n for n in merged["notes"] if f"scale (/odom of {log.name}) is known to" in n]
+        for setting in ("the odometry's scale", "the camera's delay"):
+            assert [n for n in merged["notes"] if f"{setting} of {log.name} is known to" in n]
     located = run_cli("localize", str(room_logs[2]), "--map", str(tmp_path / "both" / "map.json"),
                       "--out", str(tmp_path / "loc"))  # fmt: skip
     assert located.returncode == 0, located.stderr
