@@ -57,8 +57,9 @@ class CacheEntry:
         version: :data:`CACHE_VERSION` when written.
         key: :func:`entry_key` of the log and front-end settings.
         extraction: the front end's result.
-        searches: :func:`search_key` -> the search's result (a delay [ns] or a scale, None
-            where the residuals had no minimum).
+        searches: :func:`search_key` -> the search's result: (a delay [ns], its sigma) or (a
+            scale, its sigma), each None where the residuals had no minimum; the misread
+            sightings found.
         path: where the entry lives (not stored).
         hit: whether it was read from the cache (not stored).
     """
@@ -122,7 +123,8 @@ def entry_key(log: Path, config: FrontendConfig) -> str:
 
 
 def search_key(name: str, *settings: object) -> str:
-    """The key of one search (``delay`` or ``scale``) under the settings it depends on."""
+    """The key of one search (``delay and sigma``, ``scale and sigma``, ``misreads``) under
+    the settings it depends on."""
     return f"{name}|" + "|".join(map(repr, settings))
 
 

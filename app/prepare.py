@@ -38,7 +38,7 @@ from markergraph.obs_cache import search_key
 from markergraph.sections import CameraSettings, Shutter
 from markergraph.settings import MapConfig
 
-__all__ = ["SEARCH_ROBUST", "Prepared", "prepare"]
+__all__ = ["SEARCH_ROBUST", "Considered", "Prepared", "prepare"]
 
 SEARCH_ROBUST = Robust.HUBER
 """The kernel the delay and scale searches solve with, whatever ``--robust`` asks of the map."""
@@ -119,8 +119,8 @@ def prepare(
             added to it.
         misreads_of: an earlier preparation of the same extraction whose misread observations
             are left out here too, without searching again: two preparations that differ in a
-            sensor setting then differ in nothing else. Made to be compared, such a one has
-            nothing ``considered`` of its own.
+            sensor setting then differ in it and what the searches chose under it, not in the
+            observations used. Made to be compared, such a one has nothing ``considered``.
 
     Raises:
         MarkerGraphError: no marker observations, or no odometry.
@@ -148,13 +148,12 @@ def prepare(
         searches, search_key("scale and sigma", *basis, delay_ns), timed.near,
     )  # fmt: skip
 
-    def framed(observations: list[Observation], scale: float = scale) -> Frames:
+    def framed(
+        observations: list[Observation], scale: float = scale, home_id: int | None = home_id
+    ) -> Frames:
+        odometry = extraction.odometry.scaled(scale)
         return build_frames(
-            observations,
-            extraction.odometry.scaled(scale),
-            home_id,
-            odometry_noise=noise,
-            odometry_breaks=breaks,
+            observations, odometry, home_id, odometry_noise=noise, odometry_breaks=breaks
         )
 
     if misreads_of is not None:
@@ -172,12 +171,13 @@ def prepare(
     def kept(observations: list[Observation]) -> list[Observation]:
         return [o for i, o in enumerate(observations) if i not in misread_at]
 
-    considered = (
-        () if misreads_of is not None else _considered(timed, scale, scale_sigma, kept, framed)
-    )
+    frames = framed(kept(observations))
+    considered = () if misreads_of is not None else _considered(
+        timed, scale, scale_sigma, kept, lambda o, s: framed(o, s, frames.home_id)
+    )  # fmt: skip
     return Prepared(
-        kept(observations), framed(kept(observations)), delay_ns, source, why, scale,
-        tuple(notes), misreads, misread_at, scale_sigma, timed.sigma_ns, considered,
+        kept(observations), frames, delay_ns, source, why, scale, tuple(notes), misreads,
+        misread_at, scale_sigma, timed.sigma_ns, considered,
     )  # fmt: skip
 
 
@@ -189,8 +189,9 @@ def _considered(
     framed: Callable[[list[Observation], float], Frames],
 ) -> tuple[Considered, ...]:
     """The log made ready again with each setting SLAM's residuals chose one sigma further:
-    the odometry's scale (``framed`` builds frames at a scale), the camera's delay (``timed``
-    retimes at a delay); ``kept`` leaves the misread observations out."""
+    the odometry's scale (``framed`` builds frames at a scale, on the map's home marker: one
+    map frame for every share), the camera's delay (``timed`` retimes at a delay); ``kept``
+    leaves the misread observations out."""
     considered = []
     if scale_sigma is not None:
         considered.append(Considered(

@@ -277,29 +277,23 @@ def _solve_one(read: _Read, config: MapConfig, stage: Stage, seconds: dict[str, 
     for i, method in enumerate(config.methods, start=1):
         stage(f"estimating: {method.value} ({i} of {len(config.methods)})")
         start = time.perf_counter()
+
+        def solve(frames: Frames, method: Method = method) -> Estimate:
+            return estimate_frames(frames, method, extraction.mount.T_base_camera,
+                                   form=Form.SIGNED, robust=config.noise.robust)  # fmt: skip
+
         try:
-            estimate = estimate_frames(
-                frames, method, extraction.mount.T_base_camera, form=Form.SIGNED,
-                robust=config.noise.robust,
-            )  # fmt: skip
+            estimate = solve(frames)
         except EstimationError as error:
             raise EstimationError(f"{read.log}: {method.value}: {error}") from None
         if read.at_longest_readout is not None:
             try:
-                moved = estimate_frames(
-                    read.at_longest_readout.frames, method, extraction.mount.T_base_camera,
-                    form=Form.SIGNED, robust=config.noise.robust,
-                )  # fmt: skip
-                estimate = with_readout_share(estimate, moved)
+                estimate = with_readout_share(estimate, solve(read.at_longest_readout.frames))
             except (EstimationError, ValueError) as error:
                 estimate.notes.append(no_readout_share(error))
         for considered in read.prepared.considered:
             try:
-                moved = estimate_frames(
-                    considered.frames, method, extraction.mount.T_base_camera,
-                    form=Form.SIGNED, robust=config.noise.robust,
-                )  # fmt: skip
-                estimate = with_sigma_share(estimate, moved, considered)
+                estimate = with_sigma_share(estimate, solve(considered.frames), considered)
             except (EstimationError, ValueError) as error:
                 estimate.notes.append(no_sigma_share(considered, error))
         seconds[method.value] = time.perf_counter() - start

@@ -1,12 +1,13 @@
 """The share of a map's uncertainty that a parameter held fixed brings (a *consider* covariance,
-after Schmidt): a sensor setting the data cannot choose, such as a rolling shutter's readout,
-moves every marker together, so its error is common to the whole map, and no residual shows it.
+after Schmidt): a sensor setting the data cannot choose, such as a rolling shutter's readout, or
+one they chose only to a standard deviation, such as the odometry's scale, moves every marker
+together, so its error is common to the whole map, and no residual shows it.
 
-The map is solved twice, with the parameter at either end of its plausible range: each
-marker's move between the two, ``d`` (in its tangent space), times the parameter's uncertainty
-over that range, is the covariance it adds. For a solution at one end of a uniform range the
-true value lies anywhere up to the other end, and the error's second moment is ``d d^T / 3``;
-for a solution in the middle it is ``d d^T / 12``.
+The map is solved again with the parameter elsewhere: each marker's move between the two,
+``d`` (in its tangent space), gives the covariance it adds, ``fraction d d^T``. Solved at
+either end of a uniform range, the true value lies anywhere up to the other end, and the
+error's second moment is ``d d^T / 3`` (``d d^T / 12`` from the middle); solved one standard
+deviation further for a Gaussian error, it is ``d d^T`` to first order.
 """
 
 from __future__ import annotations

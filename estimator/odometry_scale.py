@@ -29,9 +29,8 @@ def odometry_scale_by_residuals(
     """The factor, from 0.95 to 1.05, under which batch SLAM's solution has the lowest cost: a
     2 % grid, then 1 % (:func:`cheapest_on_grid`); ``chosen`` None when the cost has no
     minimum inside the range (the residuals cannot tell, or the wheels are off by more than
-    5 %). A long log is searched on the frames the camera delay's search uses (``sigma``
-    then is the whole log's: the sample's shrunk by the square root of its share of the
-    frames); ``near``, the delay search's solution on them, is where the first solve starts."""
+    5 %). A long log is searched on the frames the camera delay's search uses; ``near``, the
+    delay search's solution on them, is where the first solve starts."""
     sampled = inputs.sampled()
     memo: FactorMemo = {}  # a scale changes the odometry's factors alone
 
@@ -41,5 +40,4 @@ def odometry_scale_by_residuals(
     # From the coarse scale nearest 1: each solve starts near the last.
     coarse = range(0, len(SCALES), COARSE_STRIDE)
     start = min(coarse, key=lambda i: abs(SCALES[i] - 1.0))
-    found = cheapest_on_grid(SCALES, cost, coarse, start, near)
-    return found.for_frames(inputs.frame_share(sampled))
+    return cheapest_on_grid(SCALES, cost, coarse, start, near)

@@ -38,8 +38,9 @@ class GridMinimum:
             a start for a search of another setting on the same frames.
         sigma: the chosen value's standard deviation, from the parabola's curvature: the cost
             is half the whitened residuals' squared sum, so its second derivative is the
-            value's information (Laplace); None where ``chosen`` is. Of the frames searched:
-            :meth:`for_frames` makes it a larger log's.
+            value's information (Laplace); None where ``chosen`` is. On a long log it is the
+            searched sample's, not shrunk to the whole log's: neighbouring frames' errors
+            correlate, and the wheels' systematic errors do not average out over more frames.
     """
 
     chosen: float | None
@@ -47,13 +48,6 @@ class GridMinimum:
     costs: tuple[float, ...]
     solution: gtsam.Values | None = None
     sigma: float | None = None
-
-    def for_frames(self, share: float) -> GridMinimum:
-        """The same search with ``sigma`` as the log's whose frames the searched ones were
-        ``share`` of: each frame tells about as much, so information grows with frames."""
-        if self.sigma is None:
-            return self
-        return replace(self, sigma=self.sigma * math.sqrt(share))
 
 
 def search_sample(observations: Sequence[Observation], home_id: int | None) -> list[Observation]:
@@ -89,11 +83,6 @@ class SlamInputs:
     def sampled(self) -> SlamInputs:
         """The same problem on :func:`search_sample`'s frames."""
         return replace(self, observations=search_sample(self.observations, self.home_id))
-
-    def frame_share(self, sampled: SlamInputs) -> float:
-        """``sampled``'s share of this problem's frames (1 where the sample is the whole)."""
-        frames = len({o.t_ns for o in self.observations})
-        return len({o.t_ns for o in sampled.observations}) / frames
 
     def cost(
         self, near: gtsam.Values | None, memo: FactorMemo | None = None

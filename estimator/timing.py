@@ -115,8 +115,8 @@ class CameraDelay:
         solution: SLAM's solution at the delay tried of least cost, for the odometry scale's
             search to start from.
         sigma_ns: the chosen delay's standard deviation, from the cost's curvature (see
-            :class:`~markergraph.estimator.residual_search.GridMinimum`), the whole log's
-            [ns]; None where ``delay_ns`` is.
+            :class:`~markergraph.estimator.residual_search.GridMinimum`) [ns]; None where
+            ``delay_ns`` is.
     """
 
     delay_ns: int | None
@@ -148,7 +148,7 @@ def camera_delay_by_residuals(
     # the one nearest no delay: each solve starts from its neighbour's solution.
     coarse = sorted({*range(0, len(delays), COARSE_STRIDE), len(delays) - 1})
     start = min(coarse, key=lambda i: abs(delays[i]))
-    found = cheapest_on_grid(delays, cost, coarse, start).for_frames(inputs.frame_share(sampled))
+    found = cheapest_on_grid(delays, cost, coarse, start)
     chosen = None if found.chosen is None else round(found.chosen)
     return CameraDelay(
         chosen, tuple(map(int, found.tried)), found.costs, found.solution, found.sigma

@@ -45,7 +45,7 @@ from markergraph.frontend.observe import (
     theta_shared_sigma,
 )
 from markergraph.frontend.tf import rot_z
-from markergraph.frontend.yaw import marker_object_points, pnp_solutions
+from markergraph.frontend.yaw import pnp_projection_jacobian, pnp_solutions
 
 __all__ = [
     "LEVEL_TOLERANCE_RAD",
@@ -195,21 +195,16 @@ def _jacobian(
     R_optical_marker: NDArray[np.float64],
     t_optical_marker: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """d(bearing, theta, range)/d(corner pixels), (3, 8), at the pose PnP found: PnP fits the
-    pose to the undistorted corners by least squares, so their change du moves it by
-    ``(J^T J)^-1 J^T du``, J the projection's Jacobian in (rvec, t) (``projectPoints`` gives
-    it); the undistortion's 2x2 per corner comes before it and (bearing, theta, range)'s change
-    with the pose after it, both by central differences. One solve where re-solving IPPE for
-    each corner's step took sixteen (a tenth of the time): on 400 random views their sigmas
-    agree to 0.3 % (median; 5 % at the 95th percentile, theta's, where IPPE's two solutions
-    are alike), and both match the spread of IPPE's poses under sampled corner noise
-    (``tests/test_levelled_counts.py``)."""
+    """d(bearing, theta, range)/d(corner pixels), (3, 8), at the pose PnP found, through its
+    least-squares fit (:func:`~markergraph.frontend.yaw.pnp_projection_jacobian`); the
+    undistortion's 2x2 per corner comes before it and (bearing, theta, range)'s change with the
+    pose after it, both by central differences. One solve where re-solving IPPE for each
+    corner's step took sixteen (a tenth of the time): on 400 random views their sigmas agreed
+    to 0.3 % (median; 5 % at the 95th percentile, theta's, where IPPE's two solutions are
+    alike), and both matched the spread of IPPE's poses under sampled corner noise
+    (``tests/test_levelled_sigmas.py`` checks bearing and range on 40 and 10 views)."""
     camera = view.camera
-    rvec, _ = cv2.Rodrigues(R_optical_marker)
-    _, projection = cv2.projectPoints(
-        marker_object_points(side_m), rvec, t_optical_marker, camera.K, None
-    )
-    J = projection[:, :6]
+    rvec, J = pnp_projection_jacobian(R_optical_marker, t_optical_marker, camera, side_m)
     pose_per_corner = np.linalg.solve(J.T @ J, J.T)  # (6, 8): d(rvec, t)/d(undistorted)
     if camera.distortion:  # each corner's undistorted pixel moves with its own pixel alone
         steps = np.repeat(corners_px[None], 4, axis=0)  # +u, -u, +v, -v of every corner

@@ -22,6 +22,7 @@ __all__ = [
     "marker_centre",
     "marker_object_points",
     "pnp_pose",
+    "pnp_projection_jacobian",
     "pnp_solutions",
     "pnp_theta",
     "yaw_from_corners",
@@ -166,6 +167,18 @@ def marker_object_points(marker_length_m: float) -> NDArray[np.float64]:
     )
 
 
+def pnp_projection_jacobian(
+    R: NDArray[np.float64], t: NDArray[np.float64], camera: Camera, marker_length_m: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(rvec (3, 1), J (8, 6)): the marker's pose (R, t in the optical frame) as a rotation
+    vector, and the Jacobian of its undistorted corners' pixels, (u0, v0, u1, ...), in
+    (rvec, t), which ``projectPoints`` gives. PnP fits the pose to the corners by least
+    squares, so their change du moves it by ``(J^T J)^-1 J^T du``."""
+    rvec, _ = cv2.Rodrigues(R)
+    _, jacobian = cv2.projectPoints(marker_object_points(marker_length_m), rvec, t, camera.K, None)
+    return np.asarray(rvec, dtype=np.float64), np.asarray(jacobian[:, :6], dtype=np.float64)
+
+
 def pnp_theta_sigma(
     pose: tuple[NDArray[np.float64], NDArray[np.float64]],
     camera: Camera,
@@ -179,9 +192,7 @@ def pnp_theta_sigma(
     pose. The same as perturbing each corner and solving again (:func:`yaw_sigma`), at one
     solve's cost instead of nine."""
     R, t = pose
-    rvec, _ = cv2.Rodrigues(R)
-    _, jacobian = cv2.projectPoints(marker_object_points(marker_length_m), rvec, t, camera.K, None)
-    J = jacobian[:, :6]  # d(pixels)/d(rvec, tvec)
+    rvec, J = pnp_projection_jacobian(R, t, camera, marker_length_m)
     # theta = atan2(c_x, c_z) of the camera in the marker, c = -R^T t: its gradient in c, and
     # c's in the pose (Rodrigues gives R's entries, row by row, in rvec).
     c = -R.T @ t

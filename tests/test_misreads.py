@@ -187,8 +187,8 @@ def test_a_second_preparation_leaves_out_the_first_ones_misreads_without_searchi
 ) -> None:
     """The log made ready again under another sensor setting (the longest readout, for its
     share of the covariances) leaves out exactly the sightings the first preparation found
-    misread, by their place in the log, and does not search again: the two maps then differ
-    in the setting alone."""
+    misread, by their place in the log, and does not search again: the two maps then use the
+    same sightings."""
     busiest, far = busiest_and_far(run)
     observations, stray = relabelled(run, busiest, far, 3)
     extraction = Extraction(
