@@ -274,21 +274,13 @@ def _solve_one(read: _Read, config: MapConfig, stage: Stage, seconds: dict[str, 
     frames, extraction = read.prepared.frames, read.extraction
     heights = marker_heights(read.prepared.observations)
     results = []
-    # The shares' solutions by batch SLAM, by their frames: iSAM2 solves the same graph and
-    # ends where SLAM does (to 3e-7 m on TagSLAM's test 21), so it takes them where SLAM ran.
-    slam_again: dict[int, Estimate] = {}
     for i, method in enumerate(config.methods, start=1):
         stage(f"estimating: {method.value} ({i} of {len(config.methods)})")
         start = time.perf_counter()
 
         def solve(frames: Frames, method: Method = method) -> Estimate:
-            if method is Method.ISAM2 and id(frames) in slam_again:
-                return slam_again[id(frames)]
-            solved = estimate_frames(frames, method, extraction.mount.T_base_camera,
-                                     form=Form.SIGNED, robust=config.noise.robust)  # fmt: skip
-            if method is Method.SLAM and frames is not read.prepared.frames:
-                slam_again[id(frames)] = solved
-            return solved
+            return estimate_frames(frames, method, extraction.mount.T_base_camera,
+                                   form=Form.SIGNED, robust=config.noise.robust)  # fmt: skip
 
         try:
             estimate = solve(frames)

@@ -114,33 +114,6 @@ def test_an_unknown_readouts_searches_are_cached_too(
     assert max(abs(a[i] - b[i]) for i in a) < SAME_MAP_M
 
 
-def test_isam2_takes_its_shares_from_slams_solutions(
-    log: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """Mapped by every method, iSAM2 solves its own map once and takes the shares' solutions
-    from SLAM's (the same graph, the same optimum): its covariances are SLAM's to 1e-4, as
-    they are when it solves its shares itself."""
-    real = run_module.estimate_frames
-    solved: list[str] = []
-
-    def counted(frames: object, method: object, *args: object, **kwargs: object) -> object:
-        solved.append(method.value)  # type: ignore[attr-defined]
-        return real(frames, method, *args, **kwargs)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(run_module, "estimate_frames", counted)
-    run = run_module.map_log(log, MapConfig.from_values({"method": "all"}))
-    shares = 1 + 2  # the readout (not given), and the searched scale and delay
-    assert solved.count("slam") == 1 + shares and solved.count("isam2") == 1
-    assert solved.count("ekf") == 1 + shares
-    slam, isam2 = (next(r.estimate for r in run.results if r.method.value == m)
-                   for m in ("slam", "isam2"))  # fmt: skip
-    for i, marker in slam.markers.items():
-        assert marker.covariance is not None
-        np.testing.assert_allclose(
-            isam2.markers[i].covariance, marker.covariance, rtol=1e-4, atol=1e-12
-        )
-
-
 def test_a_readout_map_that_cannot_be_made_costs_only_its_share(
     log: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
