@@ -52,17 +52,13 @@ class Considered:
     deviation further (:mod:`~markergraph.shares` grows the covariances by what it moves).
 
     Attributes:
-        kind: the kind of the note that says its share (``odometry.scale_share``).
-        setting: the setting, as the note names it.
-        sigma: its standard deviation, as the note gives it.
-        flag: the flag that sets it instead.
+        setting: ``odometry.scale`` or ``camera.delay``.
+        sigma: its standard deviation (a factor; [ns] for the delay).
         frames: the estimators' input with the setting one sigma further.
     """
 
-    kind: str
     setting: str
-    sigma: str
-    flag: str
+    sigma: float
     frames: Frames
 
 
@@ -194,16 +190,11 @@ def _considered(
     leaves the misread observations out."""
     considered = []
     if scale_sigma is not None:
-        considered.append(Considered(
-            "odometry.scale_share", "the odometry's scale", f"{100 * scale_sigma:.2f} %",
-            "--odometry-scale", framed(kept(timed.observations), scale + scale_sigma),
-        ))  # fmt: skip
+        longer = framed(kept(timed.observations), scale + scale_sigma)
+        considered.append(Considered("odometry.scale", scale_sigma, longer))
     if timed.sigma_ns is not None:
         later = timed.at(round(timed.delay_ns + timed.sigma_ns))
-        considered.append(Considered(
-            "camera.delay_share", "the camera's delay", f"{timed.sigma_ns / 1e6:.1f} ms",
-            "--camera-delay", framed(kept(later), scale),
-        ))  # fmt: skip
+        considered.append(Considered("camera.delay", timed.sigma_ns, framed(kept(later), scale)))
     return tuple(considered)
 
 

@@ -24,6 +24,14 @@ from markergraph.prepare import Considered
 
 __all__ = ["no_readout_share", "no_sigma_share", "with_readout_share", "with_sigma_share"]
 
+# Each searched setting as a note says it: its name, its sigma in the note's unit, its flag.
+_SAID = {
+    "odometry.scale": ("the odometry's scale", lambda sigma: f"{100 * sigma:.2f} %",
+                       "--odometry-scale"),
+    "camera.delay": ("the camera's delay", lambda sigma: f"{sigma / 1e6:.1f} ms",
+                     "--camera-delay"),
+}  # fmt: skip
+
 
 def with_readout_share(estimate: Estimate, moved: Estimate) -> Estimate:
     """``estimate`` (a rolling shutter's readout taken as 0) with its markers' covariances
@@ -61,12 +69,13 @@ def with_sigma_share(
     grown = with_considered(estimate, moved, 1.0)
     far = _farthest(estimate, moved)
     if far is not None:
+        name, sigma, flag = _SAID[considered.setting]
         whose = "" if of is None else f" of {of}"
         grown.notes.append(Note(
-            considered.kind,
-            f"{considered.setting}{whose} is known to {considered.sigma} (1 sigma, from SLAM's "
+            f"{considered.setting}_share",
+            f"{name}{whose} is known to {sigma(considered.sigma)} (1 sigma, from SLAM's "
             f"residuals): the markers move by up to {shown(far, '.3f')} m over one sigma of it"
-            + _carried(estimate) + f" ({considered.flag} sets it, taken as exact)",
+            + _carried(estimate) + f" ({flag} sets it, taken as exact)",
             figure=far,
         ))  # fmt: skip
     return grown
@@ -75,9 +84,9 @@ def with_sigma_share(
 def no_sigma_share(considered: Considered, error: Exception) -> Note:
     """Why the map's covariances lack the share of a setting SLAM's residuals chose."""
     return Note(
-        f"{considered.kind}_unknown",
-        f"the map could not be solved again with {considered.setting} one sigma further "
-        f"({error}): its covariances lack its share",
+        f"{considered.setting}_share_unknown",
+        f"the map could not be solved again with {_SAID[considered.setting][0]} one sigma "
+        f"further ({error}): its covariances lack its share",
     )
 
 
