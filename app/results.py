@@ -16,6 +16,7 @@ from markergraph.frontend.extraction import MOUNT_FROM_SETTINGS
 from markergraph.localize_accuracy import accuracy_entry, accuracy_of
 from markergraph.markermap import write_json
 from markergraph.overlay import write_overlay
+from markergraph.plotter import Plotter
 from markergraph.records import (
     ITERATING_METHODS,
     LINKING_METHODS,
@@ -209,7 +210,14 @@ def _rmse(result: MethodResult) -> tuple[float, float] | None:
     return result.map_error.rmse_position_m, result.map_error_aligned.rmse_position_m
 
 
-def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = True) -> list[Path]:
+def write_results(
+    run: MapRun,
+    out: Path,
+    *,
+    force: bool = False,
+    plots: bool = True,
+    plotter: Plotter | None = None,
+) -> list[Path]:
     """The result folder, written whole or not at all
     (:func:`~markergraph.common.files.result_folder`); an existing one is replaced only with
     ``force``, and only if markergraph wrote it or it is empty.
@@ -221,7 +229,9 @@ def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = 
     ``comparison.png``; TUM trajectories, each naming its frame in a header comment line and
     in report.json's ``file_frames`` (:data:`TUM_FRAMES`: the corrected path per method at the
     odometry's rate, the odometry in its odom frame and placed in the map, ground truth);
-    ``report.json`` and ``report.html`` (the same report as one self-contained page).
+    ``report.json`` and ``report.html`` (the same report as one self-contained page). The
+    figures are drawn by ``plotter`` (:class:`~markergraph.plotter.Plotter`: in a process of its
+    own, while the rest is written), else here.
 
     Returns:
         The files written, relative to ``out``.
@@ -230,12 +240,12 @@ def write_results(run: MapRun, out: Path, *, force: bool = False, plots: bool = 
         OutputError: ``out`` may not be replaced, or another run wrote it meanwhile.
     """
     with result_folder(Path(out), force=force) as folder:
-        _write_all(run, folder, plots)
+        _write_all(run, folder, (plotter or Plotter()) if plots else None)
         written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
     return written
 
 
-def _write_method(run: MapRun, result: MethodResult, folder: Path, plots: bool) -> None:
+def _write_method(result: MethodResult, folder: Path) -> None:
     estimate = result.estimate
     result.marker_map.save(folder / "map.json")
     if estimate.pose_graph is not None:
@@ -243,19 +253,6 @@ def _write_method(run: MapRun, result: MethodResult, folder: Path, plots: bool) 
     path = result.path if result.path is not None else estimate.trajectory
     if len(path):
         _write_tum(folder, "trajectory.tum", path)
-    if plots:
-        from markergraph.plots import plot_map
-
-        plot_map(
-            result.marker_map,
-            run.true_markers,
-            folder / "map.png",
-            trajectory=path,
-            # Placed by the first optimised pose, which is the path's first pose too.
-            odometry=result.odometry_map,
-            truth_path=result.true_path,
-            rmse_m=_rmse(result),
-        )
 
 
 def _write_tum(folder: Path, name: str, trajectory: Trajectory) -> None:
@@ -264,22 +261,53 @@ def _write_tum(folder: Path, name: str, trajectory: Trajectory) -> None:
     write_tum(folder / name, trajectory, f"{name}: frame {frame}; {holds}")
 
 
-def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
-    first = run.results[0]
-    _write_method(run, first, folder, plots)
+def _method_folders(run: MapRun, folder: Path) -> list[tuple[MethodResult, Path]]:
+    """Each method's result and its folder: the first method's is the top folder, and with
+    several methods each has its own under ``methods/`` too."""
+    folders = [(run.results[0], folder)]
     if len(run.results) > 1:
-        for result in run.results:
-            method_folder = folder / "methods" / result.label
-            method_folder.mkdir(parents=True)
-            _write_method(run, result, method_folder, plots)
-        if plots:
-            from markergraph.plots import plot_comparison
+        folders += [(r, folder / "methods" / r.label) for r in run.results]
+    return folders
 
-            plot_comparison(
-                [(r.label, r.marker_map, _rmse(r)) for r in run.results],
-                run.true_markers,
-                folder / "comparison.png",
-            )
+
+def _draw_figures(run: MapRun, folder: Path, plotter: Plotter) -> None:
+    """Every figure of the folder asked for at once, the first method's map first: drawn while
+    the rest is written, where the plotter has a process of its own."""
+    from markergraph.plots import plot_comparison, plot_diagnostics, plot_map
+
+    # The first method with residuals (the closed form has none).
+    shown = next((r for r in run.results if r.estimate.residuals), run.results[0])
+    frames = [s.frames for s in run.sessions] or run.frames
+    for n, (result, method_folder) in enumerate(_method_folders(run, folder)):
+        path = result.path if result.path is not None else result.estimate.trajectory
+        plotter.draw(
+            plot_map, result.marker_map, run.true_markers, method_folder / "map.png",
+            trajectory=path,
+            # Placed by the first optimised pose, which is the path's first pose too.
+            odometry=result.odometry_map, truth_path=result.true_path, rmse_m=_rmse(result),
+            writes=[method_folder / "map.png", method_folder / "map.svg"],
+        )  # fmt: skip
+        if n == 0:
+            plotter.draw(
+                plot_diagnostics, shown.label, diagnostics(shown.estimate, frames),
+                run.extraction.observations, folder / DIAGNOSTICS_FIGURE,
+                writes=[folder / DIAGNOSTICS_FIGURE],
+            )  # fmt: skip
+    if len(run.results) > 1:
+        plotter.draw(
+            plot_comparison, [(r.label, r.marker_map, _rmse(r)) for r in run.results],
+            run.true_markers, folder / "comparison.png", writes=[folder / "comparison.png"],
+        )  # fmt: skip
+
+
+def _write_all(run: MapRun, folder: Path, plotter: Plotter | None) -> None:
+    first = run.results[0]
+    for _, method_folder in _method_folders(run, folder):
+        method_folder.mkdir(parents=True, exist_ok=True)
+    if plotter is not None:
+        _draw_figures(run, folder, plotter)
+    for result, method_folder in _method_folders(run, folder):
+        _write_method(result, method_folder)
     odometry = run.extraction.odometry
     write_overlay(
         folder / "overlay.mcap", first.marker_map,
@@ -302,26 +330,23 @@ def _write_all(run: MapRun, folder: Path, plots: bool) -> None:
     if first.true_path is not None:
         # At the estimate's own stamps, so that evo pairs them exactly and prints our figures.
         _write_tum(folder, "ground_truth.tum", first.true_path)
-    files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
-    report = _report(run, sorted([*files, "report.json", REPORT_PAGE]
-                                 + ([DIAGNOSTICS_FIGURE] if plots else [])))  # fmt: skip
-    if plots:
-        from markergraph.plots import plot_diagnostics
-
-        # The first method with residuals (the closed form has none).
-        shown = next((r for r in run.results if r.estimate.residuals), first)
-        plot_diagnostics(
-            shown.label,
-            report["methods"][shown.label]["diagnostics"],
-            run.extraction.observations,
-            folder / DIAGNOSTICS_FIGURE,
-        )
+    on_disk = {p for p in folder.rglob("*") if p.is_file()}
+    figures = plotter.files if plotter is not None else []
+    files = {str(p.relative_to(folder)) for p in {*on_disk, *figures}}
+    report = _report(run, sorted([*files, "report.json", REPORT_PAGE]))
     write_json(folder / "report.json", report)
+    if plotter is not None:
+        plotter.finish()  # the page inlines the figures
     write_report_page(folder / REPORT_PAGE, report, folder)  # the same figures, one page
 
 
 def write_localization(
-    run: LocalizationRun, out: Path, *, force: bool = False, plots: bool = True
+    run: LocalizationRun,
+    out: Path,
+    *,
+    force: bool = False,
+    plots: bool = True,
+    plotter: Plotter | None = None,
 ) -> list[Path]:
     """A localisation's result folder, whole or not at all: ``trajectory.tum`` (the path in
     the map frame at the odometry's rate: the localised poses, the odometry between them),
@@ -329,8 +354,8 @@ def write_localization(
     ``overlay.mcap`` (the saved map, the path and map -> odom) with ``overlay.layout.json`` (its
     Foxglove layout), ``ground_truth.tum`` when the log carries it, ``map.png`` (the map, the
     path, moved markers as arrows; unless not
-    ``plots``), ``report.json`` and ``report.html`` (the same report as one self-contained
-    page)."""
+    ``plots``; drawn by ``plotter`` as in :func:`write_results`), ``report.json`` and
+    ``report.html`` (the same report as one self-contained page)."""
     with result_folder(Path(out), force=force) as folder:
         loc = run.localization
         write_tum(folder / "trajectory.tum", run.path if run.path is not None else loc.trajectory)
@@ -345,15 +370,22 @@ def write_localization(
             calibration_topic=run.extraction.topics.camera_info,
         )  # fmt: skip
         accuracy = accuracy_of(loc, run.ate_m, run.ate_aligned_m)
+        figures = []
         if plots:
             from markergraph.plots_localize import plot_localization
 
-            plot_localization(run.saved, loc, folder / LOCALIZE_FIGURE,
-                              truth_path=run.true_path, title=_localize_title(run))  # fmt: skip
-        files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+            plotter = plotter or Plotter()
+            figures = [folder / LOCALIZE_FIGURE]
+            plotter.draw(plot_localization, run.saved, loc, folder / LOCALIZE_FIGURE,
+                         truth_path=run.true_path, title=_localize_title(run),
+                         writes=figures)  # fmt: skip
+        on_disk = {p for p in folder.rglob("*") if p.is_file()}
+        files = sorted(str(p.relative_to(folder)) for p in {*on_disk, *figures})
         report = _localize_report(run, sorted([*files, "report.json", REPORT_PAGE]))
         report["accuracy"] = accuracy_entry(accuracy)
         write_json(folder / "report.json", report)
+        if plotter is not None:
+            plotter.finish()  # the page inlines the figure
         write_report_page(folder / REPORT_PAGE, report, folder)
         written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
     return written

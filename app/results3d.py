@@ -18,6 +18,7 @@ from markergraph.estimator.metrics import tag_errors_3d
 from markergraph.estimator.tags3d import Camera3d, TagMap3d, quaternion_wxyz
 from markergraph.formats import write_g2o_3d, write_tum_3d
 from markergraph.markermap import MarkerMap, write_json
+from markergraph.plotter import Plotter
 from markergraph.report_page import REPORT_PAGE, write_report_page
 from markergraph.results import REPORT_SCHEMA
 from markergraph.settings import MapConfig
@@ -173,7 +174,12 @@ def report_3d(run: Map3dRun, files: list[str]) -> dict[str, Any]:
 
 
 def write_results_3d(
-    run: Map3dRun, out: Path, force: bool = False, *, plots: bool = True
+    run: Map3dRun,
+    out: Path,
+    force: bool = False,
+    *,
+    plots: bool = True,
+    plotter: Plotter | None = None,
 ) -> list[Path]:
     """A 3-D map's result folder, written whole or not at all
     (:func:`~markergraph.common.files.result_folder`); an existing one is replaced only with
@@ -183,7 +189,8 @@ def write_results_3d(
     top view and a side view), ``trajectory.tum`` (the rig's 3-D path ``T_map_rig``),
     ``map.g2o`` (rig poses ``k`` and tags ``1000000+id`` as ``VERTEX_SE3:QUAT``, each tag's
     ``T_map_tag`` in the tag frame, z out of the print; no edges), ``report.json`` and
-    ``report.html``.
+    ``report.html``. The figure is drawn by ``plotter`` as in
+    :func:`~markergraph.results.write_results`.
 
     Returns:
         The files written, relative to ``out``.
@@ -193,17 +200,23 @@ def write_results_3d(
     """
     tag_map = run.tag_map
     with result_folder(Path(out), force=force) as folder:
+        figures = []
+        if plots:
+            from markergraph.plots3d import plot_map_3d
+
+            plotter = plotter or Plotter()
+            figures = [folder / "map.png"]
+            plotter.draw(plot_map_3d, tag_map, folder / "map.png", truth=run.truth, writes=figures)
         run.marker_map.save(folder / "map.json")
         write_tum_3d(folder / "trajectory.tum", tag_map.frame_times, tag_map.rig_poses)
         tags = {i: tag.T_map_tag for i, tag in tag_map.tags.items()}
         write_g2o_3d(folder / "map.g2o", tag_map.rig_poses, tags)
-        if plots:
-            from markergraph.plots3d import plot_map_3d
-
-            plot_map_3d(tag_map, folder / "map.png", truth=run.truth)
-        files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+        on_disk = {p for p in folder.rglob("*") if p.is_file()}
+        files = sorted(str(p.relative_to(folder)) for p in {*on_disk, *figures})
         report = report_3d(run, sorted([*files, "report.json", REPORT_PAGE]))
         write_json(folder / "report.json", report)
+        if plotter is not None:
+            plotter.finish()  # the page inlines the figure
         write_report_page(folder / REPORT_PAGE, report, folder)
         written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
     return written

@@ -17,6 +17,7 @@ from markergraph.settings import config_toml, map_config
 if TYPE_CHECKING:
     from markergraph.common import Note
     from markergraph.estimator import MapError
+    from markergraph.plotter import Plotter
     from markergraph.records import MapRun, MethodResult
     from markergraph.settings import MapConfig
 
@@ -106,6 +107,14 @@ def add_no_cache(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+def _plotter(args: argparse.Namespace) -> Plotter:
+    """Where figures are wanted, a plotter whose process starts now, importing matplotlib while
+    the log is read and the map solved (:class:`~markergraph.plotter.Plotter`)."""
+    from markergraph.plotter import Plotter
+
+    return Plotter() if args.no_plots else Plotter.start()
+
+
 def run_localize(args: argparse.Namespace) -> int:
     from markergraph.frontend.logs.files import check_exists
 
@@ -119,12 +128,14 @@ def run_localize(args: argparse.Namespace) -> int:
 
     check_output_folder(args.out, [args.log, args.map], force=args.force)
     saved = MarkerMap.load(args.map)
-    with ProgressBar(f"reading {Path(args.log).name}", quiet=args.quiet) as bar:
-        stages = Stages(quiet=args.quiet, verbose=args.verbose, before=bar.close)
-        run = localize_log(args.log, saved, args.map, config, progress=bar, stage=stages,
-                           cache=not args.no_cache)  # fmt: skip
-    stages(f"writing {args.out}/")
-    written = write_localization(run, args.out, force=args.force, plots=not args.no_plots)
+    with _plotter(args) as plotter:
+        with ProgressBar(f"reading {Path(args.log).name}", quiet=args.quiet) as bar:
+            stages = Stages(quiet=args.quiet, verbose=args.verbose, before=bar.close)
+            run = localize_log(args.log, saved, args.map, config, progress=bar, stage=stages,
+                               cache=not args.no_cache)  # fmt: skip
+        stages(f"writing {args.out}/")
+        written = write_localization(run, args.out, force=args.force, plots=not args.no_plots,
+                                     plotter=plotter)  # fmt: skip
     stages.close()
     loc = run.localization
     path = len(run.path) if run.path is not None else len(loc.trajectory)
@@ -198,13 +209,15 @@ def run(args: argparse.Namespace) -> int:
         if len(logs) > 1 or prior is not None:
             raise SettingsError("a 3-D map is made from one log (several logs and --prior are 2-D)")
         return _run_3d(args, logs[0], out, config, [why] if why else [])
-    with ProgressBar(f"reading {Path(logs[0]).name}", quiet=args.quiet) as bar:
-        stages = Stages(quiet=args.quiet, verbose=args.verbose, before=bar.close)
-        result = map_logs(logs, config, prior=prior, executor=args.executor,
-                          address=args.ray_address, progress=bar, stage=stages,
-                          cache=not args.no_cache)  # fmt: skip
-    stages(f"writing {out}/")
-    written = write_results(result, out, force=args.force, plots=not args.no_plots)
+    with _plotter(args) as plotter:
+        with ProgressBar(f"reading {Path(logs[0]).name}", quiet=args.quiet) as bar:
+            stages = Stages(quiet=args.quiet, verbose=args.verbose, before=bar.close)
+            result = map_logs(logs, config, prior=prior, executor=args.executor,
+                              address=args.ray_address, progress=bar, stage=stages,
+                              cache=not args.no_cache)  # fmt: skip
+        stages(f"writing {out}/")
+        written = write_results(result, out, force=args.force, plots=not args.no_plots,
+                                plotter=plotter)  # fmt: skip
     stages.close()
     _print_summary(result, quiet=args.quiet)
     print(f"wrote {len(written)} files to {out}/")
@@ -223,9 +236,11 @@ def _run_3d(
     from markergraph.verdicts import Verdict
 
     stages = Stages(quiet=args.quiet, verbose=args.verbose)
-    run = map_log_3d(log, config, notes=notes, stage=stages)
-    stages(f"writing {out}/")
-    written = write_results_3d(run, out, force=args.force, plots=not args.no_plots)
+    with _plotter(args) as plotter:
+        run = map_log_3d(log, config, notes=notes, stage=stages)
+        stages(f"writing {out}/")
+        written = write_results_3d(run, out, force=args.force, plots=not args.no_plots,
+                                   plotter=plotter)  # fmt: skip
     stages.close()
     report_page = out / REPORT_PAGE
     tag_map = run.tag_map

@@ -1,0 +1,168 @@
+"""A result folder's figures drawn beside the rest of it: in a process of its own where a second
+core is free, so matplotlib's drawing (most of the writing: 0.8 of 1.3 s on the bundled
+sample's cached map) overlaps the maps, trajectories, overlay and report being written.
+
+The process starts with the command and imports matplotlib while the log is read and the map
+solved; a figure is then drawn there as soon as it is asked for. Without a free core, or should
+the process fail, each figure is drawn here instead: the figures are the same either way."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING, Any
+
+from markergraph.common.pool import available_cores, start_worker
+
+if TYPE_CHECKING:
+    from multiprocessing.process import BaseProcess
+    from multiprocessing.queues import Queue
+
+__all__ = ["Plotter"]
+
+_Figure = tuple[Callable[..., Any], tuple[Any, ...], dict[str, Any]]
+CLOSE_TIMEOUT_S = 5.0  # for the process to end once asked; then it is killed
+
+
+class Plotter:
+    """Draws figures (module-level functions that write files): in a process of its own
+    (:meth:`start`), else in this one (``Plotter()``). Used as a context manager, which ends the
+    process."""
+
+    def __init__(self) -> None:
+        self._process: BaseProcess | None = None
+        self._tasks: Queue[bytes | None] | None = None
+        self._results: Queue[BaseException | None] | None = None
+        self._pending: list[_Figure] = []
+        self.files: list[Path] = []
+        """Every file the figures asked for write, drawn or not yet."""
+
+    @classmethod
+    def start(cls) -> Plotter:
+        """A plotter whose process starts now and imports matplotlib at once, where this
+        machine has a second core; else one that draws in this process."""
+        plotter = cls()
+        if available_cores() < 2:
+            return plotter
+        import multiprocessing
+
+        # Spawned, not forked: forking after OpenCV or GTSAM have started threads can deadlock.
+        context = multiprocessing.get_context("spawn")
+        plotter._tasks, plotter._results = context.Queue(), context.Queue()
+        plotter._process = context.Process(
+            target=_serve, args=(plotter._tasks, plotter._results, os.getpid()),
+            name="markergraph-plotter", daemon=True,
+        )  # fmt: skip
+        plotter._process.start()
+        return plotter
+
+    def draw(
+        self, figure: Callable[..., Any], *args: Any, writes: Iterable[Path], **kwargs: Any
+    ) -> None:
+        """``figure(*args, **kwargs)``, which writes the files ``writes``, now here or soon in
+        the plotter's process (its arguments must pickle); :meth:`finish` waits for it."""
+        self.files += writes
+        if self._tasks is None:
+            figure(*args, **kwargs)
+            return
+        # Pickled here, so that what cannot be sent fails here and now, not in the queue's thread.
+        self._tasks.put(pickle.dumps((figure, args, kwargs), pickle.HIGHEST_PROTOCOL))
+        self._pending.append((figure, args, kwargs))
+
+    def finish(self) -> None:
+        """Every figure asked for drawn; a figure's error is raised here. Should the process
+        itself fail (killed, out of memory), the figures it had not drawn are drawn here."""
+        pending, self._pending = self._pending, []
+        for n, (figure, args, kwargs) in enumerate(pending):
+            error = self._result()
+            if isinstance(error, _ProcessEndedError):
+                self.close()
+                for figure, args, kwargs in pending[n:]:
+                    figure(*args, **kwargs)
+                return
+            if error is not None:
+                raise error
+
+    def _result(self) -> BaseException | None:
+        """The next figure's outcome from the process: None where it was drawn, its error, or
+        :class:`_ProcessEndedError`."""
+        import queue
+
+        assert self._results is not None and self._process is not None
+        while True:
+            try:
+                return self._results.get(timeout=0.5)
+            except queue.Empty:
+                if not self._process.is_alive():
+                    return _ProcessEndedError()
+
+    def close(self) -> None:
+        """The process ended; figures not yet drawn are dropped."""
+        process, tasks = self._process, self._tasks
+        self._process = self._tasks = self._results = None
+        self._pending = []
+        if process is None or tasks is None:
+            return
+        if process.is_alive():
+            tasks.put(None)
+            process.join(CLOSE_TIMEOUT_S)
+            if process.is_alive():
+                process.kill()
+                process.join()
+        tasks.close()
+        tasks.cancel_join_thread()  # tasks it never took are not waited for
+
+    def __enter__(self) -> Plotter:
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        error: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class _ProcessEndedError(Exception):
+    """The plotter's process ended before drawing a figure."""
+
+
+def _serve(
+    tasks: Queue[bytes | None], results: Queue[BaseException | None], parent_pid: int
+) -> None:
+    """The plotter's process: matplotlib imported first, then each figure drawn as it comes,
+    its outcome sent back, until told to end. Ctrl-C is the command's to handle: it ends this
+    process when it closes the plotter."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    start_worker(parent_pid, _import_plots)
+    while (task := tasks.get()) is not None:
+        try:
+            figure, args, kwargs = pickle.loads(task)
+            figure(*args, **kwargs)
+            results.put(None)
+        except Exception as error:  # raised in the command, where the figure was asked for
+            results.put(_sendable(error))
+    results.close()
+    results.join_thread()  # every outcome sent before the process ends
+    os._exit(0)  # its figures are written and closed: nothing to tear down (0.2 s otherwise)
+
+
+def _sendable(error: Exception) -> Exception:
+    """``error``, or its text where it does not pickle."""
+    try:
+        pickle.loads(pickle.dumps(error))
+    except Exception:
+        return RuntimeError(f"{type(error).__name__}: {error}")
+    return error
+
+
+def _import_plots() -> None:
+    """matplotlib and the figures' module imported before the first figure is asked for."""
+    from markergraph.plots import warm_up
+
+    warm_up()

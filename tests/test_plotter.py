@@ -1,0 +1,64 @@
+"""Figures drawn in a process of their own (markergraph.plotter): the same folder as drawn in the
+command's process, byte for byte where matplotlib is deterministic (PNG), a figure's error
+raised in the command, and a plotter whose process dies still delivers every figure."""
+
+from __future__ import annotations
+
+import json
+import operator
+from pathlib import Path
+
+import pytest
+
+from markergraph.plotter import Plotter
+from markergraph.results import write_results
+from markergraph.run import map_logs
+
+BAD_FIGURE = "no such marker"
+# The "figures" below are functions the plotter's process can import by name, as it does ours.
+FIGURE = Path.write_text
+
+
+@pytest.mark.slow
+def test_a_plotters_folder_is_the_one_drawn_here(log: Path, tmp_path: Path) -> None:
+    run = map_logs([log])
+    write_results(run, tmp_path / "here")
+    with Plotter.start() as plotter:
+        assert plotter._process is not None  # the test machine has two cores
+        write_results(run, tmp_path / "there", plotter=plotter)
+    here, there = (
+        sorted(p.relative_to(tmp_path / name) for p in (tmp_path / name).rglob("*"))
+        for name in ("here", "there")
+    )
+    assert here == there
+    assert {"map.png", "map.svg", "diagnostics.png"} <= {str(p) for p in there}
+    for name in ("map.png", "diagnostics.png"):
+        assert (tmp_path / "here" / name).read_bytes() == (tmp_path / "there" / name).read_bytes()
+    manifests = [
+        json.loads((tmp_path / name / "report.json").read_text())["files"]
+        for name in ("here", "there")
+    ]
+    assert manifests[0] == manifests[1]
+
+
+def test_a_figures_error_is_raised_in_the_command(tmp_path: Path) -> None:
+    with Plotter.start() as plotter:
+        plotter.draw(FIGURE, tmp_path / "a.txt", "a", writes=[tmp_path / "a.txt"])
+        plotter.draw(operator.getitem, {}, BAD_FIGURE, writes=[tmp_path / "b.txt"])
+        with pytest.raises(KeyError, match=BAD_FIGURE):
+            plotter.finish()
+    assert (tmp_path / "a.txt").read_text() == "a"
+    assert plotter.files == [tmp_path / "a.txt", tmp_path / "b.txt"]
+
+
+def test_figures_a_dead_plotter_did_not_draw_are_drawn_here(tmp_path: Path) -> None:
+    with Plotter.start() as plotter:
+        assert plotter._process is not None
+        plotter.draw(FIGURE, tmp_path / "a.txt", "a", writes=[])
+        plotter.finish()
+        plotter._process.kill()
+        plotter._process.join()
+        plotter.draw(FIGURE, tmp_path / "b.txt", "b", writes=[])
+        plotter.draw(FIGURE, tmp_path / "c.txt", "c", writes=[])
+        plotter.finish()
+    assert [(tmp_path / n).read_text() for n in ("a.txt", "b.txt", "c.txt")] == ["a", "b", "c"]
