@@ -11,7 +11,8 @@ from __future__ import annotations
 import os
 import pickle
 import signal
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
 __all__ = ["Plotter"]
 
 _Figure = tuple[Callable[..., Any], tuple[Any, ...], dict[str, Any]]
-CLOSE_TIMEOUT_S = 5.0  # for the process to end once asked; then it is killed
+CLOSE_TIMEOUT_S = 5.0  # for the process to end once terminated; then it is killed
 
 
 class Plotter:
@@ -35,7 +36,7 @@ class Plotter:
 
     def __init__(self) -> None:
         self._process: BaseProcess | None = None
-        self._tasks: Queue[bytes | None] | None = None
+        self._tasks: Queue[bytes] | None = None
         self._results: Queue[BaseException | None] | None = None
         self._pending: list[_Figure] = []
         self.files: list[Path] = []
@@ -101,20 +102,30 @@ class Plotter:
                     return _ProcessEndedError()
 
     def close(self) -> None:
-        """The process ended; figures not yet drawn are dropped."""
+        """The process ended at once; figures not yet drawn are dropped (after :meth:`finish`
+        there are none)."""
         process, tasks = self._process, self._tasks
         self._process = self._tasks = self._results = None
         self._pending = []
         if process is None or tasks is None:
             return
+        process.terminate()  # idle, or drawing into a folder that is being discarded
+        process.join(CLOSE_TIMEOUT_S)
         if process.is_alive():
-            tasks.put(None)
-            process.join(CLOSE_TIMEOUT_S)
-            if process.is_alive():
-                process.kill()
-                process.join()
+            process.kill()
+            process.join()
         tasks.close()
         tasks.cancel_join_thread()  # tasks it never took are not waited for
+
+    @contextmanager
+    def stopped_on_error(self) -> Iterator[None]:
+        """On an error inside, the process is ended before the error leaves: entered inside a
+        result folder's ``with``, no figure lands in the folder as it is discarded."""
+        try:
+            yield
+        except BaseException:
+            self.close()
+            raise
 
     def __enter__(self) -> Plotter:
         return self
@@ -132,24 +143,20 @@ class _ProcessEndedError(Exception):
     """The plotter's process ended before drawing a figure."""
 
 
-def _serve(
-    tasks: Queue[bytes | None], results: Queue[BaseException | None], parent_pid: int
-) -> None:
+def _serve(tasks: Queue[bytes], results: Queue[BaseException | None], parent_pid: int) -> None:
     """The plotter's process: matplotlib imported first, then each figure drawn as it comes,
-    its outcome sent back, until told to end. Ctrl-C is the command's to handle: it ends this
-    process when it closes the plotter."""
+    its outcome sent back, until the command ends it (:meth:`Plotter.close`); Ctrl-C is left
+    to the command, which ends it then too."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     start_worker(parent_pid, _import_plots)
-    while (task := tasks.get()) is not None:
+    while True:
+        task = tasks.get()
         try:
             figure, args, kwargs = pickle.loads(task)
             figure(*args, **kwargs)
             results.put(None)
         except Exception as error:  # raised in the command, where the figure was asked for
             results.put(_sendable(error))
-    results.close()
-    results.join_thread()  # every outcome sent before the process ends
-    os._exit(0)  # its figures are written and closed: nothing to tear down (0.2 s otherwise)
 
 
 def _sendable(error: Exception) -> Exception:

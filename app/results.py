@@ -239,8 +239,9 @@ def write_results(
     Raises:
         OutputError: ``out`` may not be replaced, or another run wrote it meanwhile.
     """
-    with result_folder(Path(out), force=force) as folder:
-        _write_all(run, folder, (plotter or Plotter()) if plots else None)
+    plotter = plotter or Plotter()
+    with result_folder(Path(out), force=force) as folder, plotter.stopped_on_error():
+        _write_all(run, folder, plotter if plots else None)
         written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
     return written
 
@@ -356,7 +357,8 @@ def write_localization(
     path, moved markers as arrows; unless not
     ``plots``; drawn by ``plotter`` as in :func:`write_results`), ``report.json`` and
     ``report.html`` (the same report as one self-contained page)."""
-    with result_folder(Path(out), force=force) as folder:
+    plotter = plotter or Plotter()
+    with result_folder(Path(out), force=force) as folder, plotter.stopped_on_error():
         loc = run.localization
         write_tum(folder / "trajectory.tum", run.path if run.path is not None else loc.trajectory)
         if run.true_path is not None:
@@ -374,7 +376,6 @@ def write_localization(
         if plots:
             from markergraph.plots_localize import plot_localization
 
-            plotter = plotter or Plotter()
             figures = [folder / LOCALIZE_FIGURE]
             plotter.draw(plot_localization, run.saved, loc, folder / LOCALIZE_FIGURE,
                          truth_path=run.true_path, title=_localize_title(run),
@@ -384,8 +385,7 @@ def write_localization(
         report = _localize_report(run, sorted([*files, "report.json", REPORT_PAGE]))
         report["accuracy"] = accuracy_entry(accuracy)
         write_json(folder / "report.json", report)
-        if plotter is not None:
-            plotter.finish()  # the page inlines the figure
+        plotter.finish()  # the page inlines the figure
         write_report_page(folder / REPORT_PAGE, report, folder)
         written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
     return written

@@ -199,12 +199,12 @@ def write_results_3d(
         OutputError: ``out`` may not be replaced, or another run wrote it meanwhile.
     """
     tag_map = run.tag_map
-    with result_folder(Path(out), force=force) as folder:
+    plotter = plotter or Plotter()
+    with result_folder(Path(out), force=force) as folder, plotter.stopped_on_error():
         figures = []
         if plots:
             from markergraph.plots3d import plot_map_3d
 
-            plotter = plotter or Plotter()
             figures = [folder / "map.png"]
             plotter.draw(plot_map_3d, tag_map, folder / "map.png", truth=run.truth, writes=figures)
         run.marker_map.save(folder / "map.json")
@@ -215,8 +215,7 @@ def write_results_3d(
         files = sorted(str(p.relative_to(folder)) for p in {*on_disk, *figures})
         report = report_3d(run, sorted([*files, "report.json", REPORT_PAGE]))
         write_json(folder / "report.json", report)
-        if plotter is not None:
-            plotter.finish()  # the page inlines the figure
+        plotter.finish()  # the page inlines the figure
         write_report_page(folder / REPORT_PAGE, report, folder)
         written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
     return written

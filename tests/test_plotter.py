@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
+import markergraph.results
 from markergraph.plotter import Plotter
+from markergraph.records import MapRun
 from markergraph.results import write_results
 from markergraph.run import map_logs
 
@@ -19,9 +21,13 @@ BAD_FIGURE = "no such marker"
 FIGURE = Path.write_text
 
 
+@pytest.fixture(scope="module")
+def run(log: Path) -> MapRun:
+    return map_logs([log])
+
+
 @pytest.mark.slow
-def test_a_plotters_folder_is_the_one_drawn_here(log: Path, tmp_path: Path) -> None:
-    run = map_logs([log])
+def test_a_plotters_folder_is_the_one_drawn_here(run: MapRun, tmp_path: Path) -> None:
     write_results(run, tmp_path / "here")
     with Plotter.start() as plotter:
         assert plotter._process is not None  # the test machine has two cores
@@ -62,3 +68,21 @@ def test_figures_a_dead_plotter_did_not_draw_are_drawn_here(tmp_path: Path) -> N
         plotter.draw(FIGURE, tmp_path / "c.txt", "c", writes=[])
         plotter.finish()
     assert [(tmp_path / n).read_text() for n in ("a.txt", "b.txt", "c.txt")] == ["a", "b", "c"]
+
+
+@pytest.mark.slow
+def test_an_error_while_writing_stops_the_plotter_before_the_folder_goes(
+    run: MapRun, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The figures are being drawn into the folder being written when writing fails: the
+    plotter's process is ended first, so the folder goes whole and nothing is left behind."""
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(markergraph.results, "write_overlay", fail)
+    with Plotter.start() as plotter:
+        with pytest.raises(OSError, match="disk full"):
+            write_results(run, tmp_path / "out", plotter=plotter)
+        assert plotter._process is None
+    assert list(tmp_path.iterdir()) == []
