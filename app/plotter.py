@@ -11,9 +11,9 @@ from __future__ import annotations
 import os
 import pickle
 import signal
-from collections.abc import Callable, Iterable, Iterator
+import threading
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
@@ -39,13 +39,11 @@ class Plotter:
         self._tasks: Queue[bytes] | None = None
         self._results: Queue[BaseException | None] | None = None
         self._pending: list[_Figure] = []
-        self.files: list[Path] = []
-        """Every file the figures asked for write, drawn or not yet."""
 
     @classmethod
     def start(cls) -> Plotter:
         """A plotter whose process starts now and imports matplotlib at once, where this
-        machine has a second core; else one that draws in this process."""
+        machine has a second core and can start one; else one that draws in this process."""
         plotter = cls()
         if available_cores() < 2:
             return plotter
@@ -53,26 +51,32 @@ class Plotter:
 
         # Spawned, not forked: forking after OpenCV or GTSAM have started threads can deadlock.
         context = multiprocessing.get_context("spawn")
-        plotter._tasks, plotter._results = context.Queue(), context.Queue()
-        plotter._process = context.Process(
-            target=_serve, args=(plotter._tasks, plotter._results, os.getpid()),
-            name="markergraph-plotter", daemon=True,
-        )  # fmt: skip
-        plotter._process.start()
+        try:
+            tasks, results = context.Queue(), context.Queue()
+            process = context.Process(
+                target=_serve, args=(tasks, results, os.getpid()), name="markergraph-plotter",
+                daemon=True,
+            )  # fmt: skip
+            with _sigint_ignored():  # until it ignores Ctrl-C itself: the command's to handle
+                process.start()
+        except OSError:  # no semaphores or pipes to be had here: drawn in this process
+            return plotter
+        plotter._process, plotter._tasks, plotter._results = process, tasks, results
         return plotter
 
-    def draw(
-        self, figure: Callable[..., Any], *args: Any, writes: Iterable[Path], **kwargs: Any
-    ) -> None:
-        """``figure(*args, **kwargs)``, which writes the files ``writes``, now here or soon in
-        the plotter's process (its arguments must pickle); :meth:`finish` waits for it."""
-        self.files += writes
-        if self._tasks is None:
-            figure(*args, **kwargs)
-            return
-        # Pickled here, so that what cannot be sent fails here and now, not in the queue's thread.
-        self._tasks.put(pickle.dumps((figure, args, kwargs), pickle.HIGHEST_PROTOCOL))
-        self._pending.append((figure, args, kwargs))
+    def draw(self, figure: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
+        """``figure(*args, **kwargs)``, now here or soon in the plotter's process;
+        :meth:`finish` waits for it. A figure whose arguments do not pickle is drawn here."""
+        if self._tasks is not None:
+            try:
+                task = pickle.dumps((figure, args, kwargs), pickle.HIGHEST_PROTOCOL)
+            except (pickle.PicklingError, TypeError, AttributeError):
+                task = None
+            if task is not None:
+                self._tasks.put(task)
+                self._pending.append((figure, args, kwargs))
+                return
+        figure(*args, **kwargs)
 
     def finish(self) -> None:
         """Every figure asked for drawn; a figure's error is raised here. Should the process
@@ -139,15 +143,28 @@ class Plotter:
         self.close()
 
 
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ctrl-C ignored inside, in the main thread (a process started here inherits that): a
+    spawned process would otherwise print its traceback while it starts."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 class _ProcessEndedError(Exception):
     """The plotter's process ended before drawing a figure."""
 
 
 def _serve(tasks: Queue[bytes], results: Queue[BaseException | None], parent_pid: int) -> None:
     """The plotter's process: matplotlib imported first, then each figure drawn as it comes,
-    its outcome sent back, until the command ends it (:meth:`Plotter.close`); Ctrl-C is left
-    to the command, which ends it then too."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    its outcome sent back, until the command ends it (:meth:`Plotter.close`). It ignores Ctrl-C
+    (from its start, :func:`_sigint_ignored`): the command handles that, and ends it then."""
     start_worker(parent_pid, _import_plots)
     while True:
         task = tasks.get()

@@ -271,14 +271,16 @@ def _method_folders(run: MapRun, folder: Path) -> list[tuple[MethodResult, Path]
     return folders
 
 
-def _draw_figures(run: MapRun, folder: Path, plotter: Plotter) -> None:
+def _draw_figures(run: MapRun, folder: Path, plotter: Plotter) -> list[Path]:
     """Every figure of the folder asked for at once, the first method's map first: drawn while
-    the rest is written, where the plotter has a process of its own."""
+    the rest is written, where the plotter has a process of its own. Returns the files they
+    write."""
     from markergraph.plots import plot_comparison, plot_diagnostics, plot_map
 
     # The first method with residuals (the closed form has none).
     shown = next((r for r in run.results if r.estimate.residuals), run.results[0])
     frames = [s.frames for s in run.sessions] or run.frames
+    files = []
     for n, (result, method_folder) in enumerate(_method_folders(run, folder)):
         path = result.path if result.path is not None else result.estimate.trajectory
         plotter.draw(
@@ -286,27 +288,28 @@ def _draw_figures(run: MapRun, folder: Path, plotter: Plotter) -> None:
             trajectory=path,
             # Placed by the first optimised pose, which is the path's first pose too.
             odometry=result.odometry_map, truth_path=result.true_path, rmse_m=_rmse(result),
-            writes=[method_folder / "map.png", method_folder / "map.svg"],
         )  # fmt: skip
+        files += [method_folder / "map.png", method_folder / "map.svg"]
         if n == 0:
             plotter.draw(
                 plot_diagnostics, shown.label, diagnostics(shown.estimate, frames),
                 run.extraction.observations, folder / DIAGNOSTICS_FIGURE,
-                writes=[folder / DIAGNOSTICS_FIGURE],
             )  # fmt: skip
+            files.append(folder / DIAGNOSTICS_FIGURE)
     if len(run.results) > 1:
         plotter.draw(
             plot_comparison, [(r.label, r.marker_map, _rmse(r)) for r in run.results],
-            run.true_markers, folder / "comparison.png", writes=[folder / "comparison.png"],
+            run.true_markers, folder / "comparison.png",
         )  # fmt: skip
+        files.append(folder / "comparison.png")
+    return files
 
 
 def _write_all(run: MapRun, folder: Path, plotter: Plotter | None) -> None:
     first = run.results[0]
     for _, method_folder in _method_folders(run, folder):
         method_folder.mkdir(parents=True, exist_ok=True)
-    if plotter is not None:
-        _draw_figures(run, folder, plotter)
+    figures = _draw_figures(run, folder, plotter) if plotter is not None else []
     for result, method_folder in _method_folders(run, folder):
         _write_method(result, method_folder)
     odometry = run.extraction.odometry
@@ -332,7 +335,6 @@ def _write_all(run: MapRun, folder: Path, plotter: Plotter | None) -> None:
         # At the estimate's own stamps, so that evo pairs them exactly and prints our figures.
         _write_tum(folder, "ground_truth.tum", first.true_path)
     on_disk = {p for p in folder.rglob("*") if p.is_file()}
-    figures = plotter.files if plotter is not None else []
     files = {str(p.relative_to(folder)) for p in {*on_disk, *figures}}
     report = _report(run, sorted([*files, "report.json", REPORT_PAGE]))
     write_json(folder / "report.json", report)
@@ -378,8 +380,7 @@ def write_localization(
 
             figures = [folder / LOCALIZE_FIGURE]
             plotter.draw(plot_localization, run.saved, loc, folder / LOCALIZE_FIGURE,
-                         truth_path=run.true_path, title=_localize_title(run),
-                         writes=figures)  # fmt: skip
+                         truth_path=run.true_path, title=_localize_title(run))  # fmt: skip
         on_disk = {p for p in folder.rglob("*") if p.is_file()}
         files = sorted(str(p.relative_to(folder)) for p in {*on_disk, *figures})
         report = _localize_report(run, sorted([*files, "report.json", REPORT_PAGE]))

@@ -206,7 +206,7 @@ def write_results_3d(
             from markergraph.plots3d import plot_map_3d
 
             figures = [folder / "map.png"]
-            plotter.draw(plot_map_3d, tag_map, folder / "map.png", truth=run.truth, writes=figures)
+            plotter.draw(plot_map_3d, tag_map, folder / "map.png", truth=run.truth)
         run.marker_map.save(folder / "map.json")
         write_tum_3d(folder / "trajectory.tum", tag_map.frame_times, tag_map.rig_poses)
         tags = {i: tag.T_map_tag for i, tag in tag_map.tags.items()}

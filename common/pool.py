@@ -5,6 +5,7 @@ per stretch of a log) and the application (a process per log) share it, and so i
 from __future__ import annotations
 
 import os
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -80,26 +81,47 @@ def busy_cores(seconds: float = 0.2) -> float | None:
     not idle over ``seconds``, from Linux's per-core counters in ``/proc/stat`` (time the host
     steals counts as busy: a core lent elsewhere is no help). None where there are no such
     counters. Unlike the load average, which trails by a minute, it sees a core freed a moment
-    ago, such as by a run of ours that has just ended."""
+    ago, such as by a run of ours that has just ended. This process's own children
+    (multiprocessing's, such as the plotter drawing figures) are not other work."""
 
-    def counters() -> dict[int, tuple[int, int]]:
+    def counters() -> tuple[dict[int, tuple[int, int]], int]:
         with open("/proc/stat") as stat:
-            return core_ticks(stat.read())
+            return core_ticks(stat.read()), _children_ticks()
 
     try:
-        before = counters()
+        before, ours_before = counters()
         time.sleep(seconds)
-        after = counters()
+        after, ours_after = counters()
     except (OSError, ValueError, IndexError):
         return None
     mine = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else set(after)
-    busy, seen = 0.0, 0
+    busy, seen, elapsed = 0.0, 0, 0
     for core in mine & set(before) & set(after):
         idle, total = (a - b for a, b in zip(after[core], before[core], strict=True))
         if total > 0:
             busy += 1.0 - idle / total
             seen += 1
-    return busy if seen else None
+            elapsed = max(elapsed, total)  # one core's ticks over the window
+    if not seen:
+        return None
+    return max(0.0, busy - max(0, ours_after - ours_before) / max(elapsed, 1))
+
+
+def _children_ticks() -> int:
+    """The CPU clock ticks (user and system) this process's running multiprocessing children
+    have used; 0 when multiprocessing is not even imported (no children)."""
+    multiprocessing = sys.modules.get("multiprocessing")
+    if multiprocessing is None:
+        return 0
+    ticks = 0
+    for child in multiprocessing.active_children():
+        try:
+            with open(f"/proc/{child.pid}/stat") as stat:
+                fields = stat.read().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):  # ended meanwhile
+            continue
+        ticks += int(fields[11]) + int(fields[12])  # utime, stime
+    return ticks
 
 
 def core_ticks(proc_stat: str) -> dict[int, tuple[int, int]]:

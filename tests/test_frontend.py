@@ -983,6 +983,32 @@ def test_busy_cores_sees_a_process_spinning_on_our_cores() -> None:
     assert loaded <= available_cores() + 0.05
 
 
+def test_busy_cores_leaves_out_our_own_children() -> None:
+    """A child of ours (the plotter warming up, say) is not other work: busy as it is, the
+    cores read as before it ran (a spinner that is not ours reads as one more, above)."""
+    import math
+    import multiprocessing
+
+    from markergraph.common.pool import available_cores, busy_cores
+
+    quiet = busy_cores(1.0)
+    if quiet is None:
+        pytest.skip("no per-core counters in /proc/stat here")
+    if available_cores() - quiet < 1.5:
+        pytest.skip(f"other work holds {quiet:.1f} of {available_cores()} cores: no idle one")
+    context = multiprocessing.get_context("spawn")
+    child = context.Process(target=math.factorial, args=(3_000_000,), daemon=True)  # a minute
+    child.start()
+    try:
+        time.sleep(0.5)  # started and computing
+        loaded = busy_cores(1.0)
+        assert child.is_alive()
+    finally:
+        child.kill()
+        child.join()
+    assert loaded is not None and loaded - quiet < 0.3
+
+
 def test_read_ahead_yields_everything_raises_in_place_and_stops_early() -> None:
     """The reading thread hands over every item in order, raises a producer's error at the item
     where it happened, and when the consumer stops early the generator is closed and the
