@@ -11,10 +11,12 @@ neither read nor written), it times:
 - ``warm --no-plots``: warm without map.png, map.svg and diagnostics.png;
 - ``start-up``: ``markergraph map --help``, the imports alone, as the floor of every run.
 
-Each is a separate process, timed by its wall clock and its CPU time (user + system: on a
-machine shared with other work, closer to what an idle one would take); ``-v``'s stage times
-are read from its stderr. The warm runs are interleaved over ``--rounds`` rounds (default 3),
-best of each printed, so that a moment of load on this shared machine does not pick the winner.
+Each is a separate process, run as an installed package runs (Python's bytecode cache on:
+``bench_process.installed_environment``), timed by its wall clock and its CPU time (user +
+system: on a machine shared with other work, closer to what an idle one would take); ``-v``'s
+stage times are read from its stderr. The warm runs are interleaved over ``--rounds`` rounds
+(default 3), best of each printed, so that a moment of load on this shared machine does not
+pick the winner.
 
 Usage: python tests/benchmarks/bench_sample.py [--rounds N]
 Targets (issues 29, 30): warm under 4 s; noise about 1-2 s beyond start-up.
@@ -32,6 +34,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from bench_process import installed_environment
 
 from markergraph.datasets.samples import sample_log
 
@@ -80,7 +84,8 @@ def main() -> None:
         cache = Path(folder) / "cache"
         cache.mkdir()
         shutil.copy2(source, cache / source.name)  # the sample's path there: the same log
-        env = {**os.environ, "MARKERGRAPH_CACHE": str(cache), "OPENBLAS_NUM_THREADS": "1"}
+        env = {**installed_environment(), "MARKERGRAPH_CACHE": str(cache),
+               "OPENBLAS_NUM_THREADS": "1"}  # fmt: skip
         env.pop("MARKERGRAPH_NO_CACHE", None)
         out = ["--out", str(Path(folder) / "out"), "--force", "-v"]
         commands = {
