@@ -102,9 +102,9 @@ def default_detections(jpegs: list[bytes]) -> list[list[Detection]]:
 
 def installed_environment() -> dict[str, str]:
     """The commands' environment as an installed package meets it: Python's bytecode cache on
-    (pip compiles a wheel's modules as it installs them; a session here may turn the cache
-    off with PYTHONDONTWRITEBYTECODE, which costs every process 0.1-0.25 s compiling our
-    modules), and our modules compiled now, before the first timed run."""
+    (pip compiles a wheel's modules as it installs them; PYTHONDONTWRITEBYTECODE, where set,
+    turns the cache off and costs every process 0.1-0.25 s compiling our modules), and our
+    modules compiled now, before the first timed run."""
     import compileall
     import importlib.util
 
