@@ -82,9 +82,10 @@ class Plotter:
         """Every figure asked for drawn; a figure's error is raised here. Should the process
         itself fail (killed, out of memory), the figures it had not drawn are drawn here."""
         pending, self._pending = self._pending, []
-        for n, (figure, args, kwargs) in enumerate(pending):
-            error = self._result()
-            if isinstance(error, _ProcessEndedError):
+        for n in range(len(pending)):
+            try:
+                error = self._result()
+            except _ProcessEndedError:
                 self.close()
                 for figure, args, kwargs in pending[n:]:
                     figure(*args, **kwargs)
@@ -93,8 +94,11 @@ class Plotter:
                 raise error
 
     def _result(self) -> BaseException | None:
-        """The next figure's outcome from the process: None where it was drawn, its error, or
-        :class:`_ProcessEndedError`."""
+        """The next figure's outcome from the process: None where it was drawn, else its error.
+
+        Raises:
+            _ProcessEndedError: the process ended before it sent one.
+        """
         import queue
 
         assert self._results is not None and self._process is not None
@@ -103,7 +107,7 @@ class Plotter:
                 return self._results.get(timeout=0.5)
             except queue.Empty:
                 if not self._process.is_alive():
-                    return _ProcessEndedError()
+                    raise _ProcessEndedError from None
 
     def close(self) -> None:
         """The process ended at once; figures not yet drawn are dropped (after :meth:`finish`

@@ -8,7 +8,12 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from markergraph.common.files import MANIFEST_KEY, REPORT_SCHEMA_PREFIX, result_folder
+from markergraph.common.files import (
+    MANIFEST_KEY,
+    REPORT_SCHEMA_PREFIX,
+    files_in,
+    result_folder,
+)
 from markergraph.diagnostics import diagnostics
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.formats import write_g2o, write_tum
@@ -242,7 +247,7 @@ def write_results(
     plotter = plotter or Plotter()
     with result_folder(Path(out), force=force) as folder, plotter.stopped_on_error():
         _write_all(run, folder, plotter if plots else None)
-        written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
+        written = files_in(folder)
     return written
 
 
@@ -334,8 +339,7 @@ def _write_all(run: MapRun, folder: Path, plotter: Plotter | None) -> None:
     if first.true_path is not None:
         # At the estimate's own stamps, so that evo pairs them exactly and prints our figures.
         _write_tum(folder, "ground_truth.tum", first.true_path)
-    on_disk = {p for p in folder.rglob("*") if p.is_file()}
-    files = {str(p.relative_to(folder)) for p in {*on_disk, *figures}}
+    files = [str(p) for p in files_in(folder, figures)]
     report = _report(run, sorted([*files, "report.json", REPORT_PAGE]))
     write_json(folder / "report.json", report)
     if plotter is not None:
@@ -381,14 +385,13 @@ def write_localization(
             figures = [folder / LOCALIZE_FIGURE]
             plotter.draw(plot_localization, run.saved, loc, folder / LOCALIZE_FIGURE,
                          truth_path=run.true_path, title=_localize_title(run))  # fmt: skip
-        on_disk = {p for p in folder.rglob("*") if p.is_file()}
-        files = sorted(str(p.relative_to(folder)) for p in {*on_disk, *figures})
+        files = [str(p) for p in files_in(folder, figures)]
         report = _localize_report(run, sorted([*files, "report.json", REPORT_PAGE]))
         report["accuracy"] = accuracy_entry(accuracy)
         write_json(folder / "report.json", report)
         plotter.finish()  # the page inlines the figure
         write_report_page(folder / REPORT_PAGE, report, folder)
-        written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
+        written = files_in(folder)
     return written
 
 

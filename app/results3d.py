@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from markergraph.common import Note
-from markergraph.common.files import MANIFEST_KEY, result_folder
+from markergraph.common.files import MANIFEST_KEY, files_in, result_folder
 from markergraph.estimator.metrics import tag_errors_3d
 from markergraph.estimator.tags3d import Camera3d, TagMap3d, quaternion_wxyz
 from markergraph.formats import write_g2o_3d, write_tum_3d
@@ -211,11 +211,10 @@ def write_results_3d(
         write_tum_3d(folder / "trajectory.tum", tag_map.frame_times, tag_map.rig_poses)
         tags = {i: tag.T_map_tag for i, tag in tag_map.tags.items()}
         write_g2o_3d(folder / "map.g2o", tag_map.rig_poses, tags)
-        on_disk = {p for p in folder.rglob("*") if p.is_file()}
-        files = sorted(str(p.relative_to(folder)) for p in {*on_disk, *figures})
+        files = [str(p) for p in files_in(folder, figures)]
         report = report_3d(run, sorted([*files, "report.json", REPORT_PAGE]))
         write_json(folder / "report.json", report)
         plotter.finish()  # the page inlines the figure
         write_report_page(folder / REPORT_PAGE, report, folder)
-        written = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
+        written = files_in(folder)
     return written

@@ -35,6 +35,7 @@ __all__ = [
     "REPORT_SCHEMA_PREFIX",
     "check_output_file",
     "check_output_folder",
+    "files_in",
     "result_folder",
     "written_whole",
 ]
@@ -42,6 +43,15 @@ __all__ = [
 # Any version of the application layer's report.json schema marks a folder as ours.
 REPORT_SCHEMA_PREFIX = "markergraph.report/"
 MANIFEST_KEY = "files"  # report.json lists every file of the result folder under this key
+
+
+def files_in(folder: Path, also: Iterable[Path] = ()) -> list[Path]:
+    """Every file below ``folder``, relative to it and sorted, and the files ``also`` (below it,
+    still being written there: figures being drawn) as if they were already there."""
+    found = {p for p in folder.rglob("*") if p.is_file()} | set(also)
+    return sorted(p.relative_to(folder) for p in found)
+
+
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<kind>partial|old)-(?P<pid>\d+)-[0-9a-f]+$")
 
 
