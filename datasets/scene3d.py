@@ -31,22 +31,21 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import cv2
 import gtsam
 import numpy as np
 import yaml
-from mcap.records import Schema
-from mcap_ros2.writer import Writer
 from numpy.typing import NDArray
 
 from markergraph.common.errors import MarkerGraphError
 from markergraph.common.files import written_whole
+from markergraph.datasets.bag import Bag
 from markergraph.estimator.tags3d import KnownTag, SceneCamera, TagScene, TagView, tag_corners
 from markergraph.frontend.camera import EQUIDISTANT, Camera, CameraMount
 from markergraph.frontend.logs import open_log
-from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, header, quaternion_from_matrix
+from markergraph.frontend.ros2 import header, quaternion_from_matrix
 from markergraph.frontend.tag_scene import ray_per_px, seed_poses
 
 __all__ = [
@@ -862,21 +861,6 @@ def tag_scene(
 # --- the log ----------------------------------------------------------------------------------
 
 
-class _Bag:
-    """An ``mcap_ros2`` writer that registers each schema once."""
-
-    def __init__(self, stream: BinaryIO) -> None:
-        self.writer = Writer(stream)
-        self.schemas: dict[str, Schema] = {}
-
-    def write(
-        self, topic: str, schema: str, message: dict[str, Any], t_ns: int, log_ns: int
-    ) -> None:
-        if schema not in self.schemas:
-            self.schemas[schema] = self.writer.register_msgdef(schema, MESSAGE_DEFINITIONS[schema])
-        self.writer.write_message(topic, self.schemas[schema], message, log_ns, t_ns)
-
-
 def _transform(t_ns: int, parent: str, child: str, T: gtsam.Pose3) -> dict[str, Any]:
     return {
         "header": header(t_ns, parent),
@@ -962,7 +946,7 @@ def _odometry_message(t_ns: int, T_odom_rig: gtsam.Pose3) -> dict[str, Any]:
     }
 
 
-def _write_static(bag: _Bag, truth: Scene3dTruth, mounts: Mounts) -> None:
+def _write_static(bag: Bag, truth: Scene3dTruth, mounts: Mounts) -> None:
     """The mounts, the true tags and the whole truth, once at the start."""
     t0 = int(truth.frame_times[0])
     if mounts is Mounts.TF_STATIC:
@@ -1006,8 +990,7 @@ def write_scene3d_log(
         by_view.setdefault((d.frame, d.camera), []).append(d)
     odom = odometry3d(truth, seed, drift) if odometry else None
     path = Path(path)
-    with written_whole(path) as partial, open(partial, "wb") as stream:
-        bag = _Bag(stream)
+    with written_whole(path) as partial, open(partial, "wb") as stream, Bag(stream) as bag:
         _write_static(bag, truth, mounts)
         for frame, t in enumerate(truth.frame_times):
             t_ns = int(t)
@@ -1029,7 +1012,6 @@ def write_scene3d_log(
                 )
                 array = _detection_array(t_ns, sim.frame_id, by_view.get((frame, k), []))
                 bag.write(f"/{sim.name}/tags", DETECTION_SCHEMA, array, t_ns, log_ns)
-        bag.writer.finish()
     return found
 
 

@@ -18,21 +18,20 @@ The map frame is the home marker's frame, as everywhere in markergraph.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import BinaryIO
 
 import cv2
 import gtsam
 import numpy as np
-from mcap.records import Schema
 from mcap.writer import CompressionType
-from mcap_ros2.writer import Writer
 from numpy.typing import NDArray
 
 from markergraph.common.files import written_whole
+from markergraph.datasets.bag import Bag
 from markergraph.datasets.capture import capture
 from markergraph.datasets.render import RenderedFrame, Renderer
 from markergraph.datasets.route import Drive, Route, WheelErrors, drive
@@ -42,7 +41,6 @@ from markergraph.datasets.world import World
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.frontend.camera import Camera, CameraMount
 from markergraph.frontend.ros2 import (
-    MESSAGE_DEFINITIONS,
     header,
     quaternion_from_matrix,
     quaternion_from_yaw,
@@ -117,29 +115,6 @@ def _pose(x: float, y: float, yaw: float) -> dict[str, object]:
     return {"position": {"x": x, "y": y, "z": 0.0}, "orientation": quaternion_from_yaw(yaw)}
 
 
-class _Bag:
-    """An ``mcap_ros2`` writer that registers each schema once and counts messages."""
-
-    def __init__(self, stream: BinaryIO, compression: CompressionType) -> None:
-        self.writer = Writer(stream, compression=compression)
-        self.schemas: dict[str, Schema] = {}
-        self.counts: dict[str, int] = {}
-
-    def write(
-        self, topic: str, schema: str, message: dict[str, object], t_ns: int, log_time_ns: int
-    ) -> None:
-        if schema not in self.schemas:
-            self.schemas[schema] = self.writer.register_msgdef(schema, MESSAGE_DEFINITIONS[schema])
-        self.writer.write_message(
-            topic,
-            self.schemas[schema],
-            message,
-            log_time=log_time_ns,
-            publish_time=t_ns,
-        )
-        self.counts[topic] = self.counts.get(topic, 0) + 1
-
-
 def write_log(
     world: World,
     route: Route,
@@ -182,9 +157,12 @@ def write_log(
     renderer = Renderer(world, camera, mount, texture_seed=seed)
     out = Path(out)
     T_map_world = world.T_world_marker(world.home_id).inverse()
-    with written_whole(out) as partial, open(partial, "wb") as stream:
-        # zstd shrinks raw depth 4x (JPEG not at all) for a fifth of the writing speed.
-        bag = _Bag(stream, CompressionType.ZSTD)
+    # zstd shrinks raw depth 4x (JPEG not at all) for a fifth of the writing speed.
+    with (
+        written_whole(out) as partial,
+        open(partial, "wb") as stream,
+        Bag(stream, CompressionType.ZSTD) as bag,
+    ):
         start = int(min(motion.odometry_t_ns[0], motion.frame_t_ns[0]))
         _write_static(bag, world, mount, topics, start, T_map_world, sensors)
         _write_stream(
@@ -193,12 +171,11 @@ def write_log(
                 progress,
             )
         )  # fmt: skip
-        bag.writer.finish()
     return LogSummary(out, len(motion.frame_t_ns), dict(bag.counts), out.stat().st_size)
 
 
 def _write_static(
-    bag: _Bag,
+    bag: Bag,
     world: World,
     mount: CameraMount,
     topics: Topics,
@@ -259,7 +236,7 @@ def _write_static(
 class _Recording:
     """What writing the stream of a log works from."""
 
-    bag: _Bag
+    bag: Bag
     """The log being written."""
     motion: Drive
     """The drive: odometry and frame times, odometry and true poses."""
@@ -391,17 +368,9 @@ def _write_frame(rec: _Recording, frame: RenderedFrame, t_ns: int, log_time: int
     """A camera frame: colour (raw or JPEG), depth and both camera infos."""
     bag, topics, camera = rec.bag, rec.topics, rec.camera
     if rec.compressed:
-        ok, jpeg = cv2.imencode(
-            ".jpg", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
-        )
-        if not ok:
-            raise RuntimeError(f"JPEG encoding failed for the frame at t_ns={t_ns}")
-        color: dict[str, object] = {
-            "header": header(t_ns, OPTICAL_FRAME),
-            "format": "rgb8; jpeg compressed bgr8",
-            "data": jpeg.tobytes(),
-        }
-        bag.write(topics.color_compressed, "sensor_msgs/msg/CompressedImage", color, t_ns, log_time)
+        # Encoded in the bag's thread, beside the next frame's rendering.
+        jpeg = functools.partial(_jpeg_message, frame.rgb, t_ns)
+        bag.write(topics.color_compressed, "sensor_msgs/msg/CompressedImage", jpeg, t_ns, log_time)
     else:
         color = _image(t_ns, camera, "rgb8", 3, frame.rgb.tobytes())
         bag.write(topics.color, "sensor_msgs/msg/Image", color, t_ns, log_time)
@@ -410,6 +379,20 @@ def _write_frame(rec: _Recording, frame: RenderedFrame, t_ns: int, log_time: int
     info = "sensor_msgs/msg/CameraInfo"
     bag.write(topics.color_info, info, _camera_info(t_ns, camera), t_ns, log_time)
     bag.write(topics.depth_info, info, _camera_info(t_ns, camera), t_ns, log_time)
+
+
+def _jpeg_message(rgb: NDArray[np.uint8], t_ns: int) -> dict[str, object]:
+    """A ``sensor_msgs/msg/CompressedImage`` of an RGB image, JPEG at quality 90."""
+    ok, jpeg = cv2.imencode(
+        ".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
+    )
+    if not ok:
+        raise RuntimeError(f"JPEG encoding failed for the frame at t_ns={t_ns}")
+    return {
+        "header": header(t_ns, OPTICAL_FRAME),
+        "format": "rgb8; jpeg compressed bgr8",
+        "data": jpeg.tobytes(),
+    }
 
 
 def _image(

@@ -224,3 +224,58 @@ def test_sample_log_is_generated_once_and_reused(tmp_path: Path, monkeypatch) ->
     assert samples.sample_log("paper-room") == path and path.stat().st_mtime_ns == written
     with pytest.raises(ValueError, match="unknown sample"):
         samples.sample_log("moon-base")
+
+
+def test_bag_thread_writes_the_bytes_one_thread_writes(tmp_path: Path) -> None:
+    """The simulators' writer (a thread of its own, JPEG made there) against mcap_ros2's writer
+    called in order from one thread: the same bytes; an error in either thread leaves the file
+    unfinished and is raised."""
+    from mcap_ros2.writer import Writer
+
+    from markergraph.datasets.bag import Bag
+    from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS, header
+
+    rng = np.random.default_rng(3)
+    depth = rng.integers(0, 4000, (480, 640), dtype=np.uint16).tobytes()  # 12 fill 6 chunks
+    messages = []
+    for i in range(12):
+        t = 1_000_000_000 + i * 10_000_000
+        image = {"header": header(t, "cam"), "height": 480, "width": 640, "encoding": "16UC1",
+                 "is_bigendian": 0, "step": 1280, "data": depth}  # fmt: skip
+        text = {"data": f"message {i}"}
+        messages += [("/depth", "sensor_msgs/msg/Image", image, t), ("/text", "std_msgs/msg/String",
+                     text, t)]  # fmt: skip
+    one = tmp_path / "one.mcap"
+    with open(one, "wb") as stream:
+        writer, schemas = Writer(stream), {}
+        for topic, schema, message, t in messages:
+            if schema not in schemas:
+                schemas[schema] = writer.register_msgdef(schema, MESSAGE_DEFINITIONS[schema])
+            writer.write_message(topic, schemas[schema], message, t + 5, t)
+        writer.finish()
+    threaded = tmp_path / "threaded.mcap"
+    with open(threaded, "wb") as stream, Bag(stream) as bag:
+        for k, (topic, schema, message, t) in enumerate(messages):
+            made = message if k % 3 else (lambda m=message: m)  # some made in the thread
+            bag.write(topic, schema, made, t, t + 5)
+    assert threaded.read_bytes() == one.read_bytes()
+    assert bag.counts == {"/depth": 12, "/text": 12}
+
+    def fails() -> dict:
+        raise RuntimeError("JPEG encoding failed")
+
+    broken = tmp_path / "broken.mcap"
+    with (
+        pytest.raises(RuntimeError, match="JPEG encoding failed"),
+        open(broken, "wb") as stream,
+        Bag(stream) as bag,
+    ):
+        bag.write("/text", "std_msgs/msg/String", fails, 1, 1)
+        for i in range(200):
+            bag.write("/text", "std_msgs/msg/String", {"data": str(i)}, i, i)
+    assert not broken.read_bytes().endswith(b"\x89MCAP0\r\n")  # never finished
+    # The caller's own error: what waited is dropped.
+    with pytest.raises(KeyError), open(broken, "wb") as stream, Bag(stream) as bag:
+        bag.write("/text", "std_msgs/msg/String", {"data": "kept?"}, 1, 1)
+        raise KeyError("the caller's")
+    assert not broken.read_bytes().endswith(b"\x89MCAP0\r\n")
