@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from markergraph.datasets.render import RenderedFrame, Renderer
+from markergraph.datasets.render import FrameNoise, RenderedFrame, Renderer
 from markergraph.datasets.sensors import (
     SensorEffects,
     black_cells_without_depth,
@@ -14,7 +14,18 @@ from markergraph.datasets.sensors import (
 )
 from markergraph.estimator.trajectory import Trajectory
 
-__all__ = ["capture"]
+__all__ = ["capture", "draw_capture_noise"]
+
+
+def draw_capture_noise(
+    renderer: Renderer, sensors: SensorEffects, rng: np.random.Generator
+) -> FrameNoise:
+    """One frame's noise, drawn from ``rng`` as :func:`capture` draws it: every render of a
+    rolling shutter's frame draws the same noise, from a seed of its own (the global shutter's
+    single render draws from ``rng`` itself, as it always has)."""
+    if len(shutter_offsets(sensors.rolling_shutter_s)) == 1:
+        return renderer.draw_noise(rng)
+    return renderer.draw_noise(np.random.default_rng(int(rng.integers(2**63))))
 
 
 def capture(
@@ -22,7 +33,7 @@ def capture(
     truth: Trajectory,
     t_ns: int,
     sensors: SensorEffects,
-    rng: np.random.Generator,
+    noise: FrameNoise | np.random.Generator,
     exposure: float = 1.0,
 ) -> RenderedFrame:
     """One frame whose top row is captured at ``t_ns``, as the sensors take it: each row at its
@@ -31,20 +42,20 @@ def capture(
     Under a rolling shutter the frame is rendered at :func:`shutter_offsets` and each row blended
     linearly from the two renders about its time (a shift of under a pixel between them blends
     into a shifted edge), so a marker's edges are straight skewed lines, not a staircase of
-    bands; every render draws the same noise. Depth is the nearer render's row."""
+    bands; every render draws the same noise. Depth is the nearer render's row.
+
+    ``noise``: the frame's noise (:func:`draw_capture_noise`), or the generator to draw it from.
+    """
     offsets = shutter_offsets(sensors.rolling_shutter_s)
-    # One noise draw for all renders of a frame (the global shutter's single render draws from
-    # ``rng`` itself, as it always has).
-    seed = None if len(offsets) == 1 else int(rng.integers(2**63))
+    if isinstance(noise, np.random.Generator):
+        noise = draw_capture_noise(renderer, sensors, noise)
     renders = []
     for after_s in offsets:
         t_render = t_ns + round(after_s * 1e9)
         pose = truth.at(t_render)
         if pose is None:
             raise ValueError(f"no true pose at {t_render} ns to render")
-        frame = renderer.render(
-            pose, rng if seed is None else np.random.default_rng(seed), exposure
-        )
+        frame = renderer.render(pose, noise, exposure)
         if sensors.exposure_s > 0:
             # The turn's smear (a translation's is left out: it is a fraction of it here).
             rate = _yaw_rate(truth, t_render + round(sensors.exposure_s * 5e8))

@@ -27,7 +27,14 @@ from markergraph.datasets.simulate import SIMULATED_MOUNT, MarkerGeometry
 from markergraph.datasets.world import World
 from markergraph.frontend.camera import Camera, CameraMount
 
-__all__ = ["DepthNoise", "ImageEffects", "RenderedFrame", "Renderer", "frames_with_true_corners"]
+__all__ = [
+    "DepthNoise",
+    "FrameNoise",
+    "ImageEffects",
+    "RenderedFrame",
+    "Renderer",
+    "frames_with_true_corners",
+]
 
 _AZIMUTH_SAMPLES = 4096  # table resolution across the field of view (~0.02 px at 640 wide)
 _MARKER_LEVELS = (24, 48, 96, 192, 384)  # pre-drawn marker sizes [px]; warps shrink at most 2x
@@ -64,6 +71,19 @@ class ImageEffects:
     blur_sigma_px: float = 0.7
     noise_sigma: float = 2.0
     exposure_sigma: float = 0.01
+
+
+@dataclass(frozen=True, slots=True)
+class FrameNoise:
+    """One frame's random draws (:meth:`Renderer.draw_noise`): drawn in log order, a frame
+    renders the same wherever and whenever it is rendered."""
+
+    image_field: int
+    """Which of the renderer's fixed image-noise fields is added."""
+    depth_field: NDArray[np.float64]
+    """(blocks down, blocks across) standard normal draws, one per block of the depth error."""
+    depth_dropped: NDArray[np.float64]
+    """The same blocks' uniform draws, below the dropout rate where the block returns nothing."""
 
 
 @dataclass(frozen=True)
@@ -200,10 +220,24 @@ class Renderer:
         )
         return distance, wall, along_m
 
+    def draw_noise(self, rng: np.random.Generator) -> FrameNoise:
+        """One frame's noise drawn from ``rng``."""
+        height, width, block = self.camera.height, self.camera.width, self.depth_noise.block_px
+        blocks = (-(-height // block), -(-width // block))
+        image_field = int(rng.integers(_NOISE_FIELDS))
+        return FrameNoise(image_field, rng.standard_normal(blocks), rng.random(blocks))
+
     def render(
-        self, T_world_base: gtsam.Pose2, rng: np.random.Generator, exposure: float = 1.0
+        self,
+        T_world_base: gtsam.Pose2,
+        noise: FrameNoise | np.random.Generator,
+        exposure: float = 1.0,
     ) -> RenderedFrame:
-        """Draw one frame from a base pose; ``rng`` draws this frame's noise."""
+        """Draw one frame from a base pose, with its noise (or the generator that draws it).
+        Safe to call from several threads at once: most of it is NumPy and OpenCV over whole
+        images, which release the GIL."""
+        if isinstance(noise, np.random.Generator):
+            noise = self.draw_noise(noise)
         T_world_camera = T_world_base.compose(self.mount.T_base_camera)
         yaw = T_world_base.theta()
         p_xy = np.array([T_world_camera.x(), T_world_camera.y()])
@@ -248,9 +282,9 @@ class Renderer:
             gray *= exposure
         if self.effects.blur_sigma_px > 0:
             gray = cv2.GaussianBlur(gray, (0, 0), self.effects.blur_sigma_px)
-        gray += self._image_noise[rng.integers(_NOISE_FIELDS)]
+        gray += self._image_noise[noise.image_field]
         image = np.clip(gray, 0, 255).astype(np.uint8)
-        depth_mm = self._noisy_depth(z.reshape(shape), rng)
+        depth_mm = self._noisy_depth(z.reshape(shape), noise)
         if self._distortion_maps is not None:
             # Drawn through the ideal pinhole; the lens then bends both images alike.
             map_x, map_y = self._distortion_maps
@@ -362,16 +396,15 @@ class Renderer:
         region += coverage * (ink - region)
         return True
 
-    def _noisy_depth(self, z: NDArray[np.float32], rng: np.random.Generator) -> NDArray[np.uint16]:
+    def _noisy_depth(self, z: NDArray[np.float32], drawn: FrameNoise) -> NDArray[np.uint16]:
         noise = self.depth_noise
         size = (self.camera.width, self.camera.height)
-        blocks = (-(-self.camera.height // noise.block_px), -(-self.camera.width // noise.block_px))
         # One draw per block, spread over the block: the matcher's error is correlated.
         field = cv2.resize(
-            rng.standard_normal(blocks).astype(np.float32), size, interpolation=cv2.INTER_NEAREST
+            drawn.depth_field.astype(np.float32), size, interpolation=cv2.INTER_NEAREST
         )
         dropped = cv2.resize(
-            (rng.random(blocks) < noise.dropout).astype(np.uint8),
+            (drawn.depth_dropped < noise.dropout).astype(np.uint8),
             size,
             interpolation=cv2.INTER_NEAREST,
         ).astype(bool)

@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import functools
 import math
+from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -32,7 +34,7 @@ from numpy.typing import NDArray
 
 from markergraph.common.files import written_whole
 from markergraph.datasets.bag import Bag
-from markergraph.datasets.capture import capture
+from markergraph.datasets.capture import capture, draw_capture_noise
 from markergraph.datasets.render import RenderedFrame, Renderer
 from markergraph.datasets.route import Drive, Route, WheelErrors, drive
 from markergraph.datasets.sensors import SensorEffects
@@ -287,32 +289,93 @@ def _stamps(motion: Drive, sensors: SensorEffects, rng: np.random.Generator) -> 
 
 
 def _write_stream(rec: _Recording) -> None:
-    """Odometry, tf, ground truth and camera frames, in the order they would be recorded."""
+    """Odometry, tf, ground truth and camera frames, in the order they would be recorded.
+
+    Frames render in a pool of threads (:data:`RENDER_THREADS`; NumPy and OpenCV release the
+    GIL over whole images) while the messages before them wait here; each frame's noise is
+    drawn here in log order, so the bytes are the same whichever thread renders it."""
     motion = rec.motion
     odometry_t, frame_t = motion.odometry_t_ns, motion.frame_t_ns
     stamps = _stamps(motion, rec.sensors, rec.rng)
     truth = Trajectory(odometry_t, motion.odometry_truth, "world")
+    waiting = _Waiting(rec, len(frame_t))
     i = j = 0
     exposure = 1.0
-    while i < len(odometry_t) or j < len(frame_t):
-        next_odometry = odometry_t[i] + ODOMETRY_LATENCY_NS if i < len(odometry_t) else math.inf
-        next_frame = stamps.frames[j] + IMAGE_LATENCY_NS if j < len(frame_t) else math.inf
-        if next_odometry <= next_frame:
-            _write_odometry(rec, i, int(stamps.odometry[i]), int(next_odometry))
-            i += 1
-            continue
-        exposure = float(
-            np.clip(exposure + rec.rng.normal(0.0, rec.renderer.effects.exposure_sigma), 0.8, 1.2)
-        )
-        if stamps.dropped[j]:
+    with ThreadPoolExecutor(RENDER_THREADS, thread_name_prefix="markergraph-render") as pool:
+        while i < len(odometry_t) or j < len(frame_t):
+            next_odometry = odometry_t[i] + ODOMETRY_LATENCY_NS if i < len(odometry_t) else math.inf
+            next_frame = stamps.frames[j] + IMAGE_LATENCY_NS if j < len(frame_t) else math.inf
+            if next_odometry <= next_frame:
+                odometry = functools.partial(
+                    _write_odometry, rec, i, int(stamps.odometry[i]), int(next_odometry)
+                )
+                waiting.add(odometry)
+                i += 1
+                continue
+            exposure = float(
+                np.clip(
+                    exposure + rec.rng.normal(0.0, rec.renderer.effects.exposure_sigma), 0.8, 1.2
+                )
+            )
+            if not stamps.dropped[j]:
+                noise = draw_capture_noise(rec.renderer, rec.sensors, rec.rng)
+                frame = pool.submit(
+                    capture, rec.renderer, truth, int(frame_t[j]), rec.sensors, noise, exposure
+                )
+                waiting.add(_Rendering(frame, int(stamps.frames[j]), int(next_frame), j + 1))
             j += 1
-            continue
-        t_ns = int(stamps.frames[j])
-        frame = capture(rec.renderer, truth, int(frame_t[j]), rec.sensors, rec.rng, exposure)
-        _write_frame(rec, frame, t_ns, int(next_frame))
-        j += 1
-        if rec.progress is not None:
-            rec.progress(j, len(frame_t))
+        waiting.write(flush=True)
+
+
+# Frames rendering at once; more only hold more images (the bag's thread and the caller's share
+# the same cores).
+RENDER_THREADS = 2
+RENDERING_AHEAD = 2 * RENDER_THREADS
+
+
+@dataclass(frozen=True, slots=True)
+class _Rendering:
+    """A frame being rendered, with where it goes in the log."""
+
+    frame: Future[RenderedFrame]
+    t_ns: int
+    """Its header stamp [ns]."""
+    log_time: int
+    """Its log time [ns]."""
+    number: int
+    """Its number among the route's frames, from 1 (for progress)."""
+
+
+class _Waiting:
+    """Messages waiting to be written in log order: odometry (written as soon as it is at the
+    front) and frames being rendered (written once rendered, or waited for once
+    :data:`RENDERING_AHEAD` are)."""
+
+    def __init__(self, rec: _Recording, frames: int) -> None:
+        self.rec, self.frames = rec, frames
+        self.queue: deque[Callable[[], None] | _Rendering] = deque()
+        self.rendering = 0
+
+    def add(self, item: Callable[[], None] | _Rendering) -> None:
+        self.queue.append(item)
+        self.rendering += isinstance(item, _Rendering)
+        self.write()
+
+    def write(self, flush: bool = False) -> None:
+        """What is at the front and ready; everything with ``flush``."""
+        rec = self.rec
+        while self.queue:
+            item = self.queue[0]
+            if not isinstance(item, _Rendering):
+                item()
+            elif flush or item.frame.done() or self.rendering > RENDERING_AHEAD:
+                _write_frame(rec, item.frame.result(), item.t_ns, item.log_time)
+                self.rendering -= 1
+                if rec.progress is not None:
+                    rec.progress(item.number, self.frames)
+            else:
+                return
+            self.queue.popleft()
 
 
 def _write_odometry(rec: _Recording, i: int, t_ns: int, log_time: int) -> None:

@@ -279,3 +279,24 @@ def test_bag_thread_writes_the_bytes_one_thread_writes(tmp_path: Path) -> None:
         bag.write("/text", "std_msgs/msg/String", {"data": "kept?"}, 1, 1)
         raise KeyError("the caller's")
     assert not broken.read_bytes().endswith(b"\x89MCAP0\r\n")
+
+
+def test_frames_rendered_in_threads_give_the_bytes_of_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A D435i's log (rolling shutter: three renders a frame; dropped frames; late stamps)
+    written with frames rendered two at a time and several ahead equals the log written with
+    each frame rendered and written before the next is started."""
+    import markergraph.datasets.write as write
+    from markergraph.datasets.sensors import D435I_ON_DIFF_DRIVE
+
+    world, route = scenario("corridor-loop")
+    paths = []
+    for threads, ahead in ((2, 4), (1, 0)):
+        monkeypatch.setattr(write, "RENDER_THREADS", threads)
+        monkeypatch.setattr(write, "RENDERING_AHEAD", ahead)
+        paths.append(tmp_path / f"threads-{threads}.mcap")
+        summary = write_log(world, route, paths[-1], seed=9, duration_s=1.0, compressed=True,
+                            sensors=D435I_ON_DIFF_DRIVE, frame_hz=15.0)  # fmt: skip
+    assert summary.frames > 10
+    assert paths[0].read_bytes() == paths[1].read_bytes()
