@@ -327,8 +327,8 @@ def _write_stream(rec: _Recording) -> None:
         waiting.write(flush=True)
 
 
-# Frames rendering at once; more only hold more images (the bag's thread and the caller's share
-# the same cores).
+# Frames rendering at once: two threads rendered the corridor's frames 1.4-1.55x as fast as one
+# (2 cores); more only hold more images (the bag's thread and this one share the same cores).
 RENDER_THREADS = 2
 RENDERING_AHEAD = 2 * RENDER_THREADS
 
