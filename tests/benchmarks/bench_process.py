@@ -12,7 +12,7 @@ within 5 px). Start-up: ``--help``, ``info LOG`` and ``detect --help`` as proces
 ``python -c pass`` (the interpreter alone).
 
 The logs: ``--log PATH``, else the corridor loop rendered once by ``markergraph simulate`` (100 s
-at 15 Hz, 640x480 JPEG, the D435i preset: 1,500 frames; about 5 minutes on an idle core, kept in
+at 15 Hz, 640x480 JPEG, the D435i preset: 1,500 frames; about 2 minutes on 2 idle cores, kept in
 the temporary folder), and its twin without depth (:func:`without_depth`). The D435i's raw depth
 is 0.6 MB a frame: zstd alone takes 1.2-1.5 s of CPU to read past it, a floor the plain loop,
 which reads nothing, never meets.
