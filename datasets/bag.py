@@ -24,8 +24,8 @@ from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS
 
 __all__ = ["Bag"]
 
-# Messages waiting for the writing thread: a few frames' worth (a raw depth image is 0.6 MB),
-# enough that neither thread waits on the other's every message.
+# Messages waiting for the writing thread: a few frames' worth (a raw depth image is 0.6 MB, a
+# raw colour one 0.9 MB), enough that neither thread waits on the other's every message.
 WAITING_MESSAGES = 32
 
 # topic, schema, message (or what makes it), stamp, log time
@@ -49,7 +49,6 @@ class Bag:
         self._error: BaseException | None = None
         self._dropping = False
         self._thread = threading.Thread(target=self._work, name="markergraph-bag", daemon=True)
-        self._thread.start()
 
     def write(
         self,
@@ -62,6 +61,8 @@ class Bag:
         """Queue one message: a dict ``mcap_ros2`` encodes (not to be changed afterwards), or
         a function that makes it, called in the writing thread (JPEG encoding, say, which
         releases the GIL)."""
+        if not self._thread.is_alive():
+            raise RuntimeError("a Bag writes only inside its with statement")
         if self._error is not None:
             raise self._error
         self._waiting.put((topic, schema, message, t_ns, log_time_ns))
@@ -87,6 +88,7 @@ class Bag:
                 self._error = error
 
     def __enter__(self) -> Bag:
+        self._thread.start()
         return self
 
     def __exit__(

@@ -260,6 +260,8 @@ def test_bag_thread_writes_the_bytes_one_thread_writes(tmp_path: Path) -> None:
             bag.write(topic, schema, made, t, t + 5)
     assert threaded.read_bytes() == one.read_bytes()
     assert bag.counts == {"/depth": 12, "/text": 12}
+    with pytest.raises(RuntimeError, match="inside its with statement"):
+        bag.write("/text", "std_msgs/msg/String", {"data": "after"}, 1, 1)
 
     def fails() -> dict:
         raise RuntimeError("JPEG encoding failed")
