@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,7 @@ from markergraph.estimator.trajectory import Trajectory
 from markergraph.markermap import MarkerMap
 
 __all__ = [
+    "copy_map",
     "diagnostics_figure",
     "draw_marker_map",
     "map_figure",
@@ -237,6 +239,13 @@ def plot_map(
     plt.close(fig)
 
 
+def copy_map(drawn: Path, path: Path) -> None:
+    """:func:`plot_map`'s PNG and SVG at ``drawn`` copied to ``path``: one method's map in two
+    folders is drawn once."""
+    for suffix in (".png", ".svg"):
+        shutil.copyfile(Path(drawn).with_suffix(suffix), Path(path).with_suffix(suffix))
+
+
 def plot_comparison(
     maps: Sequence[tuple[str, MarkerMap, tuple[float, float] | None]],
     truth: Mapping[int, gtsam.Pose2],
@@ -273,13 +282,16 @@ def plot_comparison(
 def _trim_rows(fig: Any, ax: Any, rows: int) -> None:
     """The figure made as short as its equal-aspect panels allow, so that no empty band is
     left between rows: the shortest height at which a panel still fills its slot's width
-    (a bisection: the titles and labels keep their size, the layout does not scale)."""
+    (a bisection: the titles and labels keep their size, the layout does not scale). Each step
+    lays the figure out without drawing it: with five methods' panels, drawing it took 3 s of
+    the figure's 4 s."""
     width_in, high = fig.get_size_inches()
+    engine = fig.get_layout_engine()
     low = rows * 1.0
     for _ in range(8):
         middle = 0.5 * (low + high)
         fig.set_size_inches(width_in, middle)
-        fig.canvas.draw()
+        engine.execute(fig)
         slot, used = ax.get_position(original=True), ax.get_position()
         if used.width >= slot.width * 0.995:  # still as wide as its slot: shorter may do
             high = middle

@@ -280,13 +280,19 @@ def _draw_figures(run: MapRun, folder: Path, plotter: Plotter) -> list[Path]:
     """Every figure of the folder asked for at once, the first method's map first: drawn while
     the rest is written, where the plotter has a process of its own. Returns the files they
     write."""
-    from markergraph.plots import plot_comparison, plot_diagnostics, plot_map
+    from markergraph.plots import copy_map, plot_comparison, plot_diagnostics, plot_map
 
     # The first method with residuals (the closed form has none).
     shown = next((r for r in run.results if r.estimate.residuals), run.results[0])
     frames = [s.frames for s in run.sessions] or run.frames
-    files = []
+    files: list[Path] = []
+    drawn: dict[int, Path] = {}  # a result's map, by id: where it was drawn
     for n, (result, method_folder) in enumerate(_method_folders(run, folder)):
+        files += [method_folder / "map.png", method_folder / "map.svg"]
+        if id(result) in drawn:  # the first method's folder under methods/: the same figure
+            plotter.draw(copy_map, drawn[id(result)], method_folder / "map.png")
+            continue
+        drawn[id(result)] = method_folder / "map.png"
         path = result.path if result.path is not None else result.estimate.trajectory
         plotter.draw(
             plot_map, result.marker_map, run.true_markers, method_folder / "map.png",
@@ -294,7 +300,6 @@ def _draw_figures(run: MapRun, folder: Path, plotter: Plotter) -> list[Path]:
             # Placed by the first optimised pose, which is the path's first pose too.
             odometry=result.odometry_map, truth_path=result.true_path, rmse_m=_rmse(result),
         )  # fmt: skip
-        files += [method_folder / "map.png", method_folder / "map.svg"]
         if n == 0:
             plotter.draw(
                 plot_diagnostics, shown.label, diagnostics(shown.estimate, frames),
