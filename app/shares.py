@@ -91,8 +91,9 @@ def no_sigma_share(considered: Considered, error: Exception) -> Note:
 
 
 def _farthest(estimate: Estimate, moved: Estimate) -> float | None:
-    """The largest move of a marker in both maps [m]; None where they share none."""
-    both = set(estimate.markers) & set(moved.markers)
+    """The largest move of a marker in both maps [m]; None where they share none but the home
+    marker (the map's frame: it cannot move)."""
+    both = (set(estimate.markers) & set(moved.markers)) - {estimate.home_id}
     if not both:
         return None
     return max(

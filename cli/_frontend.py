@@ -50,6 +50,7 @@ def add_info_parser(commands: argparse._SubParsersAction) -> None:
 
 def run_detect(args: argparse.Namespace) -> int:
     from markergraph.common.files import check_output_file
+    from markergraph.common.numbers import counted
     from markergraph.common.progress import ProgressBar
     from markergraph.formats.observations import write_observations
     from markergraph.frontend.pipeline import extract
@@ -66,8 +67,8 @@ def run_detect(args: argparse.Namespace) -> int:
     markers = sorted({o.marker_id for o in result.observations})
     print(
         f"{result.frames} frames ({result.frames_with_depth} with depth), {written} "
-        f"observations of {len(markers)} markers, {len(result.odometry)} odometry samples "
-        f"-> {out}"
+        f"observations of {counted(len(markers), 'marker')}, "
+        f"{len(result.odometry)} odometry samples -> {out}"
     )
     for reason, count in sorted(result.skipped.items()):
         print(f"  {count} frame(s): {reason}")

@@ -285,13 +285,14 @@ def _error_columns(method_result: MethodResult, home_fixed: MapError) -> str:
 
 
 def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
+    from markergraph.common.numbers import counted
     from markergraph.records import LINKING_METHODS
 
     extraction = result.extraction
     markers = {o.marker_id for o in extraction.observations}
     print(
         f"{extraction.frames} frames, {len(extraction.observations)} observations of "
-        f"{len(markers)} markers, home marker {result.frames.home_id}"
+        f"{counted(len(markers), 'marker')}, home marker {result.frames.home_id}"
     )
     header = f"{'method':<14} {'markers':>7} {'links':>5}"
     if result.true_markers:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-__all__ = ["NOISE_FLOOR", "denoised", "denoised_matrix", "shown"]
+__all__ = ["NOISE_FLOOR", "counted", "denoised", "denoised_matrix", "shown"]
 
 NOISE_FLOOR = 1e-12
 """[m] or [rad]: below it a value is rounding left by the solver (the home marker's
@@ -38,3 +38,8 @@ def shown(value: float, spec: str) -> str:
     if "-" in mantissa and "inf" not in mantissa and not any(c in "123456789" for c in mantissa):
         return format(0.0, spec)
     return text
+
+
+def counted(count: int, noun: str) -> str:
+    """``count`` and ``noun``, plural unless one: "1 marker", "6 markers"."""
+    return f"{count} {noun}" if count == 1 else f"{count} {noun}s"

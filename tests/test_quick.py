@@ -236,3 +236,33 @@ def test_at_stamps_takes_own_poses_and_interpolates_the_rest() -> None:
         np.testing.assert_allclose(
             found.poses[len(t) + k], [expected.x(), expected.y(), expected.theta()], atol=EXACT
         )
+
+
+def test_a_map_of_the_home_marker_alone_has_no_move_to_report() -> None:
+    """The readout's note says how far the markers move; the home marker is the map's frame and
+    cannot move, so a map of it alone gets no note (it said "up to 0.000 m"), while a second
+    marker moved by 3 cm is reported at 0.030 m."""
+    from dataclasses import replace
+
+    import markergraph as mg
+    from markergraph.estimator import Estimate, Trajectory
+    from markergraph.estimator.types import MarkerEstimate
+    from markergraph.shares import with_readout_share
+
+    covariance = np.diag([1e-4, 1e-4, 1e-5])
+    home = MarkerEstimate(0, gtsam.Pose2(), covariance, 10)
+    far = MarkerEstimate(4, gtsam.Pose2(5.0, 2.0, 1.0), covariance, 10)
+    alone = Estimate(mg.Method.SLAM, 0, {0: home}, Trajectory.from_samples([]))
+    assert not with_readout_share(alone, alone).notes
+    moved_far = replace(far, T_map_marker=gtsam.Pose2(5.03, 2.0, 1.0))
+    two = replace(alone, markers={0: home, 4: far})
+    (note,) = with_readout_share(two, replace(alone, markers={0: home, 4: moved_far})).notes
+    assert note.kind == "camera.readout_share" and note.figure == pytest.approx(0.03)
+    assert "up to 0.030 m" in note.text
+
+
+def test_counts_are_said_in_the_singular_for_one() -> None:
+    """The summaries' counts: "1 marker", never "1 markers"."""
+    from markergraph.common.numbers import counted
+
+    assert [counted(n, "marker") for n in (0, 1, 6)] == ["0 markers", "1 marker", "6 markers"]
