@@ -72,8 +72,9 @@ def run_detect(args: argparse.Namespace) -> int:
     )
     for reason, count in sorted(result.skipped.items()):
         print(f"  {count} frame(s): {reason}")
-    for note in result.notes:  # on stderr, as map says its notes
-        print(f"note: {note}", file=sys.stderr)
+    if not args.quiet:  # on stderr, as map says its notes
+        for note in result.notes:
+            print(f"note: {note}", file=sys.stderr)
     for warning in result.warnings:
         print(f"markergraph detect: warning: {warning}", file=sys.stderr)
     return 0
