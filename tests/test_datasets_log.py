@@ -286,7 +286,7 @@ def test_bag_thread_writes_the_bytes_one_thread_writes(tmp_path: Path) -> None:
 def test_frames_rendered_in_threads_give_the_bytes_of_one(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A D435i's log (rolling shutter: three renders a frame; dropped frames; late stamps)
+    """A D435i's log (rolling shutter: 17 renders a frame; dropped frames; late stamps)
     written with frames rendered two at a time and several ahead equals the log written with
     each frame rendered and written before the next is started."""
     import markergraph.datasets.write as write
