@@ -283,8 +283,8 @@ def _trim_rows(fig: Any, ax: Any, rows: int) -> None:
     """The figure made as short as its equal-aspect panels allow, so that no empty band is
     left between rows: the shortest height at which a panel still fills its slot's width
     (a bisection: the titles and labels keep their size, the layout does not scale). Each step
-    lays the figure out without drawing it: with five methods' panels, drawing it took 3 s of
-    the figure's 4 s."""
+    lays the figure out without drawing it: with five methods' panels, drawing it at each step
+    made the figure take 4.2 s, against 2.0-2.9 s laid out (the same PNG)."""
     width_in, high = fig.get_size_inches()
     engine = fig.get_layout_engine()
     low = rows * 1.0

@@ -286,13 +286,11 @@ def _draw_figures(run: MapRun, folder: Path, plotter: Plotter) -> list[Path]:
     shown = next((r for r in run.results if r.estimate.residuals), run.results[0])
     frames = [s.frames for s in run.sessions] or run.frames
     files: list[Path] = []
-    drawn: dict[int, Path] = {}  # a result's map, by id: where it was drawn
     for n, (result, method_folder) in enumerate(_method_folders(run, folder)):
         files += [method_folder / "map.png", method_folder / "map.svg"]
-        if id(result) in drawn:  # the first method's folder under methods/: the same figure
-            plotter.draw(copy_map, drawn[id(result)], method_folder / "map.png")
+        if n > 0 and result is run.results[0]:  # its folder under methods/: the top one's map
+            plotter.draw(copy_map, folder / "map.png", method_folder / "map.png")
             continue
-        drawn[id(result)] = method_folder / "map.png"
         path = result.path if result.path is not None else result.estimate.trajectory
         plotter.draw(
             plot_map, result.marker_map, run.true_markers, method_folder / "map.png",

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from markergraph.cli._commands import summary
-from markergraph.cli._settings import add_settings, add_verbosity, settings_from
+from markergraph.cli._settings import add_settings, add_verbosity, say_notes, settings_from
 from markergraph.settings import map_config
 
 if TYPE_CHECKING:
@@ -71,10 +71,8 @@ def run_detect(args: argparse.Namespace) -> int:
         f"{len(result.odometry)} odometry samples -> {out}"
     )
     for reason, count in sorted(result.skipped.items()):
-        print(f"  {count} frame(s): {reason}")
-    if not args.quiet:  # on stderr, as map says its notes
-        for note in result.notes:
-            print(f"note: {note}", file=sys.stderr)
+        print(f"  {counted(count, 'frame')}: {reason}")
+    say_notes(result.notes, quiet=args.quiet)
     for warning in result.warnings:
         print(f"markergraph detect: warning: {warning}", file=sys.stderr)
     return 0

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from markergraph.cli._commands import summary
-from markergraph.cli._settings import add_settings, add_verbosity, settings_from
+from markergraph.cli._settings import add_settings, add_verbosity, say_notes, settings_from
 from markergraph.common import SettingsError
 from markergraph.common.files import check_output_folder
 from markergraph.common.progress import ProgressBar, Stages
@@ -149,9 +148,7 @@ def run_localize(args: argparse.Namespace) -> int:
         print(f"moved: marker {m.marker_id} by {100 * m.displacement_m:.1f} cm")
     for i in sorted(loc.new):
         print(f"new: marker {i}")
-    if not args.quiet:
-        for note in run.notes:
-            print(f"note: {note}", file=sys.stderr)
+    say_notes(run.notes, quiet=args.quiet)
     print(f"wrote {len(written)} files to {args.out}/ (open {Path(args.out) / REPORT_PAGE})")
     return 0
 
@@ -256,9 +253,7 @@ def _run_3d(
         print(f"camera {camera.name} ({camera.topic}): mount {how}, {camera.n_views:,} views")
     print(f"verdict {run.marker_map.method}: {run.judgement.verdict.value}", end="")
     print("".join(f"\n  - {reason.text}" for reason in run.judgement.reasons))
-    if not args.quiet:
-        for note in [*run.notes, *tag_map.notes]:
-            print(f"note: {note}", file=sys.stderr)
+    say_notes([*run.notes, *tag_map.notes], quiet=args.quiet)
     print(f"wrote {len(written)} files to {out}/")
     print(f"open {report_page}")
     if args.strict and run.judgement.verdict is not Verdict.OK:
@@ -320,7 +315,7 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
         print(f"verdict {method_result.label}: {judgement.verdict.value}", end="")
         print("".join(f"\n  - {reason.text}" for reason in judgement.reasons))
     for reason, count in sorted(extraction.skipped.items()):
-        print(f"  {count} frame(s): {reason}")
+        print(f"  {counted(count, 'frame')}: {reason}")
     for n, session in enumerate(result.sessions, start=1):
         where = "in the map" if session.trajectory is not None else "shares no marker: mapped apart"
         print(f"log {n}: {session.log} ({session.extraction.frames} frames), {where}")
@@ -328,6 +323,4 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
         print(
             f"separate map {n}: {len(marker_map.markers)} markers from {', '.join(map(str, logs))}"
         )
-    if not quiet:
-        for note in [*result.notes, *extraction.warnings]:
-            print(f"note: {note}", file=sys.stderr)
+    say_notes([*result.notes, *extraction.warnings], quiet=quiet)

@@ -7,13 +7,15 @@ Each setting is declared once, flag and commands included, by the library
 from __future__ import annotations
 
 import argparse
+import sys
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from markergraph.common.errors import SettingsError
 from markergraph.settings import SETTINGS, read_config_file
 
-__all__ = ["add_settings", "add_verbosity", "settings_from"]
+__all__ = ["add_settings", "add_verbosity", "say_notes", "settings_from"]
 
 
 _GROUPS = {
@@ -88,3 +90,10 @@ def add_verbosity(parser: argparse.ArgumentParser) -> None:
         "-v", "--verbose", action="store_true",
         help="each stage and its time on stderr, even off a terminal",
     )  # fmt: skip
+
+
+def say_notes(notes: Iterable[object], *, quiet: bool) -> None:
+    """What was assumed or measured, a ``note:`` line each on stderr; none with ``-q``."""
+    if not quiet:
+        for note in notes:
+            print(f"note: {note}", file=sys.stderr)

@@ -3,9 +3,9 @@ own, while the caller renders the next frame.
 
 CDR encoding is Python, but zstd and CRC32 release the GIL, and so does OpenCV's JPEG
 encoding, which runs here too (:meth:`Bag.write` takes a function that makes a message): on 2
-cores the bundled sample took 12.1-13.6 s to write against 14.4-15.7 s with one thread doing
-both (interleaved, before frames rendered in threads too). Messages are written in the order
-given, so the file's bytes are those one thread writes.
+cores the bundled sample took 12.1-15.6 s to write against 14.0-15.7 s with one thread doing
+both (five runs each, interleaved; before frames rendered in threads too). Messages are written
+in the order given, so the file's bytes are those one thread writes.
 """
 
 from __future__ import annotations
