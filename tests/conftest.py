@@ -1,7 +1,12 @@
 """Test-wide settings and fixtures: hypothesis runs derandomised, so every run draws the same
 examples; the small rendered log several modules damage in their own ways, rendered once; tests
-marked ``slow`` run only with ``--slow`` (CI passes it)."""
+marked ``slow`` run only with ``--slow`` (CI passes it); tests marked ``alone`` run while no other
+test does (pytest-xdist runs the rest a file to a worker, a worker a core)."""
 
+import os
+import tempfile
+from collections.abc import Generator, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -19,8 +24,46 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
+# The file by which one run's workers take turns (:func:`_turn`), named to them in the environment.
+TURNS = "MARKERGRAPH_TEST_TURNS"
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "slow: a test of many seconds; runs only with --slow")
+    config.addinivalue_line(
+        "markers", "alone: runs while no other test does (it measures the machine's idle cores)"
+    )
+    if TURNS not in os.environ:  # the run's first process: pytest's own, before its workers
+        handle, path = tempfile.mkstemp(prefix="markergraph-test-turns-")
+        os.close(handle)
+        os.environ[TURNS] = path
+        config.add_cleanup(lambda: os.unlink(path))
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item: pytest.Item) -> Generator[None, object, object]:
+    """Each test, its fixtures' set-up and tear-down included, in its turn."""
+    with _turn(alone=item.get_closest_marker("alone") is not None):
+        return (yield)
+
+
+@contextmanager
+def _turn(alone: bool) -> Iterator[None]:
+    """A test's turn among the workers' (POSIX locks on two bytes of the turns file): each
+    takes the gate (byte 0), then a share of the running lock (byte 1) and lets the gate go. A
+    test that runs alone keeps the gate, so no other test starts, and waits for the running
+    lock whole, so every test running ends first. Closing the file ends the turn."""
+    try:
+        import fcntl
+    except ImportError:  # no POSIX locks (Windows): the tests run as they come
+        yield
+        return
+    with open(os.environ[TURNS], "r+b") as turns:
+        fcntl.lockf(turns, fcntl.LOCK_EX, 1, 0)
+        fcntl.lockf(turns, fcntl.LOCK_EX if alone else fcntl.LOCK_SH, 1, 1)
+        if not alone:
+            fcntl.lockf(turns, fcntl.LOCK_UN, 1, 0)
+        yield
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

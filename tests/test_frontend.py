@@ -960,6 +960,7 @@ def test_core_ticks_read_proc_stat() -> None:
     assert core_ticks(text) == {0: (42, 63), 1: (70, 94)}
 
 
+@pytest.mark.alone
 def test_busy_cores_sees_a_process_spinning_on_our_cores() -> None:
     """A process spinning beside us shows as about one more busy core than before it ran."""
     from markergraph.common.pool import available_cores, busy_cores
@@ -983,6 +984,7 @@ def test_busy_cores_sees_a_process_spinning_on_our_cores() -> None:
     assert loaded <= available_cores() + 0.05
 
 
+@pytest.mark.alone
 def test_busy_cores_leaves_out_our_own_children() -> None:
     """A child of ours (the plotter warming up, say) is not other work: busy as it is, the
     cores read as before it ran (a spinner that is not ours reads as one more, above)."""

@@ -147,7 +147,7 @@ def test_cli_version_and_help() -> None:
 
 
 TEST_ONLY = ("pytest", "hypothesis", "mypy", "ruff", "jupytext", "nbclient", "nbformat", "evo",
-             "ipykernel", "foxglove_schemas_protobuf", "types_tqdm")  # fmt: skip
+             "ipykernel", "foxglove_schemas_protobuf", "types_tqdm", "xdist")  # fmt: skip
 BLOCKED_RUN = """
 import importlib.abc, sys
 class TestOnly(importlib.abc.MetaPathFinder):
