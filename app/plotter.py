@@ -1,13 +1,16 @@
-"""A result folder's figures drawn beside the rest of it: in a process of its own where a second
-core is free, so matplotlib's drawing (most of the writing: 0.8 of 1.3 s on the bundled
+"""A result folder's figures drawn beside the rest of it: in processes of their own where a
+second core is free, so matplotlib's drawing (most of the writing: 0.8 of 1.3 s on the bundled
 sample's cached map) overlaps the maps, trajectories, overlay and report being written.
 
-The process starts with the command and imports matplotlib while the log is read and the map
-solved; a figure is then drawn there as soon as it is asked for. Without a free core, or should
-the process fail, each figure is drawn here instead: the figures are the same either way."""
+The processes start with the command and import matplotlib while the log is read and the map
+solved; a figure is then drawn by whichever is free as soon as it is asked for. One process
+serves a map's two figures; several methods' maps and their comparison keep two busy once the
+command has written the rest. Without a free core, or should a process fail, each figure is
+drawn here instead: the figures are the same either way."""
 
 from __future__ import annotations
 
+import itertools
 import os
 import pickle
 import signal
@@ -26,104 +29,118 @@ if TYPE_CHECKING:
 __all__ = ["Plotter"]
 
 _Figure = tuple[Callable[..., Any], tuple[Any, ...], dict[str, Any]]
-CLOSE_TIMEOUT_S = 5.0  # for the process to end once terminated; then it is killed
+_Task = tuple[int, bytes]  # a figure's number and the figure pickled
+_Outcome = tuple[int, BaseException | None]  # a figure's number and its error, if any
+CLOSE_TIMEOUT_S = 5.0  # for a process to end once terminated; then it is killed
 
 
 class Plotter:
-    """Draws figures (module-level functions that write files): in a process of its own
+    """Draws figures (module-level functions that write files): in processes of their own
     (:meth:`start`), else in this one (``Plotter()``). Used as a context manager, which ends the
-    process."""
+    processes."""
 
     def __init__(self) -> None:
-        self._process: BaseProcess | None = None
-        self._tasks: Queue[bytes] | None = None
-        self._results: Queue[BaseException | None] | None = None
-        self._pending: list[_Figure] = []
+        self._processes: list[BaseProcess] = []
+        self._tasks: Queue[_Task] | None = None
+        self._results: Queue[_Outcome] | None = None
+        self._pending: dict[int, _Figure] = {}  # by number: asked for, not yet drawn
+        self._numbers = itertools.count()
 
     @classmethod
-    def start(cls) -> Plotter:
-        """A plotter whose process starts now and imports matplotlib at once, where this
-        machine has a second core and can start one; else one that draws in this process."""
+    def start(cls, processes: int = 1) -> Plotter:
+        """A plotter whose ``processes`` (at most one a core) start now and import matplotlib
+        at once, where this machine has a second core and can start them; else one that draws
+        in this process."""
         plotter = cls()
-        if available_cores() < 2:
+        cores = available_cores()
+        if cores < 2:
             return plotter
         import multiprocessing
 
         # Spawned, not forked: forking after OpenCV or GTSAM have started threads can deadlock.
         context = multiprocessing.get_context("spawn")
+        started: list[BaseProcess] = []
         try:
             tasks, results = context.Queue(), context.Queue()
-            process = context.Process(
-                target=_serve, args=(tasks, results, os.getpid()), name="markergraph-plotter",
-                daemon=True,
-            )  # fmt: skip
-            with _sigint_ignored():  # until it ignores Ctrl-C itself: the command's to handle
-                process.start()
+            for _ in range(min(processes, cores)):
+                process = context.Process(
+                    target=_serve, args=(tasks, results, os.getpid()),
+                    name="markergraph-plotter", daemon=True,
+                )  # fmt: skip
+                with _sigint_ignored():  # until it ignores Ctrl-C itself: the command's to handle
+                    process.start()
+                started.append(process)
         except OSError:  # no semaphores or pipes to be had here: drawn in this process
+            for begun in started:
+                begun.terminate()
             return plotter
-        plotter._process, plotter._tasks, plotter._results = process, tasks, results
+        plotter._processes, plotter._tasks, plotter._results = started, tasks, results
         return plotter
 
     def draw(self, figure: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
-        """``figure(*args, **kwargs)``, now here or soon in the plotter's process;
-        :meth:`finish` waits for it. A figure whose arguments do not pickle is drawn here."""
+        """``figure(*args, **kwargs)``, now here or soon in a plotter's process; :meth:`finish`
+        waits for it. A figure whose arguments do not pickle is drawn here."""
         if self._tasks is not None:
             try:
                 task = pickle.dumps((figure, args, kwargs), pickle.HIGHEST_PROTOCOL)
             except (pickle.PicklingError, TypeError, AttributeError):
                 task = None
             if task is not None:
-                self._tasks.put(task)
-                self._pending.append((figure, args, kwargs))
+                number = next(self._numbers)
+                self._tasks.put((number, task))
+                self._pending[number] = (figure, args, kwargs)
                 return
         figure(*args, **kwargs)
 
     def finish(self) -> None:
-        """Every figure asked for drawn; a figure's error is raised here. Should the process
-        itself fail (killed, out of memory), the figures it had not drawn are drawn here."""
-        pending, self._pending = self._pending, []
-        for n in range(len(pending)):
+        """Every figure asked for drawn; a figure's error is raised here. Should a process
+        itself fail (killed, out of memory), the processes are ended and the figures not yet
+        drawn are drawn here."""
+        while self._pending:
             try:
-                error = self._result()
+                number, error = self._result()
             except _ProcessEndedError:
+                left = list(self._pending.values())
                 self.close()
-                for figure, args, kwargs in pending[n:]:
+                for figure, args, kwargs in left:
                     figure(*args, **kwargs)
                 return
-            if error is not None:
+            if self._pending.pop(number, None) is not None and error is not None:
                 raise error
 
-    def _result(self) -> BaseException | None:
-        """The next figure's outcome from the process: None where it was drawn, else its error.
+    def _result(self) -> _Outcome:
+        """The next figure's outcome from the processes.
 
         Raises:
-            _ProcessEndedError: the process ended before it sent one.
+            _ProcessEndedError: a process ended (it may have held a figure it never drew).
         """
         import queue
 
-        assert self._results is not None and self._process is not None
+        assert self._results is not None
         while True:
             try:
                 return self._results.get(timeout=0.5)
             except queue.Empty:
-                if not self._process.is_alive():
+                if not all(p.is_alive() for p in self._processes):
                     raise _ProcessEndedError from None
 
     def close(self) -> None:
-        """The process ended at once; figures not yet drawn are dropped (after :meth:`finish`
-        there are none)."""
-        process, tasks = self._process, self._tasks
-        self._process = self._tasks = self._results = None
-        self._pending = []
-        if process is None or tasks is None:
+        """The processes ended at once; figures not yet drawn are dropped (after
+        :meth:`finish` there are none)."""
+        processes, tasks = self._processes, self._tasks
+        self._processes, self._tasks, self._results = [], None, None
+        self._pending = {}
+        if tasks is None:
             return
-        process.terminate()  # idle, or drawing into a folder that is being discarded
-        process.join(CLOSE_TIMEOUT_S)
-        if process.is_alive():
-            process.kill()
-            process.join()
+        for process in processes:
+            process.terminate()  # idle, or drawing into a folder that is being discarded
+        for process in processes:
+            process.join(CLOSE_TIMEOUT_S)
+            if process.is_alive():
+                process.kill()
+                process.join()
         tasks.close()
-        tasks.cancel_join_thread()  # tasks it never took are not waited for
+        tasks.cancel_join_thread()  # tasks they never took are not waited for
 
     @contextmanager
     def stopped_on_error(self) -> Iterator[None]:
@@ -162,22 +179,22 @@ def _sigint_ignored() -> Iterator[None]:
 
 
 class _ProcessEndedError(Exception):
-    """The plotter's process ended before drawing a figure."""
+    """A plotter's process ended before its figures were drawn."""
 
 
-def _serve(tasks: Queue[bytes], results: Queue[BaseException | None], parent_pid: int) -> None:
-    """The plotter's process: matplotlib imported first, then each figure drawn as it comes,
-    its outcome sent back, until the command ends it (:meth:`Plotter.close`). It ignores Ctrl-C
+def _serve(tasks: Queue[_Task], results: Queue[_Outcome], parent_pid: int) -> None:
+    """A plotter's process: matplotlib imported first, then each figure it takes drawn, its
+    outcome sent back, until the command ends it (:meth:`Plotter.close`). It ignores Ctrl-C
     (from its start, :func:`_sigint_ignored`): the command handles that, and ends it then."""
     start_worker(parent_pid, _import_plots)
     while True:
-        task = tasks.get()
+        number, task = tasks.get()
         try:
             figure, args, kwargs = pickle.loads(task)
             figure(*args, **kwargs)
-            results.put(None)
+            results.put((number, None))
         except Exception as error:  # raised in the command, where the figure was asked for
-            results.put(_sendable(error))
+            results.put((number, _sendable(error)))
 
 
 def _sendable(error: Exception) -> Exception:

@@ -277,19 +277,25 @@ def _method_folders(run: MapRun, folder: Path) -> list[tuple[MethodResult, Path]
 
 
 def _draw_figures(run: MapRun, folder: Path, plotter: Plotter) -> list[Path]:
-    """Every figure of the folder asked for at once, the first method's map first: drawn while
-    the rest is written, where the plotter has a process of its own. Returns the files they
-    write."""
-    from markergraph.plots import copy_map, plot_comparison, plot_diagnostics, plot_map
+    """Every figure of the folder asked for at once, the longest to draw first (the comparison
+    of several methods: 2-3 s, a map 0.4-0.5 s): drawn while the rest is written, where the
+    plotter has processes of its own. The first method's map under ``methods/`` is left to
+    :func:`_copy_first_map`. Returns the files they write, the copy's included."""
+    from markergraph.plots import plot_comparison, plot_diagnostics, plot_map
 
     # The first method with residuals (the closed form has none).
     shown = next((r for r in run.results if r.estimate.residuals), run.results[0])
     frames = [s.frames for s in run.sessions] or run.frames
     files: list[Path] = []
+    if len(run.results) > 1:
+        plotter.draw(
+            plot_comparison, [(r.label, r.marker_map, _rmse(r)) for r in run.results],
+            run.true_markers, folder / "comparison.png",
+        )  # fmt: skip
+        files.append(folder / "comparison.png")
     for n, (result, method_folder) in enumerate(_method_folders(run, folder)):
         files += [method_folder / "map.png", method_folder / "map.svg"]
         if n > 0 and result is run.results[0]:  # its folder under methods/: the top one's map
-            plotter.draw(copy_map, folder / "map.png", method_folder / "map.png")
             continue
         path = result.path if result.path is not None else result.estimate.trajectory
         plotter.draw(
@@ -304,13 +310,16 @@ def _draw_figures(run: MapRun, folder: Path, plotter: Plotter) -> list[Path]:
                 run.extraction.observations, folder / DIAGNOSTICS_FIGURE,
             )  # fmt: skip
             files.append(folder / DIAGNOSTICS_FIGURE)
-    if len(run.results) > 1:
-        plotter.draw(
-            plot_comparison, [(r.label, r.marker_map, _rmse(r)) for r in run.results],
-            run.true_markers, folder / "comparison.png",
-        )  # fmt: skip
-        files.append(folder / "comparison.png")
     return files
+
+
+def _copy_first_map(run: MapRun, folder: Path) -> None:
+    """With several methods, the first method's map (drawn in the top folder) copied to its
+    folder under ``methods/``: one map in two folders is drawn once."""
+    from markergraph.plots import copy_map
+
+    if len(run.results) > 1:
+        copy_map(folder / "map.png", folder / "methods" / run.results[0].label / "map.png")
 
 
 def _write_all(run: MapRun, folder: Path, plotter: Plotter | None) -> None:
@@ -347,6 +356,7 @@ def _write_all(run: MapRun, folder: Path, plotter: Plotter | None) -> None:
     write_json(folder / "report.json", report)
     if plotter is not None:
         plotter.finish()  # the page inlines the figures
+        _copy_first_map(run, folder)
     write_report_page(folder / REPORT_PAGE, report, folder)  # the same figures, one page
 
 

@@ -16,6 +16,7 @@ from markergraph.plotter import Plotter
 from markergraph.records import MapRun
 from markergraph.results import write_results
 from markergraph.run import map_logs
+from markergraph.settings import MapConfig
 
 BAD_FIGURE = "no such marker"
 # The "figures" below are functions the plotter's process can import by name, as it does ours.
@@ -28,27 +29,41 @@ def run(log: Path) -> MapRun:
     return map_logs([log])
 
 
+@pytest.fixture(scope="module")
+def every_method(log: Path) -> MapRun:
+    return map_logs([log], MapConfig.from_values({"method": "all"}))
+
+
 @TWO_CORES
 @pytest.mark.slow
-def test_a_plotters_folder_is_the_one_drawn_here(run: MapRun, tmp_path: Path) -> None:
-    write_results(run, tmp_path / "here")
-    with Plotter.start() as plotter:
-        assert plotter._process is not None
-        write_results(run, tmp_path / "there", plotter=plotter)
-        write_results(run, tmp_path / "again", plotter=plotter)  # a plotter serves many folders
-    here, there, again = (
-        sorted(p.relative_to(tmp_path / name) for p in (tmp_path / name).rglob("*"))
-        for name in ("here", "there", "again")
-    )
-    assert here == there == again
-    assert {"map.png", "map.svg", "diagnostics.png"} <= {str(p) for p in there}
-    for name in ("map.png", "diagnostics.png"):
-        assert (tmp_path / "here" / name).read_bytes() == (tmp_path / "there" / name).read_bytes()
-    manifests = [
-        json.loads((tmp_path / name / "report.json").read_text())["files"]
-        for name in ("here", "there", "again")
-    ]
-    assert manifests[0] == manifests[1] == manifests[2]
+@pytest.mark.parametrize("processes", [1, 2])
+def test_a_plotters_folder_is_the_one_drawn_here(
+    run: MapRun, every_method: MapRun, processes: int, tmp_path: Path
+) -> None:
+    """One method's folder and every method's (its comparison and a map copied under methods/)
+    drawn by one or two processes: the files drawn here, PNGs byte for byte."""
+    one, several = tmp_path / "one", tmp_path / "several"
+    write_results(run, one / "here")
+    write_results(every_method, several / "here")
+    with Plotter.start(processes) as plotter:
+        assert len(plotter._processes) == processes
+        write_results(run, one / "there", plotter=plotter)
+        write_results(run, one / "again", plotter=plotter)  # a plotter serves many folders
+        write_results(every_method, several / "there", plotter=plotter)
+    for top, names in ((one, ("here", "there", "again")), (several, ("here", "there"))):
+        listed = [sorted(p.relative_to(top / n) for p in (top / n).rglob("*")) for n in names]
+        assert all(files == listed[0] for files in listed)
+        pngs = [p for p in listed[0] if p.suffix == ".png"]
+        for png in pngs:
+            assert (top / "here" / png).read_bytes() == (top / "there" / png).read_bytes(), png
+        manifests = [json.loads((top / n / "report.json").read_text())["files"] for n in names]
+        assert all(m == manifests[0] for m in manifests)
+    drawn = {str(p.relative_to(one / "there")) for p in (one / "there").rglob("*.png")}
+    assert drawn == {"map.png", "diagnostics.png"}
+    shown = {str(p.relative_to(several / "there")) for p in (several / "there").rglob("*.png")}
+    assert {"comparison.png", "methods/slam/map.png", "methods/ekf/map.png"} <= shown
+    copied = several / "there" / "methods" / "slam" / "map.png"
+    assert copied.read_bytes() == (several / "there" / "map.png").read_bytes()
 
 
 @TWO_CORES
@@ -62,17 +77,19 @@ def test_a_figures_error_is_raised_in_the_command(tmp_path: Path) -> None:
 
 
 @TWO_CORES
-def test_figures_a_dead_plotter_did_not_draw_are_drawn_here(tmp_path: Path) -> None:
-    with Plotter.start() as plotter:
-        assert plotter._process is not None
+@pytest.mark.parametrize("processes", [1, 2])
+def test_figures_a_dead_plotter_did_not_draw_are_drawn_here(processes: int, tmp_path: Path) -> None:
+    """One of the plotter's processes dies (the other, if any, lives on): every figure asked for
+    after it is still drawn, by the other or here."""
+    with Plotter.start(processes) as plotter:
         plotter.draw(FIGURE, tmp_path / "a.txt", "a")
         plotter.finish()
-        plotter._process.kill()
-        plotter._process.join()
-        plotter.draw(FIGURE, tmp_path / "b.txt", "b")
-        plotter.draw(FIGURE, tmp_path / "c.txt", "c")
+        plotter._processes[0].kill()
+        plotter._processes[0].join()
+        for name in "bcdef":
+            plotter.draw(FIGURE, tmp_path / f"{name}.txt", name)
         plotter.finish()
-    assert [(tmp_path / n).read_text() for n in ("a.txt", "b.txt", "c.txt")] == ["a", "b", "c"]
+    assert [(tmp_path / f"{n}.txt").read_text() for n in "abcdef"] == list("abcdef")
 
 
 @TWO_CORES
@@ -90,7 +107,7 @@ def test_an_error_while_writing_stops_the_plotter_before_the_folder_goes(
     with Plotter.start() as plotter:
         with pytest.raises(OSError, match="disk full"):
             write_results(run, tmp_path / "out", plotter=plotter)
-        assert plotter._process is None
+        assert plotter._processes == []
     assert list(tmp_path.iterdir()) == []
 
 
@@ -100,4 +117,4 @@ def test_a_figure_that_cannot_be_sent_is_drawn_here(tmp_path: Path) -> None:
         plotter.draw(lambda: (tmp_path / "a.txt").write_text("a"))  # a lambda does not pickle
         plotter.finish()
         assert (tmp_path / "a.txt").read_text() == "a"
-        assert plotter._process is not None  # the process still serves the next figure
+        assert plotter._processes  # the process still serves the next figure
