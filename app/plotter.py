@@ -87,8 +87,10 @@ class Plotter:
                 task = None
             if task is not None:
                 number = next(self._numbers)
-                self._tasks.put((number, task))
+                # Pending before it is queued: a Ctrl-C between the two must not leave a queued
+                # figure that close() takes for drawn (it would wait on the queue's thread).
                 self._pending[number] = (figure, args, kwargs)
+                self._tasks.put((number, task))
                 return
         figure(*args, **kwargs)
 

@@ -235,8 +235,8 @@ def write_results(
     in report.json's ``file_frames`` (:data:`TUM_FRAMES`: the corrected path per method at the
     odometry's rate, the odometry in its odom frame and placed in the map, ground truth);
     ``report.json`` and ``report.html`` (the same report as one self-contained page). The
-    figures are drawn by ``plotter`` (:class:`~markergraph.plotter.Plotter`: in a process of its
-    own, while the rest is written), else here.
+    figures are drawn by ``plotter`` (:class:`~markergraph.plotter.Plotter`: in processes of
+    their own, while the rest is written), else here.
 
     Returns:
         The files written, relative to ``out``.

@@ -8,6 +8,7 @@ import tempfile
 from collections.abc import Generator, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import settings
@@ -24,8 +25,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
-# The file by which one run's workers take turns (:func:`_turn`), named to them in the environment.
-TURNS = "MARKERGRAPH_TEST_TURNS"
+TURNS = "markergraph_turns"  # the workers' input naming the run's turns file (:func:`_turn`)
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -33,32 +33,49 @@ def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers", "alone: runs while no other test does (it measures the machine's idle cores)"
     )
-    if TURNS not in os.environ:  # the run's first process: pytest's own, before its workers
-        handle, path = tempfile.mkstemp(prefix="markergraph-test-turns-")
+    if config.pluginmanager.hasplugin("xdist") and not hasattr(config, "workerinput"):
+        config.pluginmanager.register(_TurnsFile(config), "markergraph-turns")
+
+
+class _TurnsFile:
+    """pytest-xdist's controller's part: the run's turns file, made now, named to each worker
+    as it starts and removed when the run ends (a nested run, or a second one in the same
+    process, makes its own)."""
+
+    def __init__(self, config: pytest.Config) -> None:
+        handle, self.path = tempfile.mkstemp(prefix="markergraph-test-turns-")
         os.close(handle)
-        os.environ[TURNS] = path
-        config.add_cleanup(lambda: os.unlink(path))
+        config.add_cleanup(lambda: os.unlink(self.path))
+
+    def pytest_configure_node(self, node: Any) -> None:
+        node.workerinput[TURNS] = self.path
 
 
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_protocol(item: pytest.Item) -> Generator[None, object, object]:
-    """Each test, its fixtures' set-up and tear-down included, in its turn."""
-    with _turn(alone=item.get_closest_marker("alone") is not None):
+    """Each test, its fixtures' set-up and tear-down included, in its turn among the workers'
+    (in one process the tests take turns anyway)."""
+    turns = getattr(item.config, "workerinput", {}).get(TURNS)
+    if turns is None:
+        return (yield)
+    with _turn(turns, alone=item.get_closest_marker("alone") is not None):
         return (yield)
 
 
 @contextmanager
-def _turn(alone: bool) -> Iterator[None]:
+def _turn(turns_file: str, alone: bool) -> Iterator[None]:
     """A test's turn among the workers' (POSIX locks on two bytes of the turns file): each
     takes the gate (byte 0), then a share of the running lock (byte 1) and lets the gate go. A
     test that runs alone keeps the gate, so no other test starts, and waits for the running
-    lock whole, so every test running ends first. Closing the file ends the turn."""
+    lock whole, so every test running ends first. Closing the file ends the turn. A module's
+    fixture already made in another worker lives on meanwhile (the Ray instance of
+    tests/test_ray.py): an ``alone`` test still checks that the cores are idle."""
     try:
         import fcntl
     except ImportError:  # no POSIX locks (Windows): the tests run as they come
         yield
         return
-    with open(os.environ[TURNS], "r+b") as turns:
+    with open(turns_file, "r+b") as turns:
         fcntl.lockf(turns, fcntl.LOCK_EX, 1, 0)
         fcntl.lockf(turns, fcntl.LOCK_EX if alone else fcntl.LOCK_SH, 1, 1)
         if not alone:
@@ -67,7 +84,8 @@ def _turn(alone: bool) -> Iterator[None]:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Without ``--slow``, the slow tests are deselected (counted as such), not skipped."""
+    """Without ``--slow``, the slow tests are deselected, not skipped (pytest-xdist's workers do
+    it, so only ``-n 0`` counts them in the summary)."""
     if config.getoption("--slow"):
         return
     slow = [item for item in items if item.get_closest_marker("slow")]
