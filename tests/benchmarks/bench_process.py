@@ -10,7 +10,7 @@ minute to minute); each figure is the best of ``--rounds``. Recall is the defaul
 share of the plain loop's detections over every frame (``detection_agreement``: same id, corners
 within 5 px). Each row also gives the CPU its best run took (user and system, threads and
 workers included): the plain loop's default detector runs OpenCV's own threads, which keep
-both cores busy (on the log without depth, 5.1 s of CPU in 2.7 s), so the loop is not a
+both cores busy (5.1-5.4 s of CPU in 2.7-2.9 s on either log), so the loop is not a
 one-core floor. Start-up: ``--help``, ``info LOG`` and ``detect --help`` as processes, beside
 ``python -c pass`` (the interpreter alone).
 
