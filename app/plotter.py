@@ -146,7 +146,8 @@ class Plotter:
             # Every task was taken, so the queue's thread ends at once: wait for it here. Left
             # to end as Python exits, it may drop the queue's last locks, unlink one and be
             # stopped before it tells the resource tracker, which then warns of a "leaked
-            # semaphore" (seen in 1 of 7 runs of `--method all` before; not seen since).
+            # semaphore" (before: in 1 of 6 runs of `--method all` kept apart, and in 1 of 25
+            # of a script drawing eight 3 MB figures).
             tasks.join_thread()
         else:
             tasks.cancel_join_thread()  # tasks they never took are not waited for

@@ -318,8 +318,9 @@ def _copy_first_map(run: MapRun, folder: Path) -> None:
     folder under ``methods/``: one map in two folders is drawn once."""
     from markergraph.plots import copy_map
 
-    if len(run.results) > 1:
-        copy_map(folder / "map.png", folder / "methods" / run.results[0].label / "map.png")
+    for result, method_folder in _method_folders(run, folder)[1:]:
+        if result is run.results[0]:
+            copy_map(folder / "map.png", method_folder / "map.png")
 
 
 def _write_all(run: MapRun, folder: Path, plotter: Plotter | None) -> None:

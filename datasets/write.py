@@ -302,6 +302,8 @@ def _write_stream(rec: _Recording) -> None:
             pool.shutdown(cancel_futures=True)  # frames not started yet are not rendered
             raise
         waiting.write(flush=True)
+    if rec.progress is not None:  # the last frames may have been dropped, not rendered
+        rec.progress(waiting.frames, waiting.frames)
 
 
 def _send_in_order(rec: _Recording, waiting: _Waiting, pool: ThreadPoolExecutor) -> None:

@@ -302,3 +302,18 @@ def test_frames_rendered_in_threads_give_the_bytes_of_one(
                             sensors=D435I_ON_DIFF_DRIVE, frame_hz=15.0)  # fmt: skip
     assert summary.frames > 10
     assert paths[0].read_bytes() == paths[1].read_bytes()
+
+
+def test_progress_reaches_the_end_when_the_last_frames_are_dropped(tmp_path: Path) -> None:
+    """Progress counts the route's frames, dropped ones too: it ends at (all, all) even where the
+    last frames were dropped, not rendered (seed 2: the last frame rendered is the 8th of 10)."""
+    from markergraph.datasets.sensors import SensorEffects
+
+    world, route = scenario("paper-room")
+    calls: list[tuple[int, int]] = []
+    write_log(world, route, tmp_path / "dropped.mcap", seed=2, duration_s=2.0, compressed=True,
+              sensors=SensorEffects(dropped_frames=0.5), frame_hz=5.0,
+              progress=lambda done, total: calls.append((done, total)))  # fmt: skip
+    assert calls[-2] == (8, 10)  # the last frame rendered
+    assert calls[-1] == (10, 10)
+    assert [done for done, _ in calls] == sorted(done for done, _ in calls)
