@@ -13,7 +13,7 @@ from typing import Any
 import gtsam
 
 from markergraph.common import MarkerGraphError, Note
-from markergraph.common.numbers import shown
+from markergraph.common.numbers import counted, shown
 from markergraph.estimator import (
     ODOMETRY_NOISE,
     READOUT_MAX_S,
@@ -34,6 +34,7 @@ from markergraph.estimator import (
     widened_for_motion,
 )
 from markergraph.frontend import Extraction
+from markergraph.frontend.posed import drop_notes
 from markergraph.obs_cache import search_key
 from markergraph.sections import CameraSettings, Shutter
 from markergraph.settings import MapConfig
@@ -215,19 +216,30 @@ def _misreads_in(
     return misreads, at
 
 
+def _nothing_observed(extraction: Extraction, config: MapConfig) -> str:
+    """Why a log gave no observation: no marker found, or every one found set aside (and
+    why: the allowed ids, floor and ceiling tags, no pose)."""
+    found = sum(c.detections for c in extraction.marker_detections.values())
+    frames = counted(extraction.frames, "frame")
+    if found:
+        why = "; ".join(n.text for n in drop_notes(extraction.marker_detections))
+        return (
+            f"{counted(found, 'detection')} of markers of {config.dictionary} in {frames}, "
+            f"none usable in a 2-D map: {why}"
+            + (" (--dimensions 3 maps every tag, whatever its normal)" if "floor" in why else "")
+        )
+    left_out = sorted(extraction.ids_left_out)
+    return f"no markers of {config.dictionary} were found in {frames}" + (
+        f" (markers {', '.join(map(str, left_out))} were seen but are not in --ids)"
+        if left_out
+        else ""
+    )
+
+
 def _check_usable(log: Path, extraction: Extraction, config: MapConfig) -> None:
     """Raise, naming the log, when there is nothing to map: no markers, or no odometry."""
     if not extraction.observations:
-        left_out = sorted(extraction.ids_left_out)
-        raise MarkerGraphError(
-            f"{log}: no markers of {config.dictionary} were found in "
-            f"{extraction.frames} frames"
-            + (
-                f" (markers {', '.join(map(str, left_out))} were seen but are not in --ids)"
-                if left_out
-                else ""
-            )
-        )
+        raise MarkerGraphError(f"{log}: {_nothing_observed(extraction, config)}")
     if not len(extraction.odometry):
         topic = extraction.topics.odom
         dropped = [

@@ -373,9 +373,16 @@ def _check_usable(path: Path, choice: TopicChoice, result: Extraction) -> None:
     """Bad messages cost their frames; but a topic of which nothing could be used is an error.
 
     Raises:
-        LogError: no camera intrinsics, no colour frame decodes, or depth was chosen and none
-            of it is usable.
+        LogError: no frame could be read, no camera intrinsics, no colour frame decodes, or
+            depth was chosen and none of it is usable.
     """
+    if not result.frames:  # every message on the topic unreadable: a damaged log
+        topic = choice.color or ", ".join(choice.detections)
+        lost = [w for w in result.warnings if topic in w or not w.startswith(str(path))]
+        raise LogError(
+            f"{path}: no frame on {topic} could be read"
+            + (f" ({lost[0].removeprefix(f'{path}: ')})" if lost else "")
+        )
     if result.camera is None:
         bad_info = [w for w in result.warnings if choice.camera_info and choice.camera_info in w]
         raise LogError(

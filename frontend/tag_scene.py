@@ -276,7 +276,7 @@ def read_tag_scene(
             views.append(TagView(frame_of[k], camera, d.marker_id, rays,
                                  PIXEL_NOISE_PX * per_px, per_px, *seeds))  # fmt: skip
     if not views:
-        raise LogError(f"{log.path}: no tag detection gives a pose ({dict(read.skipped)})")
+        raise LogError(f"{log.path}: no tag detection gives a pose: {_why_none(read, reader)}")
     for topic, count in (item for item in rewound.items() if item[1]):
         text = (
             f"{count:,} detections on {topic} had their corners wound the other way round "
@@ -289,6 +289,14 @@ def read_tag_scene(
     read.notes = notes
     read.warnings = reader.failures.warnings()
     return read
+
+
+def _why_none(read: SceneRead, reader: _Reader) -> str:
+    """Why no detection gave a pose, in words: the messages that could not be read (a damaged
+    log says where), then each reason detections were set aside, with its count."""
+    unread = [line.partition(": ")[2] for line in reader.failures.warnings()]
+    skipped = [f"{reason} ({count:,})" for reason, count in read.skipped.most_common()]
+    return "; ".join(unread + skipped) or "no detection messages"
 
 
 def _remapped(

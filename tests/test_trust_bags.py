@@ -161,6 +161,27 @@ def test_a_damaged_chunk_costs_only_its_messages(bags, kind, tmp_path, capsys) -
     assert digest(bag) == before
 
 
+def test_a_bag_whose_every_frame_is_unreadable_is_one_line(bags, tmp_path, capsys) -> None:
+    """Every chunk holding a colour frame damaged: detect and map refuse the bag in one line
+    naming it, the topic and the damage, never an empty observations file with exit 0."""
+    intact = open_ros1(bags["lz4"])
+    with_colour = [c.pos for c in intact.chunks
+                   if any(intact.connections[i].topic == COLOR for i in c.counts)]  # fmt: skip
+
+    def damage(data: bytearray) -> None:
+        for pos in with_colour:
+            _, _, data_at = chunk_record(bytes(data), pos)
+            data[data_at + 20 : data_at + 60] = bytes(range(40))  # lz4 that does not decompress
+
+    bag = damaged_copy(bags["lz4"], tmp_path, "every-frame.bag", damage)
+    for command in ("detect", "map"):
+        out = tmp_path / f"{command}-out"
+        plots = ["--no-plots"] if command == "map" else []
+        code, _, err = cli(capsys, command, bag, "--out", out, *plots)
+        line = one_line_error(err, str(bag), COLOR, "damaged chunk")
+        assert code == 1 and "could be read" in line and not out.exists(), (command, err)
+
+
 def test_a_bag_cut_short_is_read_to_the_cut_with_a_note(bags, tmp_path, capsys) -> None:
     """A bag cut inside its last chunks (no index left): info and map read it by a scan of its
     records, and map says where the scan stopped and that the rest is lost."""
@@ -173,6 +194,32 @@ def test_a_bag_cut_short_is_read_to_the_cut_with_a_note(bags, tmp_path, capsys) 
     cut = [line for line in err.splitlines() if "the scan of its records stopped at" in line]
     assert len(cut) == 1 and str(bag) in cut[0] and "the messages after that are lost" in cut[0]
     assert any("the scan of its records stopped at" in n for n in report_notes(tmp_path / "r"))
+
+
+def rosbag_padded(data: bytes) -> bytes:
+    """A bag written by the rosbags library with its header record padded as ``rosbag record``
+    pads it (4096 bytes of header and data, not 4096 in all): every record after it 8 bytes on."""
+    (header_len,) = struct.unpack_from("<I", data, 13)
+    at = 17 + header_len  # the bag header's data length
+    (data_len,) = struct.unpack_from("<I", data, at)
+    end = at + 4 + data_len
+    return data[:at] + struct.pack("<I", data_len + 8) + data[at + 4 : end] + b" " * 8 + data[end:]
+
+
+def test_a_cut_bag_is_scanned_from_where_its_header_record_ends(bags, tmp_path) -> None:
+    """Real bags (``rosbag record``) have their first chunk at byte 4117, the rosbags library's
+    at 4109: a bag of either, cut short, is scanned from its header record's end and gives the
+    same chunks (the scan once began at 4109 and found nothing in a real bag)."""
+    data = bags["lz4"].read_bytes()
+    cut = len(data) * 3 // 4
+    ours = damaged_copy(bags["lz4"], tmp_path, "ours.bag", lambda d: d[:cut])
+    real = tmp_path / "real.bag"
+    real.write_bytes(rosbag_padded(data)[: cut + 8])
+    read_ours, read_real = open_ros1(ours), open_ros1(real)
+    assert read_ours.scanned and read_real.scanned
+    assert len(read_ours.chunks) >= 2
+    assert [c.counts for c in read_real.chunks] == [c.counts for c in read_ours.chunks]
+    assert [c.pos + 8 for c in read_ours.chunks] == [c.pos for c in read_real.chunks]
 
 
 # --- lengths are checked before anything is allocated -----------------------------------------

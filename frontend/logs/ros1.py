@@ -31,7 +31,10 @@ __all__ = ["DamagedBagError", "Ros1Bag", "Ros1Chunk", "Ros1Connection", "lost_co
 
 # Record opcodes (the header's ``op`` field).
 _MESSAGE, _BAG_HEADER, _INDEX_DATA, _CHUNK, _CHUNK_INFO, _CONNECTION = 2, 3, 4, 5, 6, 7
-_FIRST_RECORD = len(ROS1_MAGIC) + 4096  # the bag header record is padded to 4096 bytes
+# The bag header record is padded with spaces: by rosbag to 4096 bytes of header and data (the
+# first chunk at 4117), by the rosbags library to 4096 in all (at 4109). The nearer bounds an
+# index's offset; a scan starts where the header record itself ends.
+_FIRST_RECORD = len(ROS1_MAGIC) + 4096
 MAX_HEADER_BYTES = 16 << 20
 """A record header is a few fields (a connection's carries its message definitions: kB)."""
 MAX_CHUNK_BYTES = 512 << 20
@@ -232,7 +235,7 @@ def _from_scan(path: Path, stream: BinaryIO, size: int, why: str) -> Ros1Bag:
     (or the end); ``why`` is why its index was not used."""
     connections: dict[int, Ros1Connection] = {}
     chunks: list[Ros1Chunk] = []
-    pos, stopped = _FIRST_RECORD, ""
+    pos, stopped = _after_bag_header(stream, size), ""
     while pos < size:
         try:
             header, data_pos, data_len, end = _record(stream, pos, size)
@@ -251,6 +254,15 @@ def _from_scan(path: Path, stream: BinaryIO, size: int, why: str) -> Ros1Bag:
     if not chunks:
         raise DamagedBagError(f"{why}; a scan of its records found no chunk ({stopped or 'none'})")
     return Ros1Bag(path, size, connections, chunks, why, stopped)
+
+
+def _after_bag_header(stream: BinaryIO, size: int) -> int:
+    """Where the records after the bag header record begin: its end, or rosbag's 4117 where
+    the header itself is damaged."""
+    try:
+        return _record(stream, len(ROS1_MAGIC), size, _BAG_HEADER)[3]
+    except DamagedBagError:
+        return _FIRST_RECORD + 8
 
 
 def _scanned_chunk(
