@@ -10,11 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
+from mcap.reader import breakup_chunk, make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import StreamReader
 
 from markergraph.cli import main
 from markergraph.frontend.logs import DecodeFailures, open_log
 
+COLOR = "/camera/camera/color/image_raw/compressed"
 FOOTER_AT = -(8 + 20 + 1 + 8)  # the footer record: opcode, length, then its 20 bytes; magic
 
 
@@ -54,7 +57,8 @@ def chunk_field(log: Path, name: str) -> int:
     """Where a field of the log's fourth chunk lies (its records are zstd)."""
     content = chunk_offsets(log)[3] + 1 + 8  # past the opcode and the record's length
     # start and end times, then the uncompressed size and CRC, the compression, the records
-    return {"uncompressed size": content + 16, "records length": content + 32 + len("zstd")}[name]
+    fields = {"uncompressed size": 16, "uncompressed crc": 24, "records length": 32 + len("zstd")}
+    return content + fields[name]
 
 
 @pytest.mark.parametrize("value", [2**64 - 1, 2**40, 2**31])
@@ -66,6 +70,30 @@ def test_a_huge_uncompressed_size_costs_its_chunk(log, tmp_path, capsys, value) 
     code, err = run(capsys, "map", damaged, "--out", tmp_path / "r", "--no-plots")
     assert code == 0, err
     assert f"{damaged}: skipped" in err and "a damaged chunk" in err
+
+
+def test_a_chunk_failing_its_crc_costs_its_messages(log, tmp_path, capsys) -> None:
+    """A chunk whose records disagree with its CRC (damage that still decompresses: a flipped
+    byte in a JPEG read as data, libjpeg's "Corrupt JPEG data" on stderr its only sign) costs
+    its messages, as many as mcap's own reader finds in the intact chunk."""
+    at = chunk_field(log, "uncompressed crc")
+    (crc,) = struct.unpack_from("<I", log.read_bytes(), at)
+    damaged = with_bytes(log, tmp_path / "crc.mcap", at, struct.pack("<I", crc ^ 1))
+    with open(log, "rb") as stream:
+        channels = make_reader(stream).get_summary().channels
+        stream.seek(0)
+        chunks = [r for r in StreamReader(stream, emit_chunks=True).records if isinstance(r, Chunk)]
+    colour = next(i for i, c in channels.items() if c.topic == COLOR)
+    records = breakup_chunk(chunks[3], validate_crc=True)
+    in_chunk = sum(isinstance(r, Message) and r.channel_id == colour for r in records)
+    assert in_chunk > 0
+    code, err = run(capsys, "detect", damaged, "--out", tmp_path / "o.jsonl")
+    assert code == 0, err
+    line = (
+        f"{damaged}: skipped {in_chunk} unreadable message(s) on {COLOR} (a damaged chunk at "
+        f"byte {chunk_offsets(log)[3]}: a chunk whose records fail its CRC)"
+    )
+    assert line in err, err
 
 
 @pytest.mark.parametrize("value", [2**63 - 1, 2**63, 2**40])

@@ -64,6 +64,8 @@ class DecodeFailures:
     """(file, topic) -> messages skipped."""
     first_error: dict[tuple[str, str], str] = field(default_factory=dict)
     """(file, topic) -> why the first of them was."""
+    reasons: dict[tuple[str, str], set[str]] = field(default_factory=dict)
+    """(file, topic) -> every different reason (each damaged chunk is one: its byte)."""
     notes: list[str] = field(default_factory=list)
     """What was lost or recovered of a whole file (a cut tail, an index rebuilt, a loss that
     cannot be counted), one line each."""
@@ -73,6 +75,7 @@ class DecodeFailures:
         key = (str(file), topic)
         self.counts[key] += n
         self.first_error.setdefault(key, reason)
+        self.reasons.setdefault(key, set()).add(reason)
 
     def note(self, file: Path, text: str) -> None:
         """Say once what happened to a whole file."""
@@ -86,6 +89,8 @@ class DecodeFailures:
         self.counts.update(other.counts)
         for key, reason in other.first_error.items():
             self.first_error.setdefault(key, reason)
+        for key, reasons in other.reasons.items():
+            self.reasons.setdefault(key, set()).update(reasons)
         self.notes += [line for line in other.notes if line not in self.notes]
 
     @classmethod
@@ -101,9 +106,14 @@ class DecodeFailures:
         first reason."""
         return self.notes + [
             f"{file}: skipped {n} unreadable message(s) on {topic} "
-            f"({self.first_error[(file, topic)]})"
+            f"({self.first_error[(file, topic)]}{self._more((file, topic))})"
             for (file, topic), n in sorted(self.counts.items())
         ]
+
+    def _more(self, key: tuple[str, str]) -> str:
+        """How many other places (damaged chunks, records) cost messages of the topic."""
+        more = len(self.reasons.get(key, ())) - 1
+        return f"; and {more} other place{'s' if more > 1 else ''}" if more > 0 else ""
 
 
 class McapDamageError(McapError):

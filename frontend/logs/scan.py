@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import os
 import struct
+import zlib
 from collections import Counter
 from collections.abc import Iterator
 from typing import IO, BinaryIO, cast
@@ -125,12 +126,22 @@ def chunk_at(stream: BoundedFile, offset: int) -> Chunk:
 
 def decompress(chunk: Chunk) -> bytes:
     """A chunk's records, decompressed to the size the chunk states, once that size is
-    plausible and the compressed frame agrees with it.
+    plausible and the compressed frame agrees with it, and checked against the chunk's CRC
+    where the writer gave one: damage that still decompresses (a flipped byte in a JPEG)
+    would otherwise pass as data. zlib's CRC runs at about 4 GB/s without holding the GIL.
 
     Raises:
-        McapError: an implausible size, a disagreeing frame or an unknown compression.
+        McapError: an implausible size, a disagreeing frame, a failed CRC or an unknown
+            compression.
         zstandard.ZstdError, RuntimeError (lz4): damaged compressed data.
     """
+    data = _decompressed(chunk)
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise McapDamageError("a chunk whose records fail its CRC")
+    return data
+
+
+def _decompressed(chunk: Chunk) -> bytes:
     size = chunk.uncompressed_size
     if size > MAX_CHUNK_BYTES:
         raise McapDamageError(
