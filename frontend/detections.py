@@ -15,14 +15,17 @@ recordings: reversed, every tag faces the camera; as listed, none does).
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from markergraph.frontend.detect import Detection
+from markergraph.common.errors import SettingsError
+from markergraph.frontend.detect import Detection, load_dictionary
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS
 
-__all__ = ["DETECTION_DEFINITIONS", "DETECTION_SCHEMAS", "detections_of"]
+__all__ = ["DETECTION_DEFINITIONS", "DETECTION_SCHEMAS", "TagFamilies", "detections_of"]
 
 DETECTION_SCHEMAS = (
     "apriltag_msgs/msg/AprilTagDetectionArray",
@@ -58,3 +61,59 @@ def detections_of(decoded: Any) -> list[Detection]:
             raise ValueError(f"a detection of tag {tag.id} has {len(tag.corners)} corners, not 4")
         found.append(Detection(int(tag.id), corners[::-1].copy()))
     return sorted(found, key=lambda d: d.marker_id)
+
+
+_FAMILIES = {f: f"DICT_APRILTAG_{f}" for f in ("16h5", "25h9", "36h10", "36h11")}
+# A family known by its bits alone (TagSLAM's ROS 1 detector names itself "mit" or "umich"):
+# the AprilTag family most robots carry with that many.
+_BY_BITS = {
+    4: "DICT_APRILTAG_16h5",
+    5: "DICT_APRILTAG_25h9",
+    6: "DICT_APRILTAG_36h11 (or DICT_APRILTAG_36h10)",
+}
+
+
+class TagFamilies:
+    """What detection messages say of their tags' family (a ``family`` field, or ``bits``
+    across the code) and the highest id they carry, held to the dictionary the map is labelled
+    with: a map of 36h11 tags called DICT_4X4_50 exports files no ArUco user can read."""
+
+    def __init__(self) -> None:
+        self.first: dict[str, tuple[str, int | None]] = {}  # topic -> (family, bits)
+        self.highest: dict[str, int] = {}  # topic -> the highest id
+
+    def take(self, topic: str, decoded: Any, found: list[Detection]) -> None:
+        """One detection message's tags (``found``: as :func:`detections_of` read them)."""
+        if not found:
+            return
+        self.highest[topic] = max(self.highest.get(topic, -1), found[-1].marker_id)
+        if topic not in self.first:
+            tags = decoded.apriltags if hasattr(decoded, "apriltags") else decoded.detections
+            bits = getattr(tags[0], "bits", None)
+            self.first[topic] = (str(getattr(tags[0], "family", "") or ""), bits and int(bits))
+
+    def check(self, path: Path, dictionary: str) -> None:
+        """Raises SettingsError, in one line naming the log, the topic and the dictionary to
+        pass, where the tags are another family's or an id lies beyond the dictionary."""
+        known = load_dictionary(dictionary)
+        size, bits = len(known.bytesList), int(known.markerSize)
+        for topic, (family, tag_bits) in self.first.items():
+            named = re.search(r"(16h5|25h9|36h10|36h11)", family)
+            if named and _FAMILIES[named.group(1)] != dictionary:
+                raise SettingsError(
+                    f"{path}: the tags on {topic} are AprilTag {named.group(1)} (their family "
+                    f"field), not {dictionary}: pass --dictionary {_FAMILIES[named.group(1)]}"
+                )
+            if not named and tag_bits and tag_bits != bits:
+                guess = _BY_BITS.get(tag_bits)
+                raise SettingsError(
+                    f"{path}: the tags on {topic} have {tag_bits}x{tag_bits} bits (family "
+                    f"{family!r}), not {dictionary}'s {bits}x{bits}: pass --dictionary "
+                    + (guess or "with the tags' family")
+                )
+        for topic, highest in self.highest.items():
+            if highest >= size:
+                raise SettingsError(
+                    f"{path}: tag {highest} on {topic} lies beyond {dictionary} ({size} markers):"
+                    " pass --dictionary with the tags' family"
+                )

@@ -22,6 +22,7 @@ from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_depth, decode_image, frame_id
 from markergraph.frontend.detect import Detector
+from markergraph.frontend.detections import TagFamilies, detections_of
 from markergraph.frontend.inputs import judge_camera_info
 from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message, open_log
 from markergraph.frontend.preflight_report import (
@@ -37,7 +38,6 @@ from markergraph.frontend.tagged import (
     find_camera,
     find_mount,
     no_camera_text,
-    no_mount_text,
 )
 from markergraph.frontend.tf import (
     chain_between,
@@ -58,7 +58,7 @@ __all__ = [
 ]
 
 FIRST_MESSAGES = 5  # messages of a topic tried before it counts as undecodable
-TF_MESSAGES = 200  # /tf messages searched for the odom -> base transform
+TF_MESSAGES = 200  # /tf messages searched for the odom -> base transform, detections for a tag
 
 
 # --- reading the first messages -----------------------------------------------------------------
@@ -181,8 +181,10 @@ def _detection_topics(
     }
     bases = (body_frame, config.base_frame)
     result = []
+    families = TagFamilies()
     for topic in choice.detections:
         first = _first(log, topic, 1)
+        _take_families(log, topic, families)
         frame = frame_id(first[0].decoded) if first else ""
         camera = find_camera(topic, frame, rig, infos)
         intrinsics = None
@@ -196,7 +198,19 @@ def _detection_topics(
         elif placed is not None and camera is not None:
             mount = Mount(f"{config.camera_poses}: {camera.kalibr_name}")
         result.append(DetectionTopic(topic, frame, intrinsics, mount))
+    families.check(log.path, config.dictionary)
     return tuple(result)
+
+
+def _take_families(log: Log, topic: str, families: TagFamilies) -> None:
+    """The tag family of the first of the topic's first :data:`TF_MESSAGES` messages to carry a
+    tag (a camera may see none for a while)."""
+    with _reading(log, topic) as stream:
+        for message in itertools.islice(stream, TF_MESSAGES):
+            with contextlib.suppress(ValueError, AttributeError, TypeError):  # map says why
+                families.take(topic, message.decoded, detections_of(message.decoded))
+            if topic in families.first:
+                return
 
 
 def _judge_detections(
@@ -219,7 +233,11 @@ def _judge_detections(
             if d.intrinsics is None:
                 warnings.append(no_camera_text(d.topic))
             elif d.mount is None:
-                warnings.append(no_mount_text(d.topic, d.frame_id))
+                warnings.append(
+                    f"{d.topic} has no mount for frame {d.frame_id!r} (not in /tf_static, and no "
+                    "--camera-poses file naming the camera): in 3-D its mount is estimated from "
+                    "the tags it shares with the others, a 2-D map leaves it out"
+                )
 
 
 # --- logs of images -----------------------------------------------------------------------------
@@ -314,14 +332,17 @@ def preflight(path: Path, config: FrontendConfig = FrontendConfig()) -> Prefligh
 
     Blockers (each one fails ``markergraph map``): no camera (no image or detection topic, or
     no image on it decodes), no camera intrinsics, depth that does not decode or is not the
-    colour image's size (not aligned), no odometry, and for logs of detections no camera
-    mount. Warnings: no depth (ranges then come from the marker's size, PnP on its corners),
-    depth in another frame than colour, no mount in the log (the configured one is assumed).
+    colour image's size (not aligned), an odometry topic of which nothing is usable, and for
+    logs of detections no camera mount. Warnings: no odometry topic, or none usable in a log of
+    detections (``map`` then maps the tags in 3-D alone), no depth (ranges then come from the
+    marker's size, PnP on its corners), depth in another frame than colour, no mount in the
+    log (the configured one is assumed).
 
     Raises:
         LogError: the log cannot be read, or a topic set in ``config`` is not in it or of the
             wrong type.
-        SettingsError: a bad dictionary, ids outside it, or a rig file that cannot be read.
+        SettingsError: a bad dictionary, ids outside it, detections of another family than
+            the dictionary's, or a rig file that cannot be read.
     """
     path = Path(path)
     log = open_log(path)
@@ -334,6 +355,10 @@ def preflight(path: Path, config: FrontendConfig = FrontendConfig()) -> Prefligh
     no_odometry: list[str] = []
     detecting = bool(choice.detections)
     body_frame = _odometry(log, choice, config, stats, detecting, no_odometry)
+    if detecting or choice.odom is None:  # map maps these in 3-D, from the tags alone
+        warnings += [f"{why}: mapped in 3-D from the tags alone (--dimensions 2 needs odometry)"
+                     for why in no_odometry]  # fmt: skip
+        no_odometry = []
     static = _static_transforms(log, choice.tf_static)
     report = replace(report, odometry_frame=body_frame)
     if detecting:

@@ -25,7 +25,7 @@ from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import decode_image, frame_id, stamp_ns
 from markergraph.frontend.detect import Detection
-from markergraph.frontend.detections import detections_of
+from markergraph.frontend.detections import TagFamilies, detections_of
 from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message
 from markergraph.frontend.spans import detector_for
 from markergraph.frontend.survey import TagRemap
@@ -117,6 +117,7 @@ class _Reader:
         self.log, self.config, self.choice = log, config, choice
         self.rig = Rig.read(config)
         self.failures = DecodeFailures()
+        self.families = TagFamilies()
         self.messages: list[tuple[str, int, str, list[Detection]]] = []
         self.infos: dict[str, Any] = {}
         self.static: list[Any] = []
@@ -136,6 +137,7 @@ class _Reader:
                 self._detect(message)
             else:
                 self._take(message.topic, message.decoded)
+        self.families.check(self.log.path, self.config.dictionary)
         self.odometry.sort(key=lambda s: s[0])
 
     def _detect(self, message: Message) -> None:
@@ -156,6 +158,7 @@ class _Reader:
             except (ValueError, AttributeError, TypeError) as error:
                 self.failures.add(self.log.path, topic, f"not a detection array ({error})")
                 return
+            self.families.take(topic, decoded, found)
             self.messages.append((topic, stamp_ns(decoded), frame_id(decoded), found))
         elif topic == self.choice.tf_static:
             self.static += transforms_of(decoded)

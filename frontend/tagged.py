@@ -27,7 +27,7 @@ from markergraph.estimator.types import Observation, OdometrySample, OdometryTra
 from markergraph.frontend.camera import Camera
 from markergraph.frontend.config import FrontendConfig
 from markergraph.frontend.decode import frame_id, stamp_ns
-from markergraph.frontend.detections import detections_of
+from markergraph.frontend.detections import TagFamilies, detections_of
 from markergraph.frontend.logs import DecodeFailures, Log, LogError
 from markergraph.frontend.posed import (
     MAX_ATTITUDE_GAP_NS,
@@ -237,6 +237,7 @@ class _Reader:
         self.poses: list[tuple[int, NDArray[np.float64], NDArray[np.float64]]] = []
         self.body_frame: str | None = None
         self.static: list[Any] = []
+        self.families = TagFamilies()
         self.rig = Rig.read(config)  # before the log is read: errors name the file
         self.tagslam = self.rig.tagslam
 
@@ -246,6 +247,7 @@ class _Reader:
         wanted += [t for t in (self.choice.odom, self.choice.tf_static) if t]
         for message in self.source.messages(wanted, self.failures):
             self._take(message)
+        self.families.check(self.path, self.config.dictionary)
         self.log.warnings = self.failures.warnings()
         views = self._views()
         self._observe(views)
@@ -259,6 +261,7 @@ class _Reader:
             except (ValueError, AttributeError, TypeError) as error:
                 self.failures.add(self.path, topic, f"not a detection array ({error})")
                 return
+            self.families.take(topic, decoded, found)
             self.frames.append(_Frame(topic, stamp_ns(decoded), frame_id(decoded), found))
         elif topic == self.choice.tf_static:
             self.static += transforms_of(decoded)

@@ -4,15 +4,18 @@ observations from a marker's full pose through a tilted camera, against exact ge
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 from types import SimpleNamespace
 
 import cv2
 import numpy as np
 import pytest
 
+from markergraph.common.errors import SettingsError
 from markergraph.frontend.camera import EQUIDISTANT, Camera
 from markergraph.frontend.detect import Detection
-from markergraph.frontend.detections import detections_of
+from markergraph.frontend.detections import TagFamilies, detections_of
 from markergraph.frontend.observe import ObservationModel
 from markergraph.frontend.posed import DropReason, LevelledCamera, observe_levelled_frame
 from markergraph.frontend.sizes import MarkerSizes
@@ -44,6 +47,44 @@ def test_apriltag_corners_become_opencv_order(shape: str) -> None:
     (found,) = detections_of(message)
     assert found.marker_id == 7
     np.testing.assert_array_equal(found.corners, OPENCV)
+
+
+def families_of(**tag_fields: object) -> TagFamilies:
+    """The families seen in one message holding one tag (id 7 unless given) with these fields."""
+    tag = SimpleNamespace(**{"id": 7, **tag_fields}, corners=[point(*c) for c in OPENCV[::-1]])
+    message = SimpleNamespace(detections=[tag])
+    families = TagFamilies()
+    families.take("/tags", message, detections_of(message))
+    return families
+
+
+@pytest.mark.parametrize(
+    ("fields", "dictionary", "refused"),
+    [
+        ({"family": "36h11"}, "DICT_APRILTAG_36h11", None),
+        ({"family": "tag36h11"}, "DICT_4X4_50", "pass --dictionary DICT_APRILTAG_36h11"),
+        ({"family": "16h5"}, "DICT_APRILTAG_36h11", "pass --dictionary DICT_APRILTAG_16h5"),
+        ({"family": "mit", "bits": 6}, "DICT_APRILTAG_36h11", None),
+        ({"family": "mit", "bits": 6}, "DICT_APRILTAG_36h10", None),
+        ({"family": "mit", "bits": 6}, "DICT_APRILTAG_16h5", "have 6x6 bits (family 'mit')"),
+        ({"family": "umich", "bits": 4}, "DICT_4X4_50", None),
+        ({"family": "mit", "bits": 6, "id": 586}, "DICT_APRILTAG_36h11", None),
+        ({"family": "", "id": 586}, "DICT_4X4_1000", None),
+        ({"family": "", "id": 586}, "DICT_4X4_250", "tag 586 on /tags lies beyond DICT_4X4_250"),
+    ],
+)
+def test_tags_of_another_family_than_the_dictionary_are_refused(fields, dictionary, refused):
+    """A map labels its markers with the dictionary: 36h11 tags (TagSLAM's 'mit' detector says
+    so by their 6x6 bits) mapped as DICT_4X4_50 exported an ArUco file of id 586 in 4X4_50.
+    The family field, the bits, and the highest id are each held to the dictionary's (its
+    ``markerSize`` and size, as OpenCV defines them)."""
+    families = families_of(**fields)
+    if refused is None:
+        families.check(Path("log.bag"), dictionary)
+        return
+    with pytest.raises(SettingsError, match=re.escape(refused)) as raised:
+        families.check(Path("log.bag"), dictionary)
+    assert str(raised.value).startswith("log.bag: ") and "/tags" in str(raised.value)
 
 
 def test_fisheye_undistortion_inverts_the_equidistant_projection() -> None:

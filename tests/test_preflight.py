@@ -3,6 +3,7 @@ and ``markergraph export --out -`` (the export on standard output)."""
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -119,13 +120,17 @@ def test_complete_log_can_be_mapped(complete: Path, capsys) -> None:
     assert "warning:" not in out
 
 
-def test_log_without_odometry_cannot_be_mapped(complete: Path, tmp_path: Path, capsys) -> None:
-    """Without /odom and /tf: the cannot-map exit code, and the verdict names the odometry."""
+def test_log_without_odometry_is_mapped_in_3d(complete: Path, tmp_path: Path, capsys) -> None:
+    """Without /odom and /tf: info can map, warning that the map is the tags' alone in 3-D,
+    and map does just that (info once said it could not)."""
     log = without(complete, tmp_path / "no-odom.mcap", "/odom", "/tf")
     code, out = info(capsys, log)
-    assert code == EXIT_CANNOT_MAP == 3, out
-    assert verdict(out).startswith("cannot map: no odometry"), out
+    assert code == 0 and verdict(out) == "can map: yes", out
     assert field(out, "odometry") == "none"
+    assert "warning: no odometry (no nav_msgs/Odometry topic" in out, out
+    assert "mapped in 3-D from the tags alone" in out, out
+    assert main(["map", str(log), "--out", str(tmp_path / "map"), "--no-plots", "-q"]) == 0
+    assert json.loads((tmp_path / "map" / "map.json").read_text())["dimensions"] == 3
 
 
 def test_odometry_from_tf_needs_the_base_frame(complete: Path, tmp_path: Path, capsys) -> None:
@@ -196,12 +201,13 @@ def test_sqlite_bag_reports_as_its_mcap_twin(complete: Path, tmp_path: Path, cap
 @pytest.mark.skipif(not TAGSLAM.is_dir(), reason="../shared/data/tagslam-test is absent")
 def test_ros1_detection_bags(tmp_path: Path, capsys) -> None:
     """TagSLAM's ROS 1 bags: without a camera file no intrinsics (cannot map); with its rig
-    files it can be mapped; a recording without odometry cannot, and says so."""
+    files it can be mapped; a recording without odometry is mapped in 3-D from its tags, and
+    its 36h11 tags under the default dictionary are one line."""
     from markergraph.datasets import tagslam
 
     folder = TAGSLAM / "test_22"
     bag = tagslam.unpacked(folder, "tag_detections", tmp_path)
-    code, out = info(capsys, bag)
+    code, out = info(capsys, bag, "--dictionary", "DICT_APRILTAG_36h11")
     assert code == EXIT_CANNOT_MAP and verdict(out).startswith("cannot map: no camera intrinsics")
     rig = ["--cameras", folder / "cameras.yaml", "--camera-poses", folder / "camera_poses.yaml",
            "--tagslam", folder / "tagslam.yaml", "--dictionary", "DICT_APRILTAG_36h11"]  # fmt: skip
@@ -209,9 +215,16 @@ def test_ros1_detection_bags(tmp_path: Path, capsys) -> None:
     assert code == 0 and verdict(out) == "can map: yes", out
     assert field(out, "odometry").startswith("/camera/odom/sample, ")
     assert re.search(r"^  camera +equidistant, K \[", out, re.MULTILINE), out
-    no_odometry = tagslam.unpacked(TAGSLAM / "test_23", "tag_detections", tmp_path)
-    code, out = info(capsys, no_odometry)
-    assert code == EXIT_CANNOT_MAP and "no odometry" in verdict(out), out
+    folder = TAGSLAM / "test_23"  # no odometry: mapped in 3-D from the tags alone, as map does
+    no_odometry = tagslam.unpacked(folder, "tag_detections", tmp_path)
+    rig = ["--cameras", folder / "cameras.yaml", "--camera-poses", folder / "camera_poses.yaml",
+           "--tagslam", folder / "tagslam.yaml", "--dictionary", "DICT_APRILTAG_36h11"]  # fmt: skip
+    code, out = info(capsys, no_odometry, *rig)
+    assert code == 0 and verdict(out) == "can map: yes", out
+    assert "warning: no odometry" in out and "mapped in 3-D from the tags alone" in out, out
+    code = main(["info", *(str(a) for a in (no_odometry, *rig[:-2]))])  # 36h11 as DICT_4X4_50
+    err = capsys.readouterr().err
+    assert code == 1 and "have 6x6 bits" in err and "--dictionary DICT_APRILTAG_36h11" in err
 
 
 def test_unreadable_log_is_exit_1_not_cannot_map(tmp_path: Path, capsys) -> None:
