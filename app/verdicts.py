@@ -497,6 +497,17 @@ def judge_tag_map(tag_map: TagMap3d, tags_seen: int) -> Judgement:
                 f"{100 * unplaced:.0f} % of the tags seen could not be placed",
             )
         )
+    doubted = [note for note in tag_map.notes if note.kind == "map.up_doubted"]
+    if doubted:
+        reasons.append(
+            _suspect(
+                "up",
+                float(doubted[0].figure or 0.0),
+                f"up is in doubt: the odometry's vertical is {doubted[0].figure:.0f} deg from the "
+                "cameras' image up, through an odometry body not placed on the rig: the wall tags "
+                "and the 2-D map rest on it",
+            )
+        )
     if any(note.kind == "camera.unplaced" for note in tag_map.notes):
         reasons.append(
             _suspect(

@@ -100,6 +100,9 @@ def map_framing(
     assert home is not None
     up = _up_from_odometry(scene, values, frames)
     source = "the odometry's vertical"
+    doubt: list[Note] = []
+    if up is not None and scene.odometry_body != "given":
+        doubt = _doubted_up(scene, placed, values, frames, up)
     if up is None:
         tags = [values.atPose3(tag_key(i)).rotation().matrix()[:, 2] for i in placed.tags]
         up = _up_from_walls(np.array(tags), _cameras_up(scene, placed, values, frames))
@@ -121,4 +124,30 @@ def map_framing(
     x = _unit(heading)
     R_out_map = np.vstack([x, np.cross(up, x), up])
     text = f"the map frame has z up (from {source}), its origin at home tag {home}'s centre"
-    return gtsam.Pose3(gtsam.Rot3(R_out_map), np.zeros(3)), True, [Note("map.frame", text)]
+    return gtsam.Pose3(gtsam.Rot3(R_out_map), np.zeros(3)), True, [Note("map.frame", text), *doubt]
+
+
+def _doubted_up(
+    scene: TagScene, placed: Placed, values: gtsam.Values, frames: list[int],
+    up: NDArray[np.float64],
+) -> list[Note]:  # fmt: skip
+    """A note (kind ``map.up_doubted``) where the odometry's up, through an odometry body whose
+    place on the rig was not given, disagrees with what the map itself shows: the cameras'
+    image up (cameras are held upright) more than :data:`WALL_LIMIT_RAD` away, and no tag
+    level for that up although some are for the cameras'."""
+    cameras = _cameras_up(scene, placed, values, frames)
+    apart = math.degrees(math.acos(float(np.clip(up @ cameras, -1.0, 1.0))))
+    if apart <= math.degrees(WALL_LIMIT_RAD):
+        return []
+    normals = np.array([values.atPose3(tag_key(i)).rotation().matrix()[:, 2] for i in placed.tags])
+    level = int(np.sum(np.abs(normals @ up) < math.sin(WALL_LIMIT_RAD)))
+    level_for_cameras = int(np.sum(np.abs(normals @ cameras) < math.sin(WALL_LIMIT_RAD)))
+    how = {"convention": "taken by REP 103's convention", "assumed": "taken as the rig's frame"}
+    text = (
+        f"up is in doubt: the odometry's vertical, through its body {how[scene.odometry_body]} "
+        f"(not given), is {apart:.0f} deg from the cameras' image up; {level} of "
+        f"{len(normals)} tags lie level (on walls) for it, {level_for_cameras} for the cameras' "
+        "up. Give the odometry's body on the rig (tagslam.yaml's T_body_odom with --tagslam, "
+        "or a /tf_static chain)"
+    )
+    return [Note("map.up_doubted", text, figure=apart)]

@@ -124,6 +124,9 @@ class TagScene:
         known_tags: surveyed tags (their frame is the map's).
         home_id: the tag whose frame is the map's when nothing is surveyed (None: the first
             tag seen).
+        odometry_body: how the odometry's body stands on the rig: ``given``, or not given
+            and taken by ``convention`` (REP 103) or ``assumed`` (the rig's frame); the up the
+            odometry gives is checked where it was not given.
     """
 
     frame_times: NDArray[np.int64]
@@ -133,6 +136,7 @@ class TagScene:
     odometry: list[gtsam.Pose3 | None] = field(default_factory=list)
     known_tags: list[KnownTag] = field(default_factory=list)
     home_id: int | None = None
+    odometry_body: str = "given"
 
 
 @dataclass(frozen=True, slots=True)

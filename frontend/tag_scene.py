@@ -29,7 +29,13 @@ from markergraph.frontend.detections import TagFamilies, detections_of
 from markergraph.frontend.logs import DecodeFailures, Log, LogError, Message
 from markergraph.frontend.spans import detector_for
 from markergraph.frontend.survey import TagRemap
-from markergraph.frontend.tagged import Rig, find_camera, find_mount, no_camera_text
+from markergraph.frontend.tagged import (
+    Rig,
+    find_camera,
+    find_mount,
+    no_camera_text,
+    odometry_body_text,
+)
 from markergraph.frontend.tf import rotation_of, transforms_of
 from markergraph.frontend.topics import CALIBRATION_SCHEMAS, TopicChoice
 
@@ -123,6 +129,8 @@ class _Reader:
         self.static: list[Any] = []
         self.odometry: list[tuple[int, gtsam.Pose3]] = []
         self.body_frame: str | None = None
+        self.odometry_body = "given"
+        """How the odometry's body was put on the rig (:class:`~.tagged.FoundMount`)."""
         self.images = None if choice.detections else choice.color
         """The image topic detected here, for a log of images."""
         self.topics = choice.detections or ((choice.color,) if choice.color else ())
@@ -186,6 +194,10 @@ class _Reader:
                 notes.append(Note("detections.no_camera", no_camera_text(topic), topic))
                 continue
             mount, _ = find_mount(self.static, bases, frame, found, self.rig)
+            if mount is not None and mount.odometry_body != "given" and self.body_frame:
+                self.odometry_body = mount.odometry_body
+                text = odometry_body_text(topic, self.body_frame, frame, mount.odometry_body)
+                notes.append(Note("odometry.body_" + mount.odometry_body, text, topic))
             name = found.kalibr_name or topic
             pose = (
                 None
@@ -288,7 +300,8 @@ def read_tag_scene(
         notes.append(Note("detections.rewound", text, topic, count))
     odometry = [_interpolated(reader.odometry, int(t)) for t in times] if reader.odometry else []
     tag_sizes = {v.tag_id: sizes.of(v.tag_id) for v in views}
-    read.scene = TagScene(times, views, cameras, tag_sizes, odometry, known_tags or [], home_id)
+    read.scene = TagScene(times, views, cameras, tag_sizes, odometry, known_tags or [], home_id,
+                          reader.odometry_body if odometry else "given")  # fmt: skip
     read.notes = notes
     read.warnings = reader.failures.warnings()
     return read

@@ -64,6 +64,7 @@ __all__ = [
     "find_mount",
     "no_camera_text",
     "no_mount_text",
+    "odometry_body_text",
     "read_detection_log",
 ]
 
@@ -121,6 +122,11 @@ class FoundMount:
     """The optical frame (x right, y down, z forward) in the body's."""
     from_static: bool
     """From the static transforms (else from TagSLAM's camera poses)."""
+    odometry_body: str = "given"
+    """How the odometry's body stands on the rig: ``given`` (a static chain from it,
+    tagslam.yaml's ``T_body_odom``, or the detections' own frame), ``convention`` (not given:
+    a ROS body frame, x forward and z up, taken to hold the camera's optical frame as REP 103
+    puts it) or ``assumed`` (not given: taken as the rig's frame)."""
 
 
 def find_camera(
@@ -173,9 +179,49 @@ def find_mount(
             why = str(error)
     name = camera.kalibr_name if camera is not None else None
     if name is not None and name in rig.camera_poses:
-        T_rig_odom = (rig.tagslam and rig.tagslam.T_rig_odom) or Pose3.identity()
-        return FoundMount(T_rig_odom.inverse().compose(rig.camera_poses[name]), False), why
+        T_rig_camera = rig.camera_poses[name]
+        T_rig_odom, how = rig.tagslam and rig.tagslam.T_rig_odom, "given"
+        body = bases[0]
+        if T_rig_odom is None and body and body != frame:
+            # Nothing says where the odometry's body stands on the rig. A ROS body frame
+            # (x forward, z up) beside a camera's optical frame (z forward, y down) is REP 103's
+            # pair: the camera looks along the body's x, its image up the body's z.
+            if _optical(frame) and not _optical(body):
+                T_rig_odom = T_rig_camera.compose(Pose3(R_BODY_OPTICAL, np.zeros(3)).inverse())
+                how = "convention"
+            else:
+                how = "assumed"
+        T_rig_odom = T_rig_odom or Pose3.identity()
+        mount = T_rig_odom.inverse().compose(T_rig_camera)
+        return FoundMount(mount, False, how), why
     return None, why
+
+
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+"""REP 103's optical frame (x right, y down, z forward) in its body frame (x forward, y left,
+z up): the columns are the optical axes."""
+
+
+def _optical(frame: str) -> bool:
+    """Whether a frame is named as an optical frame (``*_optical_frame``, ``*_optical``)."""
+    return "optical" in frame.lower()
+
+
+def odometry_body_text(topic: str, body: str, frame: str, how: str) -> str:
+    """What was taken for the odometry's body on the rig when nothing gave it."""
+    if how == "convention":
+        return (
+            f"{topic}: the odometry's body {body!r} is not placed on the rig (no /tf_static "
+            f"chain to {frame!r}, no T_body_odom in a tagslam.yaml): taken as REP 103's body "
+            f"frame of the optical frame {frame!r} (x forward along the camera's axis, z up "
+            "along its image up, no offset); --tagslam or /tf_static gives it"
+        )
+    return (
+        f"{topic}: the odometry's body {body!r} is not placed on the rig (no /tf_static chain "
+        f"to {frame!r}, no T_body_odom in a tagslam.yaml): taken as the rig's own frame; its "
+        "attitude, and the up it gives, hold only if the two coincide (--tagslam or /tf_static "
+        "gives it)"
+    )
 
 
 def no_camera_text(topic: str) -> str:
@@ -307,6 +353,9 @@ class _Reader:
                 left_out.append(Note("detections.no_mount", text, topic))
             else:
                 views[topic] = (camera.camera, mount.T_body_optical)
+                if mount.odometry_body != "given" and self.body_frame:
+                    text = odometry_body_text(topic, self.body_frame, frame, mount.odometry_body)
+                    self.log.notes.append(Note("odometry.body_" + mount.odometry_body, text, topic))
         self.log.notes += left_out
         if not views:
             raise LogError(

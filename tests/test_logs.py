@@ -12,12 +12,15 @@ import pytest
 from mcap_ros2.writer import Writer
 
 from markergraph.frontend import Log, LogError, open_log
-from markergraph.frontend.logs import LogKind, chunks, mcap
+from markergraph.frontend.logs import DecodeFailures, LogKind, chunks, mcap
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS
 
 STRING = "std_msgs/msg/String"
 T0_NS = 1_750_000_000_000_000_000
 STEP_NS = 100_000_000
+METADATA = """rosbag2_bagfile_information:
+  relative_file_paths: [bag_0.mcap, bag_1.mcap]
+"""
 
 
 def write_strings(path: Path, n: int, first: int = 0) -> None:
@@ -64,6 +67,15 @@ def test_a_folder_of_files_is_one_log(tmp_path: Path) -> None:
     assert [t.count for t in log.topics] == [12]
     assert log.time_range == (T0_NS, T0_NS + 11 * STEP_NS)
     assert [m.decoded.data for m in log.messages(["/chatter"])] == [str(i) for i in range(12)]
+    # Nothing says the files belong together: joining them is said, where a reading counts.
+    failures = DecodeFailures()
+    assert len(list(log.messages(["/chatter"], failures))) == 12
+    joined = f"{folder}: no metadata.yaml: its 2 .mcap files (bag_0.mcap, bag_1.mcap) read as one"
+    assert failures.warnings()[0].startswith(joined) and log.notes[0].startswith(joined)
+    (folder / "old-map.mcap").mkdir()  # a folder so named (a result folder) is no file of it
+    assert open_log(folder).files == log.files
+    (folder / "metadata.yaml").write_text(METADATA)
+    assert open_log(folder).notes == []
 
 
 def test_a_log_pickles_as_its_path(tmp_path: Path) -> None:

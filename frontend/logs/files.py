@@ -130,7 +130,7 @@ def mcap_files(path: Path) -> list[Path]:
     if metadata.is_file():
         files = [_bag_file(path, name) for name in _relative_file_paths(metadata)]
     else:
-        files = sorted(path.glob("*.mcap"))
+        files = sorted(p for p in path.glob("*.mcap") if p.is_file())  # not a folder so named
     if not files:
         raise LogError(f"{path}: a folder with no .mcap files and no metadata.yaml listing any")
     missing = [f for f in files if not f.is_file()]

@@ -54,8 +54,24 @@ class Log:
 
     @property
     def notes(self) -> list[str]:
-        """What reading its files had to work around, one line each (an index rebuilt)."""
-        return [f"{f.path}: {f.recovered}" for f in self.mcap if f.recovered]
+        """What reading its files had to work around, one line each (an index rebuilt, files
+        joined with nothing to say they belong together)."""
+        joined = [f"{self.path}: {self.joined}"] if self.joined else []
+        return joined + [f"{f.path}: {f.recovered}" for f in self.mcap if f.recovered]
+
+    @property
+    def joined(self) -> str:
+        """Where a folder without ``metadata.yaml`` holds several MCAP files, that they are read
+        as one recording (three unrelated logs in one folder were joined without a word)."""
+        if len(self.mcap) < 2 or (self.path / "metadata.yaml").is_file():
+            return ""
+        names = ", ".join(f.path.name for f in self.mcap[:4]) + (
+            ", ..." if len(self.mcap) > 4 else ""
+        )
+        return (
+            f"no metadata.yaml: its {len(self.mcap)} .mcap files ({names}) read as one recording, "
+            "in name order; give one file to map it alone"
+        )
 
     @cached_property
     def topics(self) -> list[LogTopic]:
@@ -131,6 +147,8 @@ class Log:
                 or (without ``failures``) an undecodable message or a damaged chunk.
         """
         if self.kind is LogKind.MCAP:
+            if failures is not None and self.joined:
+                failures.note(self.path, self.joined)
             return mcap_messages(self.mcap, topics, failures, start_ns, end_ns)
         from markergraph.frontend.logs.bags import bag_messages
 
