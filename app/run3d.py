@@ -28,7 +28,7 @@ from markergraph.frontend.tag_scene import read_tag_scene
 from markergraph.frontend.topics import choose_topics
 from markergraph.markermap import MarkerMap
 from markergraph.results3d import Map3dRun
-from markergraph.settings import MapConfig
+from markergraph.settings import SETTINGS, MapConfig
 from markergraph.verdicts import judge_tag_map
 
 __all__ = ["MOUNT_SEED_SIGMAS", "map_log_3d", "wants_3d"]
@@ -144,10 +144,33 @@ def map_log_3d(
     tags_seen = len({v.tag_id for v in scene.views})
     return Map3dRun(
         Path(log), config, tag_map, marker_map, len(scene.frame_times), read.views_read,
-        [*(notes or []), *read.notes, *survey_notes, *skipped,
+        [*(notes or []), *read.notes, *_size_note(scene, config), *survey_notes, *skipped,
          *(Note("log.unreadable", text) for text in read.warnings)], seconds,
         truth=_truth(opened), tags_seen=tags_seen, judgement=judge_tag_map(tag_map, tags_seen),
     )  # fmt: skip
+
+
+_DEFAULT_SIZE_M = next(s.default for s in SETTINGS if s.key == "marker_size")
+
+
+def _size_note(scene: TagScene, config: MapConfig) -> list[Note]:
+    """That the map's scale rests on the one size every tag no file or flag sizes takes (the
+    2-D map says it of its given size too): a tag's corners alone cannot tell 0.2 m from
+    0.42 m, and the map scales with it (figure: the tags)."""
+    sizes = config.marker_sizes
+    unsized = sorted(i for i in scene.tag_sizes if i not in sizes.by_id)
+    if not unsized:
+        return []
+    shown = ", ".join(map(str, unsized[:8])) + (
+        f" and {len(unsized) - 8} more" if len(unsized) > 8 else ""
+    )
+    text = (
+        f"the map's scale rests on the marker size {sizes.default_m:g} m (--marker-size, "
+        f"{_DEFAULT_SIZE_M:g} m unless set; a tagslam.yaml's default_tag_size) that tag"
+        f"{'s' if len(unsized) > 1 else ''} {shown} take{'' if len(unsized) > 1 else 's'}: "
+        "the corners cannot tell one size from another, and the map scales with it"
+    )
+    return [Note("marker_size.given", text, figure=len(unsized))]
 
 
 def _truth(log: Log) -> dict[int, gtsam.Pose3] | None:

@@ -216,6 +216,41 @@ def test_outdoor_recording_and_tagslams_odometry_convention(bags: Path) -> None:
         assert yaw_rad < TWO_TAGS_YAW_22_RAD, label
 
 
+def levelled_tags(run: Any) -> int:
+    """How many of a 3-D map's tags stand on walls: the normal (the tag's z) within 45 degrees
+    of level in the map, whose z is up."""
+    normals = [t.T_map_tag.rotation().matrix()[:, 2] for t in run.tag_map.tags.values()]
+    return sum(abs(n[2]) < math.sin(math.radians(45.0)) for n in normals)
+
+
+def test_outdoor_recording_without_tagslams_file_takes_rep_103s_body(bags, monkeypatch) -> None:
+    """Test 22 with its cameras and camera poses but no tagslam.yaml, so nothing places the
+    T265's body on the rig. Taken as the rig's (the fisheye's optical) frame, the odometry's up
+    was the camera's axis: both tags 77-80 deg from level, and the verdict ok. Now the body is
+    taken as REP 103 pairs it with an optical frame (said in a note): both tags on walls, within
+    1 cm and 1 deg of TagSLAM's (0.15 cm and 0.12 deg measured). Where no frame name allows the
+    convention, the odometry's up (95 deg from the cameras' image up) makes the map suspect."""
+    from markergraph.datasets.tagslam import aligned_errors_3d, reference_tags_3d
+    from markergraph.frontend import tagged
+    from markergraph.run3d import map_log_3d
+
+    log = unpacked("test_22", "tag_detections", bags)
+    values = tagslam.settings_for(DATA / "test_22", method="slam", marker_size=0.42)
+    del values["rig.tagslam"]
+    run = map_log_3d(log, mg.MapConfig.from_values(values))
+    assert any(n.kind == "odometry.body_convention" for n in run.notes), run.notes
+    assert levelled_tags(run) == 2 and run.judgement.verdict.value == "ok"
+    reference = reference_tags_3d(unpacked("test_22", "reference", bags))
+    ours = {i: t.T_map_tag for i, t in run.tag_map.tags.items()}
+    _, position_m, rotation_rad = aligned_errors_3d(ours, reference)
+    assert position_m.max() < 0.01 and np.degrees(rotation_rad).max() < 1.0
+    monkeypatch.setattr(tagged, "_optical", lambda frame: False)
+    run = map_log_3d(log, mg.MapConfig.from_values(values))
+    assert levelled_tags(run) == 0
+    assert run.judgement.verdict.value == "suspect", run.judgement.reasons
+    assert any("up is in doubt" in str(reason) for reason in run.judgement.reasons)
+
+
 def transform(parent: str, child: str, pose: Any, t_ns: int) -> dict[str, Any]:
     """A tf2 transform message from ``parent`` to ``child`` (a gtsam Pose3), as a dict."""
     return {

@@ -255,7 +255,8 @@ def test_markergraph_info_lists_the_detection_topics(tmp_path: Path) -> None:
     path = tmp_path / "info.mcap"
     write_scene3d_log(make_scene3d(SEED, cameras=2, frames=20), path, SEED, odometry=True)
     done = subprocess.run(
-        [sys.executable, "-m", "markergraph.cli", "info", str(path)],
+        [sys.executable, "-m", "markergraph.cli", "info", str(path), "--dictionary",
+         "DICT_APRILTAG_36h11"],
         capture_output=True, text=True, timeout=120, check=False,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
