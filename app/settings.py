@@ -277,8 +277,17 @@ def _with_rig_defaults(values: Mapping[str, Any]) -> dict[str, Any]:
     if not given.get("rig.tagslam"):
         return _complete(given)
     rig = read_tagslam(Path(given["rig.tagslam"]))
-    if "marker_size" not in given and rig.default_tag_size_m is not None:
-        given["marker_size"] = rig.default_tag_size_m
+    if (
+        rig.default_tag_size_m is not None
+        and given.setdefault("marker_size", rig.default_tag_size_m) != rig.default_tag_size_m
+    ):
+        # Its tags sized one by one would keep the file's sizes, the others the flag's: a map
+        # of two scales (test 16 at 0.1 m against the file's 0.16 m: 37 cm off, verdict ok).
+        raise SettingsError(
+            f"--marker-size {given['marker_size']:g} disagrees with {given['rig.tagslam']}'s "
+            f"default_tag_size {rig.default_tag_size_m:g}: leave one of them out (--marker-sizes "
+            "sizes single tags)"
+        )
     complete = _complete(given)
     complete["marker_sizes"] = {**rig.tag_sizes_m, **complete["marker_sizes"]}
     return complete

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from markergraph.common.errors import SettingsError
 from markergraph.estimator import Method, OdometryNoise, Robust
 from markergraph.frontend import FrontendConfig
 from markergraph.frontend.camera import CameraMount
@@ -240,6 +241,20 @@ def test_a_rig_files_tag_sizes_survive_a_written_settings_file(tmp_path: Path) -
     config = MapConfig.from_values(read_config_file(written))
     assert config.marker_sizes.default_m == 0.42
     assert config.marker_sizes.of(3) == 0.4
+
+
+def test_a_marker_size_disagreeing_with_the_rig_files_is_one_line(tmp_path: Path) -> None:
+    """--marker-size beside a tagslam.yaml with another default_tag_size made a map of two
+    scales (its tags sized one by one kept the file's sizes): now one line naming both."""
+    rig = tmp_path / "tagslam.yaml"
+    rig.write_text(
+        "bodies:\n - yard:\n     is_static: true\n     default_tag_size: 0.16\n"
+        "     type: simple\n     tags:\n     - id: 3\n       size: 0.16\n"
+    )
+    with pytest.raises(SettingsError, match=r"--marker-size 0.1 disagrees with .*tagslam.yaml's "
+                       r"default_tag_size 0.16: leave one of them out"):  # fmt: skip
+        MapConfig.from_values({"rig.tagslam": str(rig), "marker_size": 0.1})
+    assert MapConfig.from_values({"rig.tagslam": str(rig), "marker_size": 0.16}).marker_sizes.of(5)
 
 
 EXPLODING = {
