@@ -285,9 +285,12 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
     from markergraph.records import LINKING_METHODS
 
     extraction = result.extraction
-    markers = {o.marker_id for o in extraction.observations}
+    read = [s.extraction for s in result.sessions] or [extraction]  # every log's, not the first's
+    markers = {o.marker_id for e in read for o in e.observations}
+    logs = f" in {len(read)} logs" if len(read) > 1 else ""
     print(
-        f"{extraction.frames} frames, {len(extraction.observations)} observations of "
+        f"{sum(e.frames for e in read)} frames{logs}, "
+        f"{sum(len(e.observations) for e in read)} observations of "
         f"{counted(len(markers), 'marker')}, home marker {result.frames.home_id}"
     )
     header = f"{'method':<14} {'markers':>7} {'links':>5}"

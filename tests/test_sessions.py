@@ -147,6 +147,12 @@ def test_the_command_line_maps_two_logs_and_localises_a_third(room_logs, tmp_pat
     assert one.returncode == 0 and both.returncode == 0, both.stderr
     report = json.loads((tmp_path / "both" / "report.json").read_text())
     assert [s["placed"] for s in report["sessions"]] == [True, True]
+    # The summary counts every log's frames and observations, not the first's alone.
+    frames = sum(s["frames"] for s in report["sessions"])
+    observations = sum(s["observations"] for s in report["sessions"])
+    assert both.stdout.startswith(f"{frames} frames in 2 logs, {observations} observations"), (
+        both.stdout
+    )
     assert sorted(p.name for p in (tmp_path / "both" / "sessions").iterdir()) == [
         "1-room1.tum", "2-room2.tum",
     ]  # fmt: skip
