@@ -62,6 +62,19 @@ class McapFile:
         return self.summary
 
 
+# What a file given as a log most often is instead, by its first bytes (eight are read).
+_LOGS = "markergraph reads MCAP files, rosbag2 folders and ROS 1 bags"
+_OTHER_FILES = {
+    b"\xff\xd8\xff": f"a JPEG image, not a recording: {_LOGS}",
+    b"\x89PNG": f"a PNG image, not a recording: {_LOGS}",
+    b"SQLite f": "a SQLite database: give the rosbag2 folder that holds it with its metadata.yaml",
+}
+
+
+def _what_instead(magic: bytes) -> str:
+    return next((f" ({what})" for head, what in _OTHER_FILES.items() if magic.startswith(head)), "")
+
+
 def open_mcap_file(file: Path) -> McapFile:
     """A file's magic checked and its summary read, in one opening of it; a summary that is
     missing or damaged is rebuilt from the data section where it holds chunked messages.
@@ -71,8 +84,9 @@ def open_mcap_file(file: Path) -> McapFile:
     """
     try:
         with open(file, "rb") as raw:
-            if raw.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-                raise LogError(f"{file}: not an MCAP file")
+            magic = raw.read(len(MCAP_MAGIC))
+            if magic != MCAP_MAGIC:
+                raise LogError(f"{file}: not an MCAP file{_what_instead(magic)}")
             stream = BoundedFile(raw)
             summary, error = None, None
             try:
