@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,7 @@ from markergraph.estimator import (
     describe_misreads,
     misread_observations,
     odometry_scale_by_residuals,
+    odometry_turn_scale_by_residuals,
     retimed,
     unleaned,
     widened_for_motion,
@@ -53,7 +54,7 @@ class Considered:
     deviation further (:mod:`~markergraph.shares` grows the covariances by what it moves).
 
     Attributes:
-        setting: ``odometry.scale`` or ``camera.delay``.
+        setting: ``odometry.scale``, ``odometry.turn_scale`` or ``camera.delay``.
         sigma: its standard deviation (a factor; [ns] for the delay).
         frames: the estimators' input with the setting one sigma further.
     """
@@ -81,6 +82,8 @@ class Prepared:
         camera_delay_sigma_ns: the delay's standard deviation where they chose it [ns].
         considered: the log made ready again with each setting they chose one sigma further,
             for its share of the covariances.
+        odometry_turn_scale: what the odometry's turns were multiplied by.
+        odometry_turn_scale_sigma: its standard deviation where SLAM's residuals chose it.
     """
 
     observations: list[Observation]
@@ -95,6 +98,8 @@ class Prepared:
     odometry_scale_sigma: float | None = None
     camera_delay_sigma_ns: float | None = None
     considered: tuple[Considered, ...] = ()
+    odometry_turn_scale: float = 1.0
+    odometry_turn_scale_sigma: float | None = None
 
 
 def prepare(
@@ -133,22 +138,19 @@ def prepare(
     # The searches weigh the residuals by the source's preset, not the noise asked for: the
     # delay and the scale are the sensors' own, so a changed estimator setting reuses them.
     basis = (source, ODOMETRY_NOISE[source], SEARCH_ROBUST, home_id, config.camera)
-    delay_key = search_key("delay and sigma", *basis)
-    if config.camera.delay_ns is None and delay_key not in searches:
-        stage("choosing the camera's delay by SLAM's residuals")
-    timed = _timed(
-        extraction, config, ODOMETRY_NOISE[source], breaks, home_id, notes, searches, delay_key
-    )
+    timed = _timed(extraction, config, ODOMETRY_NOISE[source], breaks, home_id, notes, searches,
+                   search_key("delay and sigma", *basis), stage)  # fmt: skip
     observations, delay_ns = timed.observations, timed.delay_ns
-    scale, scale_sigma = _odometry_scale(
-        extraction, config, observations, ODOMETRY_NOISE[source], breaks, home_id, stage, notes,
-        searches, search_key("scale and sigma", *basis, delay_ns), timed.near,
+    search = SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
+                        ODOMETRY_NOISE[source], breaks, SEARCH_ROBUST)  # fmt: skip
+    scale, scale_sigma, turn, turn_sigma = _odometry_scales(
+        search, config, extraction.topics.odom, (*basis, delay_ns), timed.near, stage, notes,
+        searches,
     )  # fmt: skip
 
-    def framed(
-        observations: list[Observation], scale: float = scale, home_id: int | None = home_id
-    ) -> Frames:
-        odometry = extraction.odometry.scaled(scale)
+    def framed(observations: list[Observation], scale: float = scale,
+               home_id: int | None = home_id, turn: float = turn) -> Frames:  # fmt: skip
+        odometry = extraction.odometry.scaled(scale).turned(turn)
         return build_frames(
             observations, odometry, home_id, odometry_noise=noise, odometry_breaks=breaks
         )
@@ -156,7 +158,7 @@ def prepare(
     if misreads_of is not None:
         misreads, misread_at = misreads_of.misreads, misreads_of.misread_at
     else:
-        key = search_key("misreads", *basis, delay_ns, scale)
+        key = search_key("misreads", *basis, delay_ns, scale, turn)
         if key not in searches:
             stage("looking for misread marker ids")
             searches[key] = _misread_search(framed(observations), extraction)
@@ -170,32 +172,40 @@ def prepare(
 
     frames = framed(kept(observations))
     considered = () if misreads_of is not None else _considered(
-        timed, scale, scale_sigma, kept, lambda o, s: framed(o, s, frames.home_id)
+        timed, (scale, scale_sigma, turn, turn_sigma), kept,
+        lambda o, s, t: framed(o, s, frames.home_id, t),
     )  # fmt: skip
     return Prepared(
         kept(observations), frames, delay_ns, source, why, scale, tuple(notes), misreads,
-        misread_at, scale_sigma, timed.sigma_ns, considered,
+        misread_at, scale_sigma, timed.sigma_ns, considered, turn, turn_sigma,
     )  # fmt: skip
 
 
 def _considered(
     timed: _Timed,
-    scale: float,
-    scale_sigma: float | None,
+    scales: tuple[float, float | None, float, float | None],
     kept: Callable[[list[Observation]], list[Observation]],
-    framed: Callable[[list[Observation], float], Frames],
+    framed: Callable[[list[Observation], float, float], Frames],
 ) -> tuple[Considered, ...]:
     """The log made ready again with each setting SLAM's residuals chose one sigma further:
-    the odometry's scale (``framed`` builds frames at a scale, on the map's home marker: one
-    map frame for every share), the camera's delay (``timed`` retimes at a delay); ``kept``
-    leaves the misread observations out."""
+    the odometry's scale and turn scale (``scales``: each with its sigma; ``framed`` builds
+    frames at a scale and a turn scale, on the map's home marker: one map frame for every
+    share), the camera's delay (``timed`` retimes at a delay); ``kept`` leaves the misread
+    observations out."""
+    scale, scale_sigma, turn, turn_sigma = scales
+    observations = kept(timed.observations)
     considered = []
     if scale_sigma is not None:
-        longer = framed(kept(timed.observations), scale + scale_sigma)
+        longer = framed(observations, scale + scale_sigma, turn)
         considered.append(Considered("odometry.scale", scale_sigma, longer))
+    if turn_sigma is not None:
+        wider = framed(observations, scale, turn + turn_sigma)
+        considered.append(Considered("odometry.turn_scale", turn_sigma, wider))
     if timed.sigma_ns is not None:
         later = timed.at(round(timed.delay_ns + timed.sigma_ns))
-        considered.append(Considered("camera.delay", timed.sigma_ns, framed(kept(later), scale)))
+        considered.append(
+            Considered("camera.delay", timed.sigma_ns, framed(kept(later), scale, turn))
+        )
     return tuple(considered)
 
 
@@ -324,11 +334,14 @@ def _timed(
     notes: list[Note],
     searches: dict[str, Any],
     key: str,
+    stage: Callable[[str], None],
 ) -> _Timed:
     """The observations at their capture times (the camera's delay, chosen by the residuals
     unless set, and a rolling shutter's row delays), sigmas widened for blur and, if asked, for
     the shutter instead."""
     camera = config.camera
+    if camera.delay_ns is None and key not in searches:
+        stage("choosing the camera's delay by SLAM's residuals")
     observations = extraction.observations
     readout_ns = camera.readout_ns or 0
     height = extraction.camera.height if extraction.camera is not None else 0
@@ -405,50 +418,89 @@ def _unleaned(
     return handled
 
 
-def _odometry_scale(
-    extraction: Extraction,
+@dataclass(frozen=True)
+class _ScaleSearch:
+    """A factor on the odometry that SLAM's residuals choose: what it scales, how it is set."""
+
+    setting: str  # its key, as Considered names it
+    what: str  # what it multiplies: "distances", "turns"
+    steps: str  # what the note says is scaled
+    flag: str
+    search: Callable[[SlamInputs, gtsam.Values | None], Any]
+
+
+# Looked up when called (tests put their own in the module's place).
+_DISTANCES = _ScaleSearch("odometry.scale", "distances", "steps", "--odometry-scale",
+                          lambda i, near: odometry_scale_by_residuals(i, near))  # fmt: skip
+_TURNS = _ScaleSearch("odometry.turn_scale", "turns", "turns", "--odometry-turn-scale",
+                      lambda i, near: odometry_turn_scale_by_residuals(i, near))  # fmt: skip
+
+
+def _odometry_scales(
+    inputs: SlamInputs,
     config: MapConfig,
-    observations: list[Observation],
-    noise: OdometryNoise,
-    breaks: list[int],
-    home_id: int | None,
+    topic: str | None,
+    basis: tuple[Any, ...],
+    near: gtsam.Values | None,
+    stage: Callable[[str], None],
+    notes: list[Note],
+    searches: dict[str, Any],
+) -> tuple[float, float | None, float, float | None]:
+    """The odometry's scale and turn scale (:func:`_odometry_scale`), each with its sigma where
+    SLAM's residuals chose it; the turns searched on the scaled distances (``basis``: what the
+    searches depend on, for their keys in ``searches``)."""
+    scale, scale_sigma = _odometry_scale(
+        _DISTANCES, config.odometry.scale, inputs, topic, stage, notes, searches,
+        search_key("scale and sigma", *basis), near,
+    )  # fmt: skip
+    # A track width off reads every turn long or short, a bias no random walk describes.
+    scaled = replace(inputs, odometry=inputs.odometry.scaled(scale))
+    turn, turn_sigma = _odometry_scale(
+        _TURNS, config.odometry.turn_scale, scaled, topic, stage, notes, searches,
+        search_key("turn scale and sigma", *basis, scale), near,
+    )  # fmt: skip
+    return scale, scale_sigma, turn, turn_sigma
+
+
+def _odometry_scale(
+    spec: _ScaleSearch,
+    configured: float | None,
+    inputs: SlamInputs,
+    topic: str | None,
     stage: Callable[[str], None],
     notes: list[Note],
     searches: dict[str, Any],
     key: str,
     near: gtsam.Values | None,
 ) -> tuple[float, float | None]:
-    """The factor the odometry's distances are multiplied by: as set, or chosen by SLAM's
-    residuals (1 where they have no minimum; the search starts from ``near``, the delay
-    search's solution on the same frames), and said in the notes; and its standard deviation
-    where it was chosen (None otherwise)."""
-    configured = config.odometry.scale
+    """The factor the odometry's distances (or turns) are multiplied by: as set, or chosen by
+    SLAM's residuals on ``inputs`` (1 where they have no minimum; the search starts from
+    ``near``, the delay search's solution on the same frames), and said in the notes; and its
+    standard deviation where it was chosen (None otherwise)."""
     if configured is not None:
         return float(configured), None
+    noun = "scale" if spec.what == "distances" else "turn scale"
     cached = _CACHED if key in searches else ""
     if not cached:
-        stage("choosing the odometry's scale by SLAM's residuals")
-        found = odometry_scale_by_residuals(
-            SlamInputs(observations, extraction.odometry, home_id, extraction.mount.T_base_camera,
-                       noise, breaks, SEARCH_ROBUST), near,
-        )  # fmt: skip
+        stage(f"choosing the odometry's {noun} by SLAM's residuals")
+        found = spec.search(inputs, near)
         searches[key] = (found.chosen, found.sigma)
     chosen, sigma = searches[key]
-    topic = extraction.topics.odom
     if chosen is None:
         notes.append(Note(
-            "odometry.scale_unresolved",
-            f"odometry on {topic} taken at its scale: SLAM's residuals have no minimum between "
-            f"0.95 and 1.05{cached} (--odometry-scale sets one)",
+            f"{spec.setting}_unresolved",
+            f"odometry on {topic} taken at its {'scale' if spec.what == 'distances' else 'turns'}"
+            f": SLAM's residuals have no minimum between 0.95 and 1.05{cached} ({spec.flag} sets "
+            "one)",
             topic=topic,
         ))  # fmt: skip
         return 1.0, None
     off = 100 * (1 / chosen - 1)
     notes.append(Note(
-        "odometry.scale_chosen",
-        f"odometry on {topic} reads distances {abs(off):.2f} % {'long' if off > 0 else 'short'}: "
-        f"its steps are scaled by {chosen:.4f} (chosen by SLAM's residuals over "
-        f"0.95..1.05{cached}; --odometry-scale sets it)",
+        f"{spec.setting}_chosen",
+        f"odometry on {topic} reads {spec.what} {abs(off):.2f} % {'long' if off > 0 else 'short'}"
+        f": its {spec.steps} are scaled by {chosen:.4f} (chosen by SLAM's residuals over "
+        f"0.95..1.05{cached}; {spec.flag} sets it)",
         topic=topic, figure=chosen,
     ))  # fmt: skip
     return chosen, sigma

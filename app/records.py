@@ -131,6 +131,8 @@ class MapRun:
         odometry_model_reason: what chose that model.
         odometry_scale: what the odometry's distances were multiplied by.
         odometry_scale_sigma: its standard deviation where SLAM's residuals chose it, else None.
+        odometry_turn_scale: what the odometry's turns were multiplied by (a track width off).
+        odometry_turn_scale_sigma: its standard deviation where SLAM's residuals chose it.
         camera_delay_sigma_ns: the camera delay's, the same way [ns].
         notes: what the front end and the preparation of the log noticed, in that order.
         seconds: stage -> wall time.
@@ -154,6 +156,8 @@ class MapRun:
     odometry_model_reason: str | None = None
     odometry_scale: float = 1.0
     odometry_scale_sigma: float | None = None
+    odometry_turn_scale: float = 1.0
+    odometry_turn_scale_sigma: float | None = None
     camera_delay_sigma_ns: float | None = None
     notes: list[Note] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)

@@ -83,6 +83,8 @@ _LOG_ROWS: tuple[tuple[str, str], ...] = (
     ("odometry_source", "odometry noise model"),
     ("odometry_scale", "odometry scale applied"),
     ("odometry_scale_sigma", "odometry scale's sigma (SLAM's residuals)"),
+    ("odometry_turn_scale", "odometry turn scale"),
+    ("odometry_turn_scale_sigma", "odometry turn scale's sigma (SLAM's residuals)"),
     ("camera_delay_ms", "camera delay against odometry [ms]"),
     ("camera_delay_sigma_ms", "camera delay's sigma (SLAM's residuals) [ms]"),
     ("depth_scale", "depth scale applied"),

@@ -88,6 +88,8 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         "odometry_source": run.odometry_source,
         "odometry_scale": run.odometry_scale,
         "odometry_scale_sigma": run.odometry_scale_sigma,
+        "odometry_turn_scale": run.odometry_turn_scale,
+        "odometry_turn_scale_sigma": run.odometry_turn_scale_sigma,
         "levelled_frames": extraction.levelled_frames,
         "marker_detections": {
             str(i): {

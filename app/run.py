@@ -247,18 +247,22 @@ def map_logs(
     first = read[solved.first]
     truth, true_path = truth_in_home_frame(first.extraction, solved.home_id)
     # The odometry as the estimators used it (scaled), for the path between the frames.
-    odometry = first.extraction.odometry.scaled(first.prepared.odometry_scale)
+    prepared = first.prepared
+    odometry = first.extraction.odometry.scaled(prepared.odometry_scale).turned(
+        prepared.odometry_turn_scale
+    )
     for result in solved.results:
         result.path = corrected_odometry(result.estimate.trajectory, odometry)
         result.odometry_map = odometry_in_map(result.estimate.trajectory, odometry)
         score(result, truth, true_path)
-    prepared = first.prepared
     run = MapRun(
         first.log, config, first.extraction, prepared.frames, solved.results, truth, true_path,
         camera_delay_ns=prepared.camera_delay_ns, odometry_source=prepared.odometry_source,
         odometry_model_reason=prepared.odometry_model_reason,
         odometry_scale=prepared.odometry_scale,
         odometry_scale_sigma=prepared.odometry_scale_sigma,
+        odometry_turn_scale=prepared.odometry_turn_scale,
+        odometry_turn_scale_sigma=prepared.odometry_turn_scale_sigma,
         camera_delay_sigma_ns=prepared.camera_delay_sigma_ns, notes=first.notes, seconds=seconds,
         sessions=solved.sessions, separate=solved.separate,
         misread_markers=frozenset(
@@ -456,7 +460,9 @@ def localize_log(
     ate_m = error.ate_rmse_m if error is not None else None
     ate_aligned_m = error.ate_aligned_rmse_m if error is not None else None
     far = ate_note(accuracy_of(localization, ate_m, ate_aligned_m))
-    odometry = extraction.odometry.scaled(read.prepared.odometry_scale)
+    odometry = extraction.odometry.scaled(read.prepared.odometry_scale).turned(
+        read.prepared.odometry_turn_scale
+    )
     path = corrected_odometry(localization.trajectory, odometry)
     true_path = truth.at_stamps(path.t_ns) if truth is not None else None
     return LocalizationRun(

@@ -106,6 +106,8 @@ class OdometrySettings:
     """Its noise preset (a key of ``ODOMETRY_NOISE``); None (auto): chosen by its messages."""
     scale: float | None
     """What its distances are multiplied by; None (auto): chosen by SLAM's residuals."""
+    turn_scale: float | None = None
+    """What its turns are multiplied by; None (auto): chosen by SLAM's residuals."""
 
 
 @dataclass(frozen=True, slots=True)

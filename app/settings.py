@@ -230,6 +230,10 @@ SETTINGS: tuple[Setting, ...] = (
             "what the odometry's distances are multiplied by (the wheels' radius error); auto "
             "(default): chosen by SLAM's residuals over 0.95..1.05, 1 where they cannot tell",
             flag=Flag("--odometry-scale", "K|auto", commands=_MAP)),
+    Setting("odometry.turn_scale", None, scale_or_auto,
+            "what the odometry's turns are multiplied by (a wheel base's track width error); "
+            "auto (default): chosen by SLAM's residuals over 0.95..1.05, 1 where they cannot tell",
+            flag=Flag("--odometry-turn-scale", "K|auto", commands=_MAP)),
     Setting("noise.odometry_per_m", None, optional(_ODOMETRY_NOISE),
             "odometry position sigma after 1 m travelled [m/sqrt(m)] (default: the source's)",
             flag=Flag("--odometry-noise", "M", type=float, commands=_MAP)),
@@ -402,9 +406,13 @@ class MapConfig:
 
     @cached_property
     def odometry(self) -> OdometrySettings:
-        """The odometry's noise preset and scale (None: auto)."""
+        """The odometry's noise preset, scale and turn scale (None: auto)."""
         source = self.values["odometry.source"]
-        return OdometrySettings(None if source == "auto" else source, self.values["odometry.scale"])
+        return OdometrySettings(
+            None if source == "auto" else source,
+            self.values["odometry.scale"],
+            self.values["odometry.turn_scale"],
+        )
 
     @cached_property
     def overlay(self) -> OverlaySettings:

@@ -28,6 +28,8 @@ __all__ = ["no_readout_share", "no_sigma_share", "with_readout_share", "with_sig
 _SAID = {
     "odometry.scale": ("the odometry's scale", lambda sigma: f"{100 * sigma:.2f} %",
                        "--odometry-scale"),
+    "odometry.turn_scale": ("the odometry's turn scale", lambda sigma: f"{100 * sigma:.2f} %",
+                            "--odometry-turn-scale"),
     "camera.delay": ("the camera's delay", lambda sigma: f"{sigma / 1e6:.1f} ms",
                      "--camera-delay"),
 }  # fmt: skip

@@ -287,9 +287,9 @@ def _print_summary(result: MapRun, *, quiet: bool = False) -> None:
     extraction = result.extraction
     read = [s.extraction for s in result.sessions] or [extraction]  # every log's, not the first's
     markers = {o.marker_id for e in read for o in e.observations}
-    logs = f" in {len(read)} logs" if len(read) > 1 else ""
+    several = f" in {len(read)} logs" if len(read) > 1 else ""
     print(
-        f"{sum(e.frames for e in read)} frames{logs}, "
+        f"{sum(e.frames for e in read)} frames{several}, "
         f"{sum(len(e.observations) for e in read)} observations of "
         f"{counted(len(markers), 'marker')}, home marker {result.frames.home_id}"
     )

@@ -30,7 +30,10 @@ if TYPE_CHECKING:
         trajectory_error,
     )
     from markergraph.estimator.misreads import Misread, describe_misreads, misread_observations
-    from markergraph.estimator.odometry_scale import odometry_scale_by_residuals
+    from markergraph.estimator.odometry_scale import (
+        odometry_scale_by_residuals,
+        odometry_turn_scale_by_residuals,
+    )
     from markergraph.estimator.paper import (
         Edge,
         Form,
@@ -129,6 +132,7 @@ __all__ = [
     "odometry_nees",
     "odometry_scale_by_residuals",
     "odometry_stretches",
+    "odometry_turn_scale_by_residuals",
     "retimed",
     "shared_over_views",
     "trajectory_error",
@@ -179,7 +183,10 @@ lazy_package(
             "describe_misreads",
             "misread_observations",
         ),
-        "markergraph.estimator.odometry_scale": ("odometry_scale_by_residuals",),
+        "markergraph.estimator.odometry_scale": (
+            "odometry_scale_by_residuals",
+            "odometry_turn_scale_by_residuals",
+        ),
         "markergraph.estimator.paper": (
             "Edge",
             "Form",

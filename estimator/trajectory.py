@@ -179,6 +179,23 @@ class Trajectory:
             poses[:, :2] = poses[0, :2] + factor * (poses[:, :2] - poses[0, :2])
         return Trajectory(self.t_ns, poses, self.frame)
 
+    def turned(self, factor: float) -> Trajectory:
+        """Every step's turn times ``factor``, each step's translation kept in the base's own
+        frame: odometry whose track width is off (a diff-drive base reads every turn ``1 /
+        factor`` of its true angle), the poses composed again from the first one."""
+        if len(self) < 2 or factor == 1.0:
+            return self
+        poses = np.asarray(self.poses, dtype=np.float64)
+        d = np.diff(poses[:, :2], axis=0)
+        c, s = np.cos(poses[:-1, 2]), np.sin(poses[:-1, 2])
+        forward, left = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
+        dyaw = wrap_array(np.diff(poses[:, 2])) * factor
+        heading = poses[0, 2] + np.concatenate([[0.0], np.cumsum(dyaw)])
+        ch, sh = np.cos(heading[:-1]), np.sin(heading[:-1])
+        x = poses[0, 0] + np.concatenate([[0.0], np.cumsum(ch * forward - sh * left)])
+        y = poses[0, 1] + np.concatenate([[0.0], np.cumsum(sh * forward + ch * left)])
+        return Trajectory(self.t_ns, np.column_stack([x, y, wrap_array(heading)]), self.frame)
+
     def jumps(self, max_speed_mps: float = MAX_ODOMETRY_SPEED_MPS) -> list[tuple[int, float]]:
         """Steps faster than ``max_speed_mps`` between consecutive poses, as (stamp of the pose
         after the step [ns], the step's length [m]): a visual-inertial reset or relocalisation,

@@ -77,12 +77,13 @@ def test_estimator_setting_changed_reuses_the_searches(
     first, first_report = _map(log, tmp_path / "one", "--readout", "0")
     monkeypatch.setattr(prepare_module, "camera_delay_by_residuals", _no_search)
     monkeypatch.setattr(prepare_module, "odometry_scale_by_residuals", _no_search)
+    monkeypatch.setattr(prepare_module, "odometry_turn_scale_by_residuals", _no_search)
     flags = ("--odometry-noise", "0.12", "--robust", "cauchy", "--readout", "0")
     again, report = _map(log, tmp_path / "two", *flags)
-    assert report["camera_delay_ms"] == first_report["camera_delay_ms"]
-    assert report["odometry_scale"] == first_report["odometry_scale"]
+    for setting in ("camera_delay_ms", "odometry_scale", "odometry_turn_scale"):
+        assert report[setting] == first_report[setting], setting
     cache_said = [n for n in report["notes"] if "on an earlier run: from the cache" in n]
-    assert len(cache_said) == 2, report["notes"]  # the delay's note and the scale's
+    assert len(cache_said) == 3, report["notes"]  # the delay's, the scale's, the turn scale's
     a, b = _positions(first), _positions(again)
     assert a.keys() == b.keys()
     assert max(float(np.linalg.norm(a[i] - b[i])) for i in a) > MOVED_M
@@ -93,6 +94,7 @@ def test_estimator_setting_changed_reuses_the_searches(
     fresh, fresh_report = _map(log, tmp_path / "three", "--no-cache", *flags)
     assert fresh_report["camera_delay_ms"] == report["camera_delay_ms"]
     assert fresh_report["odometry_scale"] == report["odometry_scale"]
+    assert fresh_report["odometry_turn_scale"] == report["odometry_turn_scale"]
     c = _positions(fresh)
     assert max(float(np.linalg.norm(b[i] - c[i])) for i in b) < SAME_MAP_M
 

@@ -257,22 +257,30 @@ def test_an_unknown_readout_widens_the_map_by_how_far_it_moves(realistic_log) ->
 @pytest.mark.parametrize(
     ("searched_key", "fixed", "note_kind"),
     [
-        ("odometry.scale", {"camera.delay_ms": 35.0}, "odometry.scale_share"),
-        ("camera.delay_ms", {"odometry.scale": 1.0}, "camera.delay_share"),
+        ("odometry.scale", {"camera.delay_ms": 35.0, "odometry.turn_scale": 1.0},
+         "odometry.scale_share"),
+        ("odometry.turn_scale", {"camera.delay_ms": 35.0, "odometry.scale": 1.0},
+         "odometry.turn_scale_share"),
+        ("camera.delay_ms", {"odometry.scale": 1.0, "odometry.turn_scale": 1.0},
+         "camera.delay_share"),
     ],
-)
+)  # fmt: skip
 def test_a_searched_setting_widens_the_map_by_how_far_one_sigma_moves_it(
     realistic_log, searched_key: str, fixed: dict, note_kind: str
 ) -> None:
-    """The odometry's scale, or the camera's delay, chosen by SLAM's residuals (the other
-    given), known to the sigma their curvature gives: SLAM's markers carry its share, exactly
-    d d^T for each marker's move d between maps made with the setting given at the chosen value
-    and at one sigma further (separate runs), and its note gives the largest move."""
+    """The odometry's scale, its turn scale or the camera's delay, chosen by SLAM's residuals
+    (the others given), known to the sigma their curvature gives: SLAM's markers carry its
+    share, exactly d d^T for each marker's move d between maps made with the setting given at
+    the chosen value and at one sigma further (separate runs), and its note gives the largest
+    move."""
     log = realistic_log[1]
     settings = {"method": "slam", "camera.readout_ms": 25.0, **fixed}  # no readout share
     searched = mg.map_log(log, mg.MapConfig.from_values(settings))
     if searched_key == "odometry.scale":
         chosen, sigma = searched.odometry_scale, searched.odometry_scale_sigma
+        assert sigma is not None and 0.0 < sigma < 0.05
+    elif searched_key == "odometry.turn_scale":
+        chosen, sigma = searched.odometry_turn_scale, searched.odometry_turn_scale_sigma
         assert sigma is not None and 0.0 < sigma < 0.05
     else:
         chosen, sigma_ns = searched.camera_delay_ns / 1e6, searched.camera_delay_sigma_ns
