@@ -405,8 +405,10 @@ def judge(run: MapRun) -> MapRun:
     run.judgement, per_method = judge_run(
         [result.estimate for result in run.results], run.extraction,
         camera_delay_ns=run.camera_delay_ns, odometry_scale=run.odometry_scale,
+        odometry_turn_scale=run.odometry_turn_scale,
         delay_searched=run.config.camera.delay_ns is None,
-        scale_searched=run.config.odometry.scale is None, misread_markers=run.misread_markers,
+        scale_searched=run.config.odometry.scale is None,
+        turn_searched=run.config.odometry.turn_scale is None, misread_markers=run.misread_markers,
     )  # fmt: skip
     for result in run.results:
         result.judgement = per_method[result.method]

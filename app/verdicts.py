@@ -327,9 +327,8 @@ def _closed_form_reasons(closed: Estimate, reference: Estimate | None) -> list[R
 def _input_reasons(
     extraction: Extraction,
     camera_delay_ns: int,
-    odometry_scale: float,
     delay_searched: bool,
-    scale_searched: bool,
+    searched_scales: dict[str, float],
 ) -> list[Reason]:
     frames, samples = (
         extraction.frames,
@@ -375,13 +374,21 @@ def _input_reasons(
                 f"the camera's delay was chosen at the end of its search ({1e3 * delay_s:+.0f} "
                 "ms): the true delay may lie beyond it (--camera-delay sets it)",
             ))  # fmt: skip
-    if scale_searched and odometry_scale in (min(SCALES), max(SCALES)):
-        reasons.append(_suspect(
-            "odometry", odometry_scale,
-            f"the odometry's scale was chosen at the end of its search ({odometry_scale:.2f}): "
-            "its distances may be off by more (--odometry-scale sets it)",
-        ))  # fmt: skip
+    for name, value in searched_scales.items():  # the odometry's scale, its turn scale
+        if value in (min(SCALES), max(SCALES)):
+            check, what, flag = _SCALES[name]
+            reasons.append(_suspect(
+                check, value,
+                f"the odometry's {name} was chosen at the end of its search ({value:.2f}): its "
+                f"{what} may be off by more ({flag} sets it)",
+            ))  # fmt: skip
     return reasons
+
+
+_SCALES = {  # the odometry's searched factors: the check's name, what it scales, its flag
+    "scale": ("odometry", "distances", "--odometry-scale"),
+    "turn scale": ("odometry_turns", "turns", "--odometry-turn-scale"),
+}
 
 
 def judge_run(
@@ -390,23 +397,27 @@ def judge_run(
     *,
     camera_delay_ns: int = 0,
     odometry_scale: float = 1.0,
+    odometry_turn_scale: float = 1.0,
     delay_searched: bool = True,
     scale_searched: bool = True,
+    turn_searched: bool = True,
     misread_markers: frozenset[int] = frozenset(),
 ) -> tuple[Judgement, dict[Method, Judgement]]:
     """The verdict on each method's estimate and on the run.
 
     Each method's reasons are its own and the run's (bad input harms every method); the run's
-    verdict is the gravest of its methods', with each reason naming its method. A delay or
-    scale at the end of its search is suspect only where it was searched (``delay_searched``,
-    ``scale_searched``); set by hand, the bound is no evidence. ``misread_markers``, whose
+    verdict is the gravest of its methods', with each reason naming its method. A delay, scale
+    or turn scale at the end of its search is suspect only where it was searched
+    (``delay_searched``, ``scale_searched``, ``turn_searched``); set by hand, the bound is no
+    evidence. ``misread_markers``, whose
     every sighting was another marker's (a note says so), are not missing from the map.
     """
     seen = {o.marker_id for o in extraction.observations} - misread_markers
     camera_x_m = extraction.mount.T_base_camera.x()
-    inputs = _input_reasons(
-        extraction, camera_delay_ns, odometry_scale, delay_searched, scale_searched
-    )
+    searched = {"scale": odometry_scale} if scale_searched else {}
+    if turn_searched:
+        searched["turn scale"] = odometry_turn_scale
+    inputs = _input_reasons(extraction, camera_delay_ns, delay_searched, searched)
     disagreements = _disagreements(estimates)
     own: dict[Method, list[Reason]] = {}
     for estimate in estimates:

@@ -294,18 +294,19 @@ def test_closed_form_drift_beyond_its_share_of_the_map_is_flagged(clean) -> None
 
 
 def test_searches_at_the_end_of_their_range_and_dropped_frames_are_reasons(clean) -> None:
-    """A delay or a scale chosen at its grid's end, or a fifth of the frames (undecodable, or
-    stamps their neighbours contradict) or of the odometry samples dropped, make every method
-    suspect with the figure; set by hand, the bound is no evidence."""
+    """A delay, a scale or a turn scale chosen at its grid's end, or a fifth of the frames
+    (undecodable, or stamps their neighbours contradict) or of the odometry samples dropped,
+    make every method suspect with the figure; set by hand, the bound is no evidence."""
     _, estimates, extraction = clean
     slam_only = {Method.SLAM: estimates[Method.SLAM]}
     delay_ns = round(max(DELAYS_S) * 1e9)
     _, per_method = judged(slam_only, extraction, camera_delay_ns=delay_ns,
-                           odometry_scale=min(SCALES))  # fmt: skip
-    assert {"delay", "odometry"} <= checks(per_method[Method.SLAM])
+                           odometry_scale=min(SCALES), odometry_turn_scale=max(SCALES))  # fmt: skip
+    assert {"delay", "odometry", "odometry_turns"} <= checks(per_method[Method.SLAM])
     _, per_method = judged(slam_only, extraction, camera_delay_ns=delay_ns,
-                           odometry_scale=min(SCALES),
-                           delay_searched=False, scale_searched=False)  # fmt: skip
+                           odometry_scale=min(SCALES), odometry_turn_scale=max(SCALES),
+                           delay_searched=False, scale_searched=False,
+                           turn_searched=False)  # fmt: skip
     assert per_method[Method.SLAM].verdict is Verdict.OK
     for dropping in (
         dataclasses.replace(extraction, undecodable_frames=extraction.frames // 5),
