@@ -423,16 +423,20 @@ class _ScaleSearch:
     """A factor on the odometry that SLAM's residuals choose: what it scales, how it is set."""
 
     setting: str  # its key, as Considered names it
-    what: str  # what it multiplies: "distances", "turns"
+    noun: str  # "the odometry's ..."
+    what: str  # what it multiplies, as the note says it is read
     steps: str  # what the note says is scaled
+    kept: str  # what the odometry is taken at where the residuals cannot tell
     flag: str
     search: Callable[[SlamInputs, gtsam.Values | None], Any]
 
 
 # Looked up when called (tests put their own in the module's place).
-_DISTANCES = _ScaleSearch("odometry.scale", "distances", "steps", "--odometry-scale",
+_DISTANCES = _ScaleSearch("odometry.scale", "scale", "distances", "steps", "scale",
+                          "--odometry-scale",
                           lambda i, near: odometry_scale_by_residuals(i, near))  # fmt: skip
-_TURNS = _ScaleSearch("odometry.turn_scale", "turns", "turns", "--odometry-turn-scale",
+_TURNS = _ScaleSearch("odometry.turn_scale", "turn scale", "turns", "turns", "turns",
+                      "--odometry-turn-scale",
                       lambda i, near: odometry_turn_scale_by_residuals(i, near))  # fmt: skip
 
 
@@ -450,14 +454,13 @@ def _odometry_scales(
     SLAM's residuals chose it; the turns searched on the scaled distances (``basis``: what the
     searches depend on, for their keys in ``searches``)."""
     scale, scale_sigma = _odometry_scale(
-        _DISTANCES, config.odometry.scale, inputs, topic, stage, notes, searches,
-        search_key("scale and sigma", *basis), near,
-    )  # fmt: skip
+        _DISTANCES, config.odometry.scale, inputs, topic, stage, notes, searches, basis, near
+    )
     # A track width off reads every turn long or short, a bias no random walk describes.
     scaled = replace(inputs, odometry=inputs.odometry.scaled(scale))
     turn, turn_sigma = _odometry_scale(
         _TURNS, config.odometry.turn_scale, scaled, topic, stage, notes, searches,
-        search_key("turn scale and sigma", *basis, scale), near,
+        (*basis, scale), near,
     )  # fmt: skip
     return scale, scale_sigma, turn, turn_sigma
 
@@ -470,28 +473,28 @@ def _odometry_scale(
     stage: Callable[[str], None],
     notes: list[Note],
     searches: dict[str, Any],
-    key: str,
+    basis: tuple[Any, ...],
     near: gtsam.Values | None,
 ) -> tuple[float, float | None]:
     """The factor the odometry's distances (or turns) are multiplied by: as set, or chosen by
     SLAM's residuals on ``inputs`` (1 where they have no minimum; the search starts from
     ``near``, the delay search's solution on the same frames), and said in the notes; and its
-    standard deviation where it was chosen (None otherwise)."""
+    standard deviation where it was chosen (None otherwise). ``basis``: what the search
+    depends on, for its key in ``searches``."""
     if configured is not None:
         return float(configured), None
-    noun = "scale" if spec.what == "distances" else "turn scale"
+    key = search_key(f"{spec.noun} and sigma", *basis)
     cached = _CACHED if key in searches else ""
     if not cached:
-        stage(f"choosing the odometry's {noun} by SLAM's residuals")
+        stage(f"choosing the odometry's {spec.noun} by SLAM's residuals")
         found = spec.search(inputs, near)
         searches[key] = (found.chosen, found.sigma)
     chosen, sigma = searches[key]
     if chosen is None:
         notes.append(Note(
             f"{spec.setting}_unresolved",
-            f"odometry on {topic} taken at its {'scale' if spec.what == 'distances' else 'turns'}"
-            f": SLAM's residuals have no minimum between 0.95 and 1.05{cached} ({spec.flag} sets "
-            "one)",
+            f"odometry on {topic} taken at its {spec.kept}: SLAM's residuals have no minimum "
+            f"between 0.95 and 1.05{cached} ({spec.flag} sets one)",
             topic=topic,
         ))  # fmt: skip
         return 1.0, None

@@ -377,10 +377,10 @@ def _check_usable(path: Path, choice: TopicChoice, result: Extraction) -> None:
             depth was chosen and none of it is usable.
     """
     if not result.frames:  # every message on the topic unreadable: a damaged log
-        topic = choice.color or ", ".join(choice.detections)
-        lost = [w for w in result.warnings if topic in w or not w.startswith(str(path))]
+        topics = (choice.color,) if choice.color else choice.detections
+        lost = [w for w in result.warnings if any(t in w for t in topics)]
         raise LogError(
-            f"{path}: no frame on {topic} could be read"
+            f"{path}: no frame on {', '.join(topics)} could be read"
             + (f" ({lost[0].removeprefix(f'{path}: ')})" if lost else "")
         )
     if result.camera is None:

@@ -183,9 +183,8 @@ def _detection_topics(
     result = []
     families = TagFamilies()
     for topic in choice.detections:
-        first = _first(log, topic, 1)
-        _take_families(log, topic, families)
-        frame = frame_id(first[0].decoded) if first else ""
+        first = _first_with_family(log, topic, families)
+        frame = frame_id(first.decoded) if first else ""
         camera = find_camera(topic, frame, rig, infos)
         intrinsics = None
         if camera is not None:
@@ -202,15 +201,19 @@ def _detection_topics(
     return tuple(result)
 
 
-def _take_families(log: Log, topic: str, families: TagFamilies) -> None:
-    """The tag family of the first of the topic's first :data:`TF_MESSAGES` messages to carry a
-    tag (a camera may see none for a while)."""
+def _first_with_family(log: Log, topic: str, families: TagFamilies) -> Message | None:
+    """A detection topic's first message that decodes, in the one reading that also takes the
+    tag family of the first of its first :data:`TF_MESSAGES` messages to carry a tag (a camera
+    may see none for a while)."""
+    first = None
     with _reading(log, topic) as stream:
         for message in itertools.islice(stream, TF_MESSAGES):
+            first = first or message
             with contextlib.suppress(ValueError, AttributeError, TypeError):  # map says why
                 families.take(topic, message.decoded, detections_of(message.decoded))
             if topic in families.first:
-                return
+                break
+    return first
 
 
 def _judge_detections(
