@@ -239,6 +239,8 @@ def test_outdoor_recording_without_tagslams_file_takes_rep_103s_body(bags, monke
     del values["rig.tagslam"]
     run = map_log_3d(log, mg.MapConfig.from_values(values))
     assert any(n.kind == "odometry.body_convention" for n in run.notes), run.notes
+    (size,) = [n for n in run.notes if n.kind == "marker_size.given"]  # both tags take 0.42 m
+    assert size.figure == 2 and "marker size 0.42 m" in size.text and "tags 2, 3" in size.text
     assert levelled_tags(run) == 2 and run.judgement.verdict.value == "ok"
     reference = reference_tags_3d(unpacked("test_22", "reference", bags))
     ours = {i: t.T_map_tag for i, t in run.tag_map.tags.items()}

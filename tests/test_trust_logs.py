@@ -173,6 +173,21 @@ def test_a_summary_missing_a_channel_is_rebuilt(log: Path, tmp_path: Path, capsy
     assert markers(tmp_path / "r").keys() == clean_map.keys()
 
 
+@pytest.mark.parametrize(
+    ("head", "said"),
+    [(b"\xff\xd8\xff\xe0", "a JPEG image, not a recording"),
+     (b"\x89PNG\r\n\x1a\n", "a PNG image, not a recording"),
+     (b"SQLite format 3\x00", "give the rosbag2 folder that holds it")],
+)  # fmt: skip
+def test_a_file_that_is_no_log_says_what_it_is(head, said, tmp_path, capsys) -> None:
+    """A photo or a rosbag2's .db3 given as the log: one line saying what it is instead,
+    where "not an MCAP file" alone left the user guessing."""
+    path = tmp_path / "given.mcap"
+    path.write_bytes(head + bytes(64))
+    code, err = run(capsys, "info", path)
+    assert code == 1 and f"{path}: not an MCAP file (" in err and said in err, err
+
+
 def test_every_unreadable_file_says_why(log: Path, tmp_path: Path, capsys) -> None:
     """A record header cut inside the footer: before, "not a complete MCAP file ...: " with
     nothing after the colon."""
