@@ -22,7 +22,9 @@ from typing import Any
 import numpy as np
 
 from markergraph.common.errors import SettingsError
+from markergraph.common.notes import Note
 from markergraph.frontend.detect import Detection, load_dictionary
+from markergraph.frontend.dictionary_check import larger_dictionary
 from markergraph.frontend.ros2 import MESSAGE_DEFINITIONS
 
 __all__ = ["DETECTION_DEFINITIONS", "DETECTION_SCHEMAS", "TagFamilies", "detections_of"]
@@ -80,21 +82,24 @@ class TagFamilies:
 
     def __init__(self) -> None:
         self.first: dict[str, tuple[str, int | None]] = {}  # topic -> (family, bits)
-        self.highest: dict[str, int] = {}  # topic -> the highest id
+        self.ids: dict[str, set[int]] = {}  # topic -> the ids seen
 
     def take(self, topic: str, decoded: Any, found: list[Detection]) -> None:
         """One detection message's tags (``found``: as :func:`detections_of` read them)."""
         if not found:
             return
-        self.highest[topic] = max(self.highest.get(topic, -1), found[-1].marker_id)
+        self.ids.setdefault(topic, set()).update(d.marker_id for d in found)
         if topic not in self.first:
             tags = decoded.apriltags if hasattr(decoded, "apriltags") else decoded.detections
             bits = getattr(tags[0], "bits", None)
             self.first[topic] = (str(getattr(tags[0], "family", "") or ""), bits and int(bits))
 
-    def check(self, path: Path, dictionary: str) -> None:
+    def check(self, path: Path, dictionary: str) -> list[Note]:
         """Raises SettingsError, in one line naming the log, the topic and the dictionary to
-        pass, where the tags are another family's or an id lies beyond the dictionary."""
+        pass, where the tags are another family's, or ids lie beyond the dictionary and a
+        larger one of its family holds them. Ids beyond every OpenCV dictionary of the family
+        (TagSLAM's test 24: ids to 2,109 with 36h11's 6x6 bits, another family OpenCV lacks)
+        are a note: their corners map them all the same, under their ids."""
         known = load_dictionary(dictionary)
         size, bits = len(known.bytesList), int(known.markerSize)
         for topic, (family, tag_bits) in self.first.items():
@@ -111,9 +116,23 @@ class TagFamilies:
                     f"{family!r}), not {dictionary}'s {bits}x{bits}: pass --dictionary "
                     + (guess or "with the tags' family")
                 )
-        for topic, highest in self.highest.items():
-            if highest >= size:
+        notes = []
+        larger = larger_dictionary(dictionary)
+        holds = len(load_dictionary(larger).bytesList) if larger else size
+        for topic, ids in self.ids.items():
+            beyond = sorted(i for i in ids if i >= size)
+            if beyond and beyond[-1] < holds:
                 raise SettingsError(
-                    f"{path}: tag {highest} on {topic} lies beyond {dictionary} ({size} markers):"
-                    " pass --dictionary with the tags' family"
+                    f"{path}: tag {beyond[-1]} on {topic} lies beyond {dictionary} ({size} "
+                    f"markers): pass --dictionary {larger}"
                 )
+            if beyond:
+                shown = ", ".join(map(str, beyond[:8])) + (" ..." if len(beyond) > 8 else "")
+                text = (
+                    f"{len(beyond)} tag id(s) on {topic} lie beyond {dictionary} ({size} "
+                    f"markers), and no OpenCV dictionary of its family holds them ({shown}): "
+                    "mapped from their corners under their ids, which an exported ArUco file "
+                    "cannot name"
+                )
+                notes.append(Note("detections.beyond_dictionary", text, topic, len(beyond)))
+        return notes

@@ -169,10 +169,11 @@ def _odometry_on_tf(
 
 def _detection_topics(
     log: Log, choice: TopicChoice, config: FrontendConfig, stats: dict[str, TopicStats],
-    static: list[Any], body_frame: str | None,
+    static: list[Any], body_frame: str | None, warnings: list[str],
 ) -> tuple[DetectionTopic, ...]:  # fmt: skip
     """Each detection topic's camera and mount, found as :mod:`.tagged` finds them
-    (:func:`~.tagged.find_camera`, :func:`~.tagged.find_mount`)."""
+    (:func:`~.tagged.find_camera`, :func:`~.tagged.find_mount`); its tags' family held to the
+    dictionary (a note of ids beyond it goes to ``warnings``)."""
     rig = Rig.read(config, tagslam=False)  # the mount's chain is shown, not its pose
     infos = {
         t.topic: found[0].decoded
@@ -197,7 +198,7 @@ def _detection_topics(
         elif placed is not None and camera is not None:
             mount = Mount(f"{config.camera_poses}: {camera.kalibr_name}")
         result.append(DetectionTopic(topic, frame, intrinsics, mount))
-    families.check(log.path, config.dictionary)
+    warnings += [note.text for note in families.check(log.path, config.dictionary)]
     return tuple(result)
 
 
@@ -365,7 +366,7 @@ def preflight(path: Path, config: FrontendConfig = FrontendConfig()) -> Prefligh
     static = _static_transforms(log, choice.tf_static)
     report = replace(report, odometry_frame=body_frame)
     if detecting:
-        found = _detection_topics(log, choice, config, stats, static, body_frame)
+        found = _detection_topics(log, choice, config, stats, static, body_frame, warnings)
         _judge_detections(found, blockers, warnings)
         return _with(report, blockers + no_odometry, warnings, detections=found)
     if choice.color is None:

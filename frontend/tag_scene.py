@@ -124,6 +124,7 @@ class _Reader:
         self.rig = Rig.read(config)
         self.failures = DecodeFailures()
         self.families = TagFamilies()
+        self.notes: list[Note] = []  # what reading them noticed (ids beyond the dictionary)
         self.messages: list[tuple[str, int, str, list[Detection]]] = []
         self.infos: dict[str, Any] = {}
         self.static: list[Any] = []
@@ -145,7 +146,7 @@ class _Reader:
                 self._detect(message)
             else:
                 self._take(message.topic, message.decoded)
-        self.families.check(self.log.path, self.config.dictionary)
+        self.notes = self.families.check(self.log.path, self.config.dictionary)
         self.odometry.sort(key=lambda s: s[0])
 
     def _detect(self, message: Message) -> None:
@@ -258,7 +259,7 @@ def read_tag_scene(
     reader.read()
     empty = sum(1 for message in reader.messages if not message[3])
     reader.messages = [message for message in reader.messages if message[3]]
-    notes: list[Note] = []
+    notes: list[Note] = list(reader.notes)
     cameras, models = reader.cameras(notes)
     topics = {c.topic: i for i, c in enumerate(cameras)}
     sizes = config.marker_sizes

@@ -293,7 +293,7 @@ class _Reader:
         wanted += [t for t in (self.choice.odom, self.choice.tf_static) if t]
         for message in self.source.messages(wanted, self.failures):
             self._take(message)
-        self.families.check(self.path, self.config.dictionary)
+        self.log.notes += self.families.check(self.path, self.config.dictionary)
         self.log.warnings = self.failures.warnings()
         views = self._views()
         self._observe(views)
