@@ -184,9 +184,11 @@ class Comparison:
         only_map, only_reference: ids in one alone.
         p_ref: (N, 3) the reference's centres [m].
         aligned: after the rigid (or, with scale, similarity) alignment.
-        home_fixed: after fixing the frame on the home marker.
+        home_fixed: after fixing the frame on the home marker; None where the reference
+            does not give that marker's yaw (the map's frame rests on it: a translation alone
+            would score the frame's turn as the map's error).
         home_id: that marker.
-        notes: what a reader should know (a home marker without a yaw in the reference).
+        notes: what a reader should know (why home-fixed is not scored).
     """
 
     dimensions: int
@@ -195,7 +197,7 @@ class Comparison:
     only_reference: tuple[int, ...]
     p_ref: NDArray[np.float64]
     aligned: Scored
-    home_fixed: Scored
+    home_fixed: Scored | None
     home_id: int
     notes: tuple[str, ...] = ()
 
@@ -392,10 +394,12 @@ def errors(
                   int(np.sum(nees[have] <= CHI2_95[d])))  # fmt: skip
 
 
-def _home_alignment(point: MapPoint, ref: RefMarker, dimensions: int) -> tuple[Alignment, str]:
+def _home_alignment(
+    point: MapPoint, ref: RefMarker, dimensions: int, yawed: list[int]
+) -> tuple[Alignment | None, str]:
     """The map moved so that its home marker lands on the reference's: the full rotation
-    where the reference gives one (3-D), else the yaw, else the position alone."""
-    note = ""
+    where the reference gives one (3-D), else the yaw; None (with the reason) where it gives
+    neither. ``yawed``: the common markers whose yaw the reference gives, for the reason."""
     if dimensions == 3 and ref.rotation_known:
         R = ref.R_ref_marker @ point.R_map_marker.T
         how = f"marker {point.marker_id}'s pose"
@@ -404,16 +408,15 @@ def _home_alignment(point: MapPoint, ref: RefMarker, dimensions: int) -> tuple[A
         R = np.asarray(gtsam.Rot3.Rz(turn).matrix())
         how = f"marker {point.marker_id}'s position and yaw"
     else:
-        R = np.eye(3)
-        how = f"marker {point.marker_id}'s position alone"
-        note = (
-            f"home marker {point.marker_id}: the reference gives it no yaw (or it is not on a "
-            "wall): home-fixed is a translation only"
+        other = f" (--home {yawed[0]} fixes it on one it does)" if yawed else ""
+        return None, (
+            f"home-fixed not scored: the reference gives marker {point.marker_id} no yaw (or it "
+            f"is not on a wall), and the map's frame turns with that yaw{other}"
         )
     t = ref.p_ref - R @ point.p_map
     if dimensions == 2:
         t[2] = 0.0
-    return Alignment(R, t, 1.0, how), note
+    return Alignment(R, t, 1.0, how), ""
 
 
 def _pinned_home(points: Mapping[int, MapPoint], home_id: int | None) -> int | None:
@@ -469,8 +472,15 @@ def compare(
     R, t, scale = align(p_map, p_ref, with_scale)
     group = ("Sim" if with_scale else "SE") + f"({dimensions})"
     rigid = Alignment(*_embed(R, t), scale, f"{group} on {len(common)} positions")
-    fixed, note = _home_alignment(points[home], refs[home], dimensions)
+    yawed = [
+        i
+        for i in common
+        if (dimensions == 3 and refs[i].rotation_known) or (refs[i].yaw_known and points[i].wall)
+    ]
+    fixed, note = _home_alignment(points[home], refs[home], dimensions, yawed)
     gauge = _pinned_home(points, default_home)
+    # The map's covariances are in its home marker's frame: fixed on another, no NEES.
+    nees = home == default_home
     return Comparison(
         dimensions,
         np.array(common, dtype=np.int64),
@@ -478,8 +488,7 @@ def compare(
         tuple(sorted(set(refs) - set(points))),
         np.array([r.p_ref for r in theirs]),
         errors(ours, theirs, rigid, dimensions, gauge, relative=True),
-        # The map's covariances are in its home marker's frame: fixed on another, no NEES.
-        errors(ours, theirs, fixed, dimensions, gauge, with_nees=home == default_home),
+        None if fixed is None else errors(ours, theirs, fixed, dimensions, gauge, with_nees=nees),
         home,
         (note,) if note else (),
     )

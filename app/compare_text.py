@@ -57,7 +57,7 @@ def _coverage(scored: Scored) -> str:
     return f"{scored.n_within} of {scored.n_nees} ({share:.0f} %), mean NEES {mean:.2f}"
 
 
-def _coverage_line(aligned: Scored, home_fixed: Scored, dimensions: int) -> str:
+def _coverage_line(aligned: Scored, home_fixed: Scored | None, dimensions: int) -> str:
     """The map's covariances against the errors, in one line: markers within their 95 %
     ellipse (ellipsoid in 3-D) and the mean position NEES, after each alignment."""
     if aligned.n_nees == 0:
@@ -65,7 +65,7 @@ def _coverage_line(aligned: Scored, home_fixed: Scored, dimensions: int) -> str:
     shape = "ellipse" if dimensions == 2 else "ellipsoid"
     line = f"covariance: within their 95 % {shape} (NEES expected {dimensions}): aligned "
     line += _coverage(aligned)
-    if home_fixed.n_nees:
+    if home_fixed is not None and home_fixed.n_nees:
         line += f"; home-fixed {_coverage(home_fixed)}"
     return line
 
@@ -78,11 +78,11 @@ def _table(result: Comparison) -> list[str]:
         ("aligned [m]", a.position_m, 4),
         ("yaw [deg]", a.yaw_deg, 2),
         ("rot [deg]", a.rotation_deg, 2),
-        ("home [m]", h.position_m, 4),
-        ("yaw [deg]", h.yaw_deg, 2),
-        ("rot [deg]", h.rotation_deg, 2),
-        ("NEES", a.nees, 2),
     ]
+    if h is not None:
+        columns += [("home [m]", h.position_m, 4), ("yaw [deg]", h.yaw_deg, 2),
+                    ("rot [deg]", h.rotation_deg, 2)]  # fmt: skip
+    columns.append(("NEES", a.nees, 2))
     if result.dimensions == 2:
         columns = [c for c in columns if c[0] != "rot [deg]"]
     lines = [f"{'id':>6}" + "".join(f" {name:>11}" for name, _, _ in columns)]
@@ -105,10 +105,10 @@ def comparison_lines(result: Comparison) -> list[str]:
         f"{shown(rotation.angle_deg, '.3f')} deg, "
         f"translation ({', '.join(shown(v, '.4f') for v in t)}) m"
         + (f", scale {rotation.scale:.6f}" if rotation.how.startswith("Sim") else ""),
-        f"home-fixed on {h.alignment.how}",
+        *([] if h is None else [f"home-fixed on {h.alignment.how}"]),
         *_table(result),
         f"aligned:    {summary(a)}",
-        f"home-fixed: {summary(h)}  (marker {result.home_id})",
+        *([] if h is None else [f"home-fixed: {summary(h)}  (marker {result.home_id})"]),
         _coverage_line(a, h, d),
         *result.notes,
     ]
@@ -149,10 +149,9 @@ def comparison_document(
             "id": int(marker_id),
             "aligned": {"position_m": _number(a.position_m[k]), "yaw_deg": _number(a.yaw_deg[k]),
                         "rotation_deg": _number(a.rotation_deg[k]), "nees": _number(a.nees[k])},
-            "home_fixed": {"position_m": _number(h.position_m[k]),
-                           "yaw_deg": _number(h.yaw_deg[k]),
-                           "rotation_deg": _number(h.rotation_deg[k]),
-                           "nees": _number(h.nees[k])},
+            "home_fixed": None if h is None else {
+                "position_m": _number(h.position_m[k]), "yaw_deg": _number(h.yaw_deg[k]),
+                "rotation_deg": _number(h.rotation_deg[k]), "nees": _number(h.nees[k])},
         }
         for k, marker_id in enumerate(result.ids)
     ]  # fmt: skip
@@ -167,7 +166,7 @@ def comparison_document(
         "only_reference": list(result.only_reference),
         "home_id": result.home_id,
         "aligned": _scored_document(a),
-        "home_fixed": _scored_document(h),
+        "home_fixed": None if h is None else _scored_document(h),
         "markers": markers,
         "notes": list(result.notes),
     }

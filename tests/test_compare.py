@@ -309,6 +309,35 @@ def test_aruco_export_round_trips_to_zero_error(
         assert document["aligned"]["rotation_deg"]["max"] < 1e-6
 
 
+def test_a_reference_without_the_home_markers_yaw_scores_no_home_fixed_figures(
+    map2d, noisy_csv, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The survey without its yaw column: the map's frame turns with its home marker's yaw, so
+    home-fixed figures would count the survey's own turn (THETA0_RAD) as every marker's error.
+    They are left out and the note says so; the aligned figures are those with yaws."""
+    csv_path, ids = noisy_csv[0], noisy_csv[1]
+    no_yaw = tmp_path / "no-yaw.csv"
+    no_yaw.write_text(
+        "\n".join(",".join(row.split(",")[:3]) for row in csv_path.read_text().splitlines())
+    )
+    figures = {}
+    for name, path in (("with", csv_path), ("without", no_yaw)):
+        out = tmp_path / f"{name}.json"
+        code, text, err = _compare(str(map2d[0]), str(path), "--json", str(out), capsys=capsys)
+        assert code == 0, err
+        figures[name] = (json.loads(out.read_text()), text)
+    document, text = figures["without"]
+    assert document["home_fixed"] is None
+    assert all(marker["home_fixed"] is None for marker in document["markers"])
+    assert "home-fixed:" not in text and "home [m]" not in text
+    assert f"home-fixed not scored: the reference gives marker {map2d[1].home_id} no yaw" in text
+    with_yaw = figures["with"][0]
+    assert with_yaw["home_fixed"] is not None and len(document["markers"]) == len(ids)
+    assert document["aligned"]["position_m"]["rmse"] == pytest.approx(
+        with_yaw["aligned"]["position_m"]["rmse"], abs=EXACT
+    )
+
+
 def test_plot_and_json_are_written(
     map2d, noisy_csv, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
