@@ -59,6 +59,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help=_sensors_help(),
     )
     parser.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar on stderr")
 
 
 def _sensors_help() -> str:
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
             f"got {args.frame_rate:g}"
         )
     world, route = scenario(args.scenario)
-    with ProgressBar(f"simulating {args.scenario}") as bar:
+    with ProgressBar(f"simulating {args.scenario}", quiet=args.quiet) as bar:
         summary = write_log(
             world,
             route,

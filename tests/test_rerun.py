@@ -250,3 +250,17 @@ def test_detect_output_without_odometry_fails_in_one_line(
     assert main(["map", str(obs), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(obs) in err[0] and "no odometry" in err[0], err
+
+
+def test_simulate_quiet_draws_no_bar_on_a_terminal(tmp_path: Path) -> None:
+    """On a pseudo-terminal ``simulate`` draws its bar; with ``-q`` only its one result line."""
+    markergraph = str(Path(sys.executable).with_name("markergraph"))
+    texts = []
+    for flags in ([], ["-q"]):
+        out = tmp_path / f"room{len(flags)}.mcap"
+        texts.append(_under_pty([markergraph, "simulate", "--scenario", "paper-room",
+                                 "--duration", "3", "--frame-rate", "3", "--out", str(out),
+                                 *flags], dict(os.environ)))  # fmt: skip
+    loud, quiet = texts
+    assert "simulating paper-room" in loud and "100%" in loud
+    assert quiet.strip().startswith("wrote ") and quiet.strip().count("\n") == 0, quiet
