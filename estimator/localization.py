@@ -91,6 +91,26 @@ def _prior_whitened(residuals: Sequence[FactorResidual]) -> dict[int, float]:
     return {int(r.keys[0][1:]): r.whitened_error for r in residuals if r.kind == "prior"}
 
 
+def _strain(solution: SessionsEstimate, held: set[int]) -> dict[int, float]:
+    """How far each held map marker (seen often enough to judge) disagrees with this log, in
+    sigmas: its prior pulled by the observations, or its observations held off by the prior."""
+    observed = _median_whitened(solution.residuals)
+    pulled = _prior_whitened(solution.residuals)
+    return {
+        i: max(pulled.get(i, 0.0), observed[i][0])
+        for i in held
+        if observed.get(i, (0.0, 0))[1] >= MIN_OBSERVATIONS_TO_MOVE
+    }
+
+
+def _suspects(solution: SessionsEstimate, held: set[int]) -> list[int]:
+    return sorted(i for i, s in _strain(solution, held).items() if s > SUSPECT_WHITENED)
+
+
+def _strain_left(solution: SessionsEstimate, held: set[int]) -> float:
+    return max(_strain(solution, held).values(), default=0.0)
+
+
 def localize(
     frames: Frames,
     T_base_camera: gtsam.Pose2,
@@ -102,56 +122,69 @@ def localize(
 
     A map marker seen at least :data:`MIN_OBSERVATIONS_TO_MOVE` times whose prior or
     observations are more than :data:`SUSPECT_WHITENED` sigmas off is freed and placed by this
-    log alone; if that pose differs from the map's beyond chi-square's 99.9 % point
-    (:data:`MOVED_CHI2`, both covariances), it is reported as moved and the trajectory is solved
-    without its prior, so it cannot pull the robot. Markers the map does not know are placed and
-    reported as new.
+    log alone, one at a time: the suspect whose absence leaves the others least strained (one
+    moved marker pulls the robot, and with it every other marker's residuals: freeing every
+    suspect at once, or the most strained, frees the wrong ones on a map of three); if its pose
+    differs from the map's beyond chi-square's 99.9 % point (:data:`MOVED_CHI2`, both
+    covariances), it is reported as moved and the trajectory is solved without its prior, so
+    it cannot pull the robot. Markers the map does not know are placed and reported as new.
 
     Raises:
-        EstimationError: the log sees no marker of the map.
+        EstimationError: the log sees no marker of the map; every marker it sees disagrees
+            with the map; or a moved marker is found against a single other, which cannot
+            tell which of the two moved.
     """
-    first = solve_sessions(
-        [frames], [T_base_camera], robust=robust, priors=saved, pose_covariances=True
-    )
-    seen = set(frames.marker_ids()) & set(saved)
-    observed = _median_whitened(first.residuals)
-    pulled = _prior_whitened(first.residuals)
-    # Suspects: a prior the observations pull hard on, or observations the prior holds off.
-    suspects = sorted(
-        i for i in seen
-        if observed.get(i, (0.0, 0))[1] >= MIN_OBSERVATIONS_TO_MOVE
-        and (pulled.get(i, 0.0) > SUSPECT_WHITENED or observed[i][0] > SUSPECT_WHITENED)
-    )  # fmt: skip
-    if not suspects:
-        return _localization(first, [], saved, pulled)
-    if not (seen - set(suspects)):
-        raise EstimationError(
-            f"every map marker this log sees ({', '.join(map(str, suspects))}) disagrees with "
-            "the map: nothing to localise against"
+
+    def solve(freed: Sequence[int]) -> SessionsEstimate:
+        priors = {i: p for i, p in saved.items() if i not in freed}
+        return solve_sessions(
+            [frames], [T_base_camera], robust=robust, priors=priors, pose_covariances=True
         )
-    freed = solve_sessions(
-        [frames], [T_base_camera], robust=robust,
-        priors={i: p for i, p in saved.items() if i not in suspects}, pose_covariances=True,
-    )  # fmt: skip
-    moved_ids = []
-    for i in suspects:
-        # The map's pose against this log's, each with its own covariance: chi-square, 3 dof.
-        difference = saved[i].T_map_marker.localCoordinates(freed.markers[i].T_map_marker)
-        fresh = freed.markers[i].covariance
-        if fresh is None:
+
+    first = solve(())
+    seen = set(frames.marker_ids()) & set(saved)
+    pulled = _prior_whitened(first.residuals)
+    freed: list[int] = []
+    solution = first
+    while suspects := _suspects(solution, seen - set(freed)):
+        held = seen - set(freed)
+        if len(held) == 1:
             raise EstimationError(
-                f"no covariance for marker {i}: {'; '.join(n.text for n in freed.notes)}"
+                f"every map marker this log sees ({', '.join(map(str, sorted(seen)))}) "
+                "disagrees with the map: nothing to localise against"
             )
-        covariance = saved[i].covariance + fresh
-        if float(difference @ np.linalg.solve(covariance, difference)) > MOVED_CHI2:
-            moved_ids.append(i)
+        # One moved marker strains its neighbours too: free the suspect whose absence leaves
+        # the others least strained, not the most strained one.
+        trials = {i: solve([*freed, i]) for i in suspects}
+        worst = min(trials, key=lambda i: _strain_left(trials[i], held - {i}))
+        freed.append(worst)
+        solution = trials[worst]
+    moved_ids = [i for i in freed if _moved(saved[i], solution.markers[i], i, solution)]
+    held = sorted(seen - set(freed))
+    if moved_ids and len(held) == 1:
+        raise EstimationError(
+            f"map markers {', '.join(map(str, sorted([*moved_ids, *held])))} disagree with "
+            "each other beyond their covariances, and this log sees no further map marker to "
+            "tell which of them moved"
+        )
     if not moved_ids:
         return _localization(first, [], saved, pulled)
-    final = freed if moved_ids == suspects else solve_sessions(
-        [frames], [T_base_camera], robust=robust,
-        priors={i: p for i, p in saved.items() if i not in moved_ids}, pose_covariances=True,
-    )  # fmt: skip
+    final = solution if moved_ids == freed else solve(moved_ids)
     return _localization(final, moved_ids, saved, pulled)
+
+
+def _moved(
+    before: MapPrior, now: MarkerEstimate, marker_id: int, solution: SessionsEstimate
+) -> bool:
+    """The map's pose against this log's, each with its own covariance: beyond chi-square's
+    99.9 % point (3 dof)."""
+    if now.covariance is None:
+        raise EstimationError(
+            f"no covariance for marker {marker_id}: {'; '.join(n.text for n in solution.notes)}"
+        )
+    difference = before.T_map_marker.localCoordinates(now.T_map_marker)
+    covariance = before.covariance + now.covariance
+    return float(difference @ np.linalg.solve(covariance, difference)) > MOVED_CHI2
 
 
 def _localization(

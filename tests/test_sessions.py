@@ -10,6 +10,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from markergraph.common.errors import EstimationError
 from markergraph.datasets import scenario, simulate_fast
 from markergraph.estimator import Method, build_frames, estimate_frames, map_error
 from markergraph.estimator.localization import localize
@@ -91,6 +92,54 @@ def test_a_marker_moved_between_sessions_is_reported_and_no_other(office) -> Non
     true_now = moved_world.T_map_markers()[MOVED_ID]
     assert np.hypot(moved.T_map_now.x() - true_now.x(), moved.T_map_now.y() - true_now.y()) < 0.05
     assert ate(localization, run) < 0.03  # the moved marker does not pull the robot
+
+
+@pytest.fixture(scope="module")
+def room():
+    """The paper's room (three markers) mapped from two sessions."""
+    world, route = scenario("paper-room")
+    runs = [simulate_fast(world, route, seed=seed, duration_s=120.0) for seed in (1, 2)]
+    merged = solve_sessions(
+        [frames_of(runs[0], 0), frames_of(runs[1])], [runs[0].mount.T_base_camera] * 2
+    )
+    saved = {i: MapPrior(m.T_map_marker, m.relative_covariance) for i, m in merged.markers.items()}
+    return world, route, saved
+
+
+def _moved_world(world, marker_id: int, by_m: float):
+    markers = list(world.markers)
+    index = next(i for i, m in enumerate(markers) if m.id == marker_id)
+    moved = markers[index].position_m + by_m
+    markers[index] = dataclasses.replace(markers[index], position_m=moved)
+    return dataclasses.replace(world, markers=tuple(markers))
+
+
+@pytest.mark.parametrize("moved_id", [1, 2])
+def test_one_of_three_markers_moved_is_found_and_the_robot_held_by_the_other_two(
+    room, moved_id: int
+) -> None:
+    """One moved marker pulls the robot and so strains all three priors (2-16 sigmas each):
+    the one freed is the one whose absence leaves the other two agreeing, not the most
+    strained (marker 1, which did not move, when marker 2 did). Marker 0 is the map's frame,
+    in which the simulator gives its truth, so it is not the one moved here."""
+    world, route, saved = room
+    moved_world = _moved_world(world, moved_id, MOVED_BY_M)
+    run = simulate_fast(moved_world, route, seed=4, duration_s=120.0)
+    localization = localize(frames_of(run), run.mount.T_base_camera, saved)
+    assert [m.marker_id for m in localization.moved] == [moved_id]
+    true_now = moved_world.T_map_markers()[moved_id]
+    now = localization.moved[0].T_map_now
+    assert np.hypot(now.x() - true_now.x(), now.y() - true_now.y()) < 0.05
+    assert ate(localization, run) < 0.03
+
+
+def test_a_moved_marker_against_a_single_other_is_not_guessed(room) -> None:
+    """A map of two markers, one of them moved: the log cannot tell which, and says so."""
+    world, route, saved = room
+    run = simulate_fast(_moved_world(world, 2, MOVED_BY_M), route, seed=4, duration_s=120.0)
+    two = {i: saved[i] for i in (1, 2)}
+    with pytest.raises(EstimationError, match=r"markers 1, 2 disagree .* which of them moved"):
+        localize(frames_of(run), run.mount.T_base_camera, two)
 
 
 def test_a_log_of_another_place_is_handed_back(office) -> None:
