@@ -160,10 +160,10 @@ def localize(
         freed.append(worst)
         solution = trials[worst]
     moved_ids = [i for i in freed if _moved(saved[i], solution.markers[i], i, solution)]
-    held = sorted(seen - set(freed))
-    if moved_ids and len(held) == 1:
+    holding = sorted(seen - set(freed))
+    if moved_ids and len(holding) == 1:
         raise EstimationError(
-            f"map markers {', '.join(map(str, sorted([*moved_ids, *held])))} disagree with "
+            f"map markers {', '.join(map(str, sorted([*moved_ids, *holding])))} disagree with "
             "each other beyond their covariances, and this log sees no further map marker to "
             "tell which of them moved"
         )
