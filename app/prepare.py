@@ -35,6 +35,7 @@ from markergraph.estimator import (
     widened_for_motion,
 )
 from markergraph.frontend import Extraction
+from markergraph.frontend.depth_scale import scale_depth_ranges
 from markergraph.frontend.posed import drop_notes
 from markergraph.obs_cache import search_key
 from markergraph.sections import CameraSettings, Shutter
@@ -54,7 +55,8 @@ class Considered:
     deviation further (:mod:`~markergraph.shares` grows the covariances by what it moves).
 
     Attributes:
-        setting: ``odometry.scale``, ``odometry.turn_scale`` or ``camera.delay``.
+        setting: ``odometry.scale``, ``odometry.turn_scale``, ``camera.delay`` or
+            ``depth.scale`` (measured against the markers' size, not by the residuals).
         sigma: its standard deviation (a factor; [ns] for the delay).
         frames: the estimators' input with the setting one sigma further.
     """
@@ -173,7 +175,7 @@ def prepare(
     frames = framed(kept(observations))
     considered = () if misreads_of is not None else _considered(
         timed, (scale, scale_sigma, turn, turn_sigma), kept,
-        lambda o, s, t: framed(o, s, frames.home_id, t),
+        lambda o, s, t: framed(o, s, frames.home_id, t), extraction.depth_scale_sigma,
     )  # fmt: skip
     return Prepared(
         kept(observations), frames, delay_ns, source, why, scale, tuple(notes), misreads,
@@ -186,12 +188,13 @@ def _considered(
     scales: tuple[float, float | None, float, float | None],
     kept: Callable[[list[Observation]], list[Observation]],
     framed: Callable[[list[Observation], float, float], Frames],
+    depth_sigma: float | None,
 ) -> tuple[Considered, ...]:
     """The log made ready again with each setting SLAM's residuals chose one sigma further:
     the odometry's scale and turn scale (``scales``: each with its sigma; ``framed`` builds
     frames at a scale and a turn scale, on the map's home marker: one map frame for every
-    share), the camera's delay (``timed`` retimes at a delay); ``kept`` leaves the misread
-    observations out."""
+    share), the camera's delay (``timed`` retimes at a delay); and the depth's scale the
+    markers measured (``depth_sigma``); ``kept`` leaves the misread observations out."""
     scale, scale_sigma, turn, turn_sigma = scales
     observations = kept(timed.observations)
     considered = []
@@ -206,6 +209,12 @@ def _considered(
         considered.append(
             Considered("camera.delay", timed.sigma_ns, framed(kept(later), scale, turn))
         )
+    if depth_sigma is not None:
+        # Ranges from depth one sigma longer; the odometry's scale, chosen to agree with them,
+        # follows them (on an office log: depth 0.200 % longer, the scale chosen 0.198 % more).
+        longer = scale_depth_ranges(observations, 1.0 + depth_sigma)
+        further = framed(longer, scale * (1.0 + depth_sigma), turn)
+        considered.append(Considered("depth.scale", depth_sigma, further))
     return tuple(considered)
 
 

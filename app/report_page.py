@@ -89,6 +89,7 @@ _LOG_ROWS: tuple[tuple[str, str], ...] = (
     ("camera_delay_sigma_ms", "camera delay's sigma (SLAM's residuals) [ms]"),
     ("depth_scale", "depth scale applied"),
     ("measured_depth_scale", "depth scale measured"),
+    ("depth_scale_sigma", "depth scale's sigma (the markers' size)"),
     ("levelled_frames", "frames levelled by the odometry's attitude"),
     ("undecodable_frames", "undecodable frames"),
     ("unusable_depth_images", "unusable depth images"),

@@ -81,6 +81,7 @@ def _report(run: MapRun, files: list[str]) -> dict[str, Any]:
         "unusable_depth_images": extraction.unusable_depth,
         "depth_scale": extraction.depth_scale,
         "measured_depth_scale": extraction.measured_depth_scale,
+        "depth_scale_sigma": extraction.depth_scale_sigma,
         "camera_delay_ms": run.camera_delay_ns / 1e6,
         "camera_delay_sigma_ms": (
             None if run.camera_delay_sigma_ns is None else run.camera_delay_sigma_ns / 1e6

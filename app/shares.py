@@ -5,10 +5,10 @@ the setting, and each marker's move between the two maps grows its covariance.
 - A rolling shutter's readout, when not given: anywhere from 0 to :data:`READOUT_MAX_S`, no
   residual can choose it; the map solved at the longest, each move d adds d dᵀ/3 (a uniform
   error's second moment, measured from one end of its range).
-- The odometry's scale and the camera's delay, where SLAM's residuals chose them: each known
-  to a standard deviation, from the cost's curvature at its minimum; the map solved with the
-  one at one sigma more, each move d adds d dᵀ (a Gaussian error's, to first order; the two
-  taken as independent).
+- The odometry's scale, its turn scale and the camera's delay, where SLAM's residuals chose
+  them: each known to a standard deviation, from the cost's curvature at its minimum; and the
+  depth's scale, where the markers' size measured it. The map solved with the one at one sigma
+  more, each move d adds d dᵀ (a Gaussian error's, to first order; each taken as independent).
 """
 
 from __future__ import annotations
@@ -24,14 +24,18 @@ from markergraph.prepare import Considered
 
 __all__ = ["no_readout_share", "no_sigma_share", "with_readout_share", "with_sigma_share"]
 
-# Each searched setting as a note says it: its name, its sigma in the note's unit, its flag.
+# Each measured setting as a note says it: its name, its sigma in the note's unit, what
+# measured it, its flag.
+_RESIDUALS = "SLAM's residuals"
 _SAID = {
     "odometry.scale": ("the odometry's scale", lambda sigma: f"{100 * sigma:.2f} %",
-                       "--odometry-scale"),
+                       _RESIDUALS, "--odometry-scale"),
     "odometry.turn_scale": ("the odometry's turn scale", lambda sigma: f"{100 * sigma:.2f} %",
-                            "--odometry-turn-scale"),
-    "camera.delay": ("the camera's delay", lambda sigma: f"{sigma / 1e6:.1f} ms",
+                            _RESIDUALS, "--odometry-turn-scale"),
+    "camera.delay": ("the camera's delay", lambda sigma: f"{sigma / 1e6:.1f} ms", _RESIDUALS,
                      "--camera-delay"),
+    "depth.scale": ("the depth's scale", lambda sigma: f"{100 * sigma:.2f} %",
+                    "the markers' size; the odometry's scale follows it", "--depth-scale"),
 }  # fmt: skip
 
 
@@ -71,12 +75,12 @@ def with_sigma_share(
     grown = with_considered(estimate, moved, 1.0)
     far = _farthest(estimate, moved)
     if far is not None:
-        name, sigma, flag = _SAID[considered.setting]
+        name, sigma, source, flag = _SAID[considered.setting]
         whose = "" if of is None else f" of {of}"
         grown.notes.append(Note(
             f"{considered.setting}_share",
-            f"{name}{whose} is known to {sigma(considered.sigma)} (1 sigma, from SLAM's "
-            f"residuals): the markers move by up to {shown(far, '.3f')} m over one sigma of it"
+            f"{name}{whose} is known to {sigma(considered.sigma)} (1 sigma, from {source}): "
+            f"the markers move by up to {shown(far, '.3f')} m over one sigma of it"
             + _carried(estimate) + f" ({flag} sets it, taken as exact)",
             figure=far,
         ))  # fmt: skip

@@ -11,16 +11,19 @@ from markergraph.common.notes import Note
 from markergraph.common.numbers import shown
 from markergraph.estimator import turn_rate
 from markergraph.estimator.trajectory import Trajectory
+from markergraph.estimator.types import Observation
 from markergraph.frontend.extraction import Extraction
 from markergraph.frontend.marker_size import SIZE_NOT_DEPTH
 from markergraph.frontend.observe import Flags, robust_least_squares
 
 __all__ = [
+    "DEPTH_SCALE_FLOOR",
     "DEPTH_SCALE_RESOLUTION",
     "MAX_DEPTH_SCALE_ERROR",
     "MIN_DEPTH_RATIOS",
     "correct_depth_scale",
     "depth_scale_from_markers",
+    "scale_depth_ranges",
 ]
 
 
@@ -37,12 +40,17 @@ MAX_DEPTH_SCALE_ERROR = SIZE_NOT_DEPTH
 # only, the far ones small and drawn without the lens blur that smooths a real camera's edges),
 # and applied, SLAM was 1.7 cm off instead of 1.0.
 DEPTH_SCALE_RESOLUTION = 0.004
+# The measured scale's standard deviation is never taken below this: half that resolution. Its
+# errors above are mostly not the sightings' scatter (0.02-0.05 % over a hundred of them) but
+# how the markers were seen (up to 0.35 % on a D435i's office log of ours after correction).
+DEPTH_SCALE_FLOOR = DEPTH_SCALE_RESOLUTION / 2
 
 
 def depth_scale_from_markers(
     pairs: list[tuple[int, float, float]], odometry: Trajectory
-) -> tuple[float, int]:
-    """What depth reads per true metre, and how many markers said so: the mean of depth over
+) -> tuple[float, int, float]:
+    """What depth reads per true metre, how many markers said so, and that mean's standard
+    deviation from their scatter (:data:`DEPTH_SCALE_FLOOR` bounds it below): the mean of depth over
     PnP's distance (which rests on the marker's known size; points beyond three robust sigmas
     dropped, twice), over markers seen while the robot turned slower than 0.2 rad/s (blur and
     a rolling shutter bend PnP).
@@ -59,8 +67,9 @@ def depth_scale_from_markers(
         steady = [(z, z_pnp) for _, z, z_pnp in pairs]
     z, z_pnp = np.array(steady, dtype=np.float64).T
     ratio = z / z_pnp
-    mean, _, _ = robust_least_squares(np.ones((ratio.size, 1)), ratio, passes=3)
-    return float(mean[0]), len(steady)
+    mean, kept, sigma = robust_least_squares(np.ones((ratio.size, 1)), ratio, passes=3)
+    spread = sigma / np.sqrt(max(int(kept.sum()), 1))
+    return float(mean[0]), len(steady), float(np.hypot(spread, DEPTH_SCALE_FLOOR))
 
 
 def correct_depth_scale(result: Extraction, configured: float | None, topic: str | None) -> None:
@@ -70,19 +79,27 @@ def correct_depth_scale(result: Extraction, configured: float | None, topic: str
     from 1 than the measurement's own error (:data:`DEPTH_SCALE_RESOLUTION`)."""
     measured = None
     if len(result.depth_ratios) >= MIN_DEPTH_RATIOS:
-        scale, used = depth_scale_from_markers(result.depth_ratios, result.odometry)
+        scale, used, sigma = depth_scale_from_markers(result.depth_ratios, result.odometry)
         result.measured_depth_scale = scale
         note, applies = _scale_note(scale, used, configured, topic)
         result.notes.append(note)
         measured = scale if applies else None
+        if configured is None and abs(scale - 1.0) <= MAX_DEPTH_SCALE_ERROR:
+            result.depth_scale_sigma = sigma
     applied = configured if configured is not None else measured
     if applied is None or applied == 1.0:
         return
-    result.depth_scale = scale = applied
-    result.observations = [
+    result.depth_scale = applied
+    result.observations = scale_depth_ranges(result.observations, 1.0 / applied)
+
+
+def scale_depth_ranges(observations: list[Observation], factor: float) -> list[Observation]:
+    """The observations with each range from depth (and its sigma) multiplied by ``factor``;
+    ranges from the marker's size alone (no depth) as they are."""
+    return [
         o if Flags.NO_DEPTH in o.flags
-        else replace(o, range_m=o.range_m / scale, sigma_range=o.sigma_range / scale)
-        for o in result.observations
+        else replace(o, range_m=o.range_m * factor, sigma_range=o.sigma_range * factor)
+        for o in observations
     ]  # fmt: skip
 
 

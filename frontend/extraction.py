@@ -145,6 +145,9 @@ class Extraction:
     measured_depth_scale: float | None = field(metadata=_LATER, default=None)
     """What the markers' known size measured it to be, if enough markers were seen with
     depth."""
+    depth_scale_sigma: float | None = field(metadata=_LATER, default=None)
+    """The depth scale's standard deviation where the markers measured it and ``--depth-scale``
+    did not set it (the map's covariances carry its share)."""
     dropped_odometry_samples: int = field(metadata=_EVIDENCE, default=0)
     """Odometry samples dropped as corrupt or with stamps their neighbours contradict (see
     ``notes``)."""

@@ -23,7 +23,11 @@ from markergraph.datasets.sensors import D435_DISTORTION, D435I_ON_DIFF_DRIVE, S
 from markergraph.estimator import Estimate, Trajectory
 from markergraph.estimator.consider import marker_moves
 from markergraph.frontend import FrontendConfig, extract
-from markergraph.frontend.depth_scale import DEPTH_SCALE_RESOLUTION
+from markergraph.frontend.depth_scale import (
+    DEPTH_SCALE_FLOOR,
+    DEPTH_SCALE_RESOLUTION,
+    depth_scale_from_markers,
+)
 from markergraph.frontend.detect import Detector
 from markergraph.frontend.observe import (
     Flags,
@@ -214,7 +218,6 @@ def test_depth_scale_is_the_steady_markers_robust_mean_ratio() -> None:
     off (depth from the wall behind), are read back as k within 0.05 %; pairs taken while the
     robot turned at 1 rad/s, 5 % off, are left out."""
     from markergraph.estimator import Trajectory
-    from markergraph.frontend.depth_scale import depth_scale_from_markers
 
     rng = np.random.default_rng(5)
     k = 1.012
@@ -227,9 +230,12 @@ def test_depth_scale_is_the_steady_markers_robust_mean_ratio() -> None:
     yaw = np.where(turning, (t_ns - 3 * 10**10) * 1e-9, 0.0)
     odometry = Trajectory(t_ns, np.column_stack([np.zeros(z.size), np.zeros(z.size), yaw]))
     pairs = [(int(t), float(zi), float(zi / r)) for t, zi, r in zip(t_ns, z, ratio, strict=True)]
-    scale, used = depth_scale_from_markers(pairs, odometry)
+    scale, used, sigma = depth_scale_from_markers(pairs, odometry)
     assert used == np.count_nonzero(~turning)
     assert scale == pytest.approx(k, rel=5e-4)
+    # Its sigma: the clean nine tenths' scatter over their root count, with the floor.
+    clean = used - used // 10
+    assert sigma == pytest.approx(np.hypot(3e-3 * k / np.sqrt(clean), DEPTH_SCALE_FLOOR), rel=0.05)
 
 
 def test_an_unknown_readout_widens_the_map_by_how_far_it_moves(realistic_log) -> None:
@@ -274,7 +280,8 @@ def test_a_searched_setting_widens_the_map_by_how_far_one_sigma_moves_it(
     the chosen value and at one sigma further (separate runs), and its note gives the largest
     move."""
     log = realistic_log[1]
-    settings = {"method": "slam", "camera.readout_ms": 25.0, **fixed}  # no readout share
+    # Neither the readout's share nor the depth's (the preset's scale given).
+    settings = {"method": "slam", "camera.readout_ms": 25.0, "noise.depth_scale": 1.012, **fixed}
     searched = mg.map_log(log, mg.MapConfig.from_values(settings))
     if searched_key == "odometry.scale":
         chosen, sigma = searched.odometry_scale, searched.odometry_scale_sigma
@@ -307,3 +314,40 @@ def test_a_searched_setting_widens_the_map_by_how_far_one_sigma_moves_it(
         for i, m in at_chosen.markers.items()
     )
     assert note.figure == pytest.approx(far, abs=1e-12)
+
+
+def test_the_measured_depth_scale_widens_the_map_by_how_far_one_sigma_moves_it(
+    realistic_log,
+) -> None:
+    """The D435i's depth, its scale measured against the markers' size (the searched settings
+    given): SLAM's markers carry its share, exactly d d^T for each marker's move d between maps
+    made with the depth's scale given as measured and one sigma longer, the odometry's scale
+    following it as its search would (separate runs); its sigma is at least the floor."""
+    log = realistic_log[1]
+    settings = {"method": "slam", "camera.readout_ms": 25.0, "camera.delay_ms": 35.0,
+                "odometry.turn_scale": 1.0, "odometry.scale": 1.0}  # fmt: skip
+    measured = mg.map_log(log, mg.MapConfig.from_values(settings))
+    scale, sigma = measured.extraction.depth_scale, measured.extraction.depth_scale_sigma
+    assert sigma is not None and DEPTH_SCALE_FLOOR <= sigma < 2 * DEPTH_SCALE_FLOOR
+    assert scale == measured.extraction.measured_depth_scale != 1.0
+
+    def given(depth_scale: float, odometry_scale: float) -> Estimate:
+        values = {**settings, "noise.depth_scale": depth_scale, "odometry.scale": odometry_scale}
+        run = mg.map_log(log, mg.MapConfig.from_values(values))
+        assert run.extraction.depth_scale_sigma is None
+        (result,) = run.results
+        assert not [n for n in result.estimate.notes if n.kind.endswith("_share")]
+        return result.estimate
+
+    # Ranges from depth one sigma longer: divided by a scale (1 + sigma) times smaller.
+    at_measured, further = given(scale, 1.0), given(scale / (1 + sigma), 1.0 + sigma)
+    (result,) = measured.results
+    moves = marker_moves(at_measured, further)
+    assert max(np.linalg.norm(d[:2]) for d in moves.values()) > 1e-3
+    for i, marker in result.estimate.markers.items():
+        assert marker.T_map_marker.equals(at_measured.markers[i].T_map_marker, 1e-9)
+        grown = marker.covariance - at_measured.markers[i].covariance
+        np.testing.assert_allclose(grown, np.outer(*[moves.get(i, np.zeros(3))] * 2), atol=1e-10)
+    (note,) = [n for n in result.estimate.notes if n.kind == "depth.scale_share"]
+    assert "from the markers' size" in note.text
+    assert note.figure == pytest.approx(max(math.hypot(*d[:2]) for d in moves.values()), abs=1e-9)
