@@ -212,8 +212,8 @@ def _considered(
     if depth_sigma is not None:
         # Ranges from depth one sigma longer; the odometry's scale, chosen to agree with them,
         # follows them (on an office log: depth 0.200 % longer, the scale chosen 0.198 % more).
-        longer = scale_depth_ranges(observations, 1.0 + depth_sigma)
-        further = framed(longer, scale * (1.0 + depth_sigma), turn)
+        ranged = scale_depth_ranges(observations, 1.0 + depth_sigma)
+        further = framed(ranged, scale * (1.0 + depth_sigma), turn)
         considered.append(Considered("depth.scale", depth_sigma, further))
     return tuple(considered)
 
