@@ -19,8 +19,13 @@ import numpy as np
 from markergraph.common import EstimationError, Note, SettingsError
 from markergraph.datasets.scene3d import TRUE_WORLD3D, read_scene3d_truth
 from markergraph.estimator import Method
+from markergraph.estimator.tag_scale import (
+    ODOMETRY_SCALE_KIND,
+    ODOMETRY_SCALE_OFF,
+    size_factor_by_odometry,
+)
 from markergraph.estimator.tag_slam import map_tags
-from markergraph.estimator.tags3d import KnownTag, TagScene
+from markergraph.estimator.tags3d import KnownTag, TagMap3d, TagScene
 from markergraph.frontend import Log, open_log
 from markergraph.frontend.logs import LogError
 from markergraph.frontend.survey import TagRemap, read_survey
@@ -133,6 +138,7 @@ def map_log_3d(
     except EstimationError as error:
         raise EstimationError(f"{log}: {error}") from None
     seconds[method.value] = time.perf_counter() - start
+    size_notes = _size_by_odometry(scene, tag_map, method)
     skipped = [
         Note("views.skipped", f"skipped: {count:,} {reason}", figure=count)
         for reason, count in sorted(read.skipped.items())
@@ -144,7 +150,8 @@ def map_log_3d(
     tags_seen = len({v.tag_id for v in scene.views})
     return Map3dRun(
         Path(log), config, tag_map, marker_map, len(scene.frame_times), read.views_read,
-        [*(notes or []), *read.notes, *_size_note(scene, config), *survey_notes, *skipped,
+        [*(notes or []), *read.notes, *_size_note(scene, config), *size_notes, *survey_notes,
+         *skipped,
          *(Note("log.unreadable", text) for text in read.warnings)], seconds,
         truth=_truth(opened), tags_seen=tags_seen, judgement=judge_tag_map(tag_map, tags_seen),
     )  # fmt: skip
@@ -171,6 +178,39 @@ def _size_note(scene: TagScene, config: MapConfig) -> list[Note]:
         "the corners cannot tell one size from another, and the map scales with it"
     )
     return [Note("marker_size.given", text, figure=len(unsized))]
+
+
+def _size_by_odometry(scene: TagScene, tag_map: TagMap3d, method: Method) -> list[Note]:
+    """Where the odometry and the map disagree on the scale, the tags' size the odometry agrees
+    with (the map solved again at sizes until the two agree), said with the flag that maps at
+    it; the map itself stays at the given sizes."""
+    ratio = next((n.figure for n in tag_map.notes if n.kind == ODOMETRY_SCALE_KIND), None)
+    if ratio is None or abs(ratio - 1.0) <= ODOMETRY_SCALE_OFF:
+        return []
+
+    def solve(sized: TagScene) -> list[Note]:
+        try:
+            return map_tags(sized, incremental=method is Method.ISAM2).notes
+        except EstimationError:
+            return []
+
+    factor = size_factor_by_odometry(scene, ratio, solve)
+    if factor is None:
+        return []
+    sizes = sorted(set(scene.tag_sizes.values()))
+    if len(sizes) == 1:
+        measured = sizes[0] * factor
+        text = (
+            f"by the odometry the tags measure about {measured:.3f} m, not the {sizes[0]:g} m "
+            f"given (the map solved again at sizes until the two agree); if the odometry is "
+            f"metric, --marker-size {measured:.3f} maps them at it"
+        )
+    else:
+        text = (
+            f"by the odometry the tags measure about {factor:.3f} times their given sizes (the "
+            "map solved again at sizes until the two agree)"
+        )
+    return [Note("odometry.tag_size", text, figure=factor)]
 
 
 def _truth(log: Log) -> dict[int, gtsam.Pose3] | None:

@@ -50,6 +50,7 @@ from markergraph.estimator.evidence import (
     residual_fit,
 )
 from markergraph.estimator.odometry_scale import SCALES
+from markergraph.estimator.tag_scale import ODOMETRY_SCALE_KIND, ODOMETRY_SCALE_OFF
 from markergraph.estimator.tags3d import TagMap3d
 from markergraph.estimator.timing import DELAYS_S
 from markergraph.frontend import Extraction
@@ -517,6 +518,17 @@ def judge_tag_map(tag_map: TagMap3d, tags_seen: int) -> Judgement:
                 f"up is in doubt: the odometry's vertical is {doubted[0].figure:.0f} deg from the "
                 "cameras' image up, through an odometry body not placed on the rig: the wall tags "
                 "and the 2-D map rest on it",
+            )
+        )
+    scale = next((n.figure for n in tag_map.notes if n.kind == ODOMETRY_SCALE_KIND), None)
+    if scale is not None and abs(scale - 1.0) > ODOMETRY_SCALE_OFF:
+        reasons.append(
+            _suspect(
+                "odometry_scale",
+                100 * (scale - 1.0),
+                f"the odometry moved the rig {scale:.2f} times as far as the map does: "
+                "the tags' size is likely wrong (--marker-size, or a tagslam.yaml's), or the "
+                "odometry is not metric",
             )
         )
     if any(note.kind == "camera.unplaced" for note in tag_map.notes):

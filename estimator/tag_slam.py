@@ -25,6 +25,7 @@ from markergraph.estimator.tag_frames import map_framing
 from markergraph.estimator.tag_graph import TagGraph, camera_key, rig_key, tag_key, view_errors_px
 from markergraph.estimator.tag_incremental import solve_incremental
 from markergraph.estimator.tag_init import agree, place
+from markergraph.estimator.tag_scale import odometry_scale_note
 from markergraph.estimator.tag_solver import LmSettings, covariances, solve_lm
 from markergraph.estimator.tags3d import Camera3d, Tag3d, TagMap3d, TagScene
 
@@ -237,7 +238,7 @@ def _tag_map(
     frames = sorted({v.frame for v in problem.views})
     rig_poses = [values.atPose3(rig_key(i)) for i in frames]
     G, up, framing_notes = map_framing(scene, problem.placed, values, frames, problem.home)
-    notes += framing_notes
+    notes += framing_notes + odometry_scale_note(scene, frames, rig_poses)
     scale = _noise_scale(problem, errors, frames, notes)
 
     def covariance(key: int) -> NDArray[np.float64] | None:

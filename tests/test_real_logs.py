@@ -253,6 +253,31 @@ def test_outdoor_recording_without_tagslams_file_takes_rep_103s_body(bags, monke
     assert any("up is in doubt" in str(reason) for reason in run.judgement.reasons)
 
 
+@pytest.mark.parametrize("given_m", [0.2, 0.84])
+def test_tags_given_the_wrong_size_disagree_with_the_t265_and_it_measures_them(
+    bags, given_m: float
+) -> None:
+    """Test 22's tags (0.42 m by TagSLAM's file) given 0.2 or 0.84 m, with no tagslam.yaml: the
+    map is that much off in scale (47 cm at 0.2 m) and its corners fit as well; the T265's
+    odometry moves the rig 1.47 (0.80) times as far, the verdict is suspect, and the maps solved
+    again find the tags 0.41 m, the T265 reading 1.6 % short (at 0.42 m: verdict ok)."""
+    from markergraph.run3d import map_log_3d
+
+    log = unpacked("test_22", "tag_detections", bags)
+    runs = {}
+    for size in (given_m, 0.42):
+        values = tagslam.settings_for(DATA / "test_22", method="slam", marker_size=size)
+        del values["rig.tagslam"]
+        runs[size] = map_log_3d(log, mg.MapConfig.from_values(values))
+    wrong, right = runs[given_m], runs[0.42]
+    assert right.judgement.verdict.value == "ok"
+    assert not [n for n in right.notes if n.kind == "odometry.tag_size"]
+    assert wrong.judgement.verdict.value == "suspect"
+    assert [r for r in wrong.judgement.reasons if r.check == "odometry_scale"]
+    (size,) = [n for n in wrong.notes if n.kind == "odometry.tag_size"]
+    assert given_m * size.figure == pytest.approx(0.42, rel=0.03)
+
+
 def transform(parent: str, child: str, pose: Any, t_ns: int) -> dict[str, Any]:
     """A tf2 transform message from ``parent`` to ``child`` (a gtsam Pose3), as a dict."""
     return {
