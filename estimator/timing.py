@@ -23,7 +23,7 @@ import numpy as np
 from markergraph.estimator.graph import FactorMemo
 from markergraph.estimator.residual_search import SlamInputs, cheapest_on_grid
 from markergraph.estimator.trajectory import Trajectory, turn_rate
-from markergraph.estimator.types import Observation
+from markergraph.estimator.types import LEANING, Observation
 
 __all__ = [
     "READOUT_MAX_S",
@@ -90,8 +90,8 @@ def unleaned(
     during the readout, ``omega * readout_s`` (the odometry's heading rate at each capture
     time), times the observation's ``theta_per_turn``, taken off. Where the readout is not
     ``known``, ``readout_s`` its bound, theta stays and its sigma grows to cover a lean anywhere
-    within that (a spread of +-b adds ``b^2 / 3``). ``theta_per_turn`` is 0 afterwards, as it
-    is counted."""
+    within that (a spread of +-b adds ``b^2 / 3``) and the observation is flagged
+    :data:`LEANING`. ``theta_per_turn`` is 0 afterwards, as it is counted."""
     handled = []
     for o in observations:
         lean = o.theta_per_turn * turn_rate(odometry, o.t_ns) * readout_s
@@ -99,7 +99,8 @@ def unleaned(
             o = replace(o, theta=math.remainder(o.theta - lean, math.tau), theta_per_turn=0.0)
         else:
             sigma = math.sqrt(o.sigma_theta**2 + lean * lean / 3.0)
-            o = replace(o, sigma_theta=sigma, theta_per_turn=0.0)
+            flags = (o.flags | {LEANING}) if lean else o.flags
+            o = replace(o, sigma_theta=sigma, theta_per_turn=0.0, flags=flags)
         handled.append(o)
     return handled
 

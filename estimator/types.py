@@ -19,6 +19,7 @@ if TYPE_CHECKING:  # GTSAM loads when a pose is first made: the front end's reco
     import gtsam
 
 __all__ = [
+    "LEANING",
     "ODOMETRY_NOISE",
     "FactorResidual",
     "MarkerEstimate",
@@ -55,6 +56,12 @@ class Method(Enum):
     """EKF-SLAM on filterpy with a sparse update."""
 
 
+LEANING = "leaning"
+"""The flag of an observation whose theta keeps a rolling shutter's lean, only widened by it
+(:func:`~markergraph.estimator.timing.unleaned`): a handover link looks for a calmer sighting
+of its marker (:mod:`~markergraph.estimator.links`)."""
+
+
 @dataclass(frozen=True, slots=True)
 class Observation:
     """One marker seen in one camera frame, in the camera's horizontal (top-view) frame.
@@ -70,9 +77,11 @@ class Observation:
         corners: the detected corners as (u, v) pixel pairs in OpenCV's order (top-left,
             top-right, bottom-right, bottom-left), empty when the observation was not detected.
         flags: quality flags set by the front end (``near-edge``, ``small``, ``tiny``,
-            ``grazing``, ``ambiguous``, ``no-depth``); the estimators weight by the sigmas, not
-            by these, though ``small`` and ``tiny`` sightings may be taken for misread ids
-            (:mod:`~markergraph.estimator.misreads`).
+            ``grazing``, ``ambiguous``, ``no-depth``), and ``leaning`` where theta keeps a rolling
+            shutter's lean (:func:`~markergraph.estimator.timing.unleaned`); the estimators weight
+            by the sigmas, not by these, though ``small`` and ``tiny`` sightings may be taken for
+            misread ids (:mod:`~markergraph.estimator.misreads`) and a ``leaning`` one ending a
+            handover link for a calmer one (:mod:`~markergraph.estimator.links`).
         height_m: the marker centre's height above the base frame's origin (the floor, for a
             base on it) [m]; NaN where unknown. The 2-D estimators ignore it; each marker's
             height in the map is a robust mean of its observations' (:func:`marker_heights`).

@@ -33,6 +33,7 @@ from markergraph.estimator import (
     odometry_scale_by_residuals,
 )
 from markergraph.estimator.ekf import MarkerEkf
+from markergraph.estimator.frames import Frame, Frames
 from markergraph.estimator.links import describe_disconnected, measure_links
 from markergraph.estimator.models import (
     compose_covariance,
@@ -45,6 +46,7 @@ from markergraph.estimator.models import (
 )
 from markergraph.estimator.residual_search import cheapest_on_grid
 from markergraph.estimator.timing import camera_delay_by_residuals
+from markergraph.estimator.types import LEANING
 
 AFTER_OPTIMISATION = 1e-6
 JACOBIAN_TOL = 1e-6  # central differences with step 1e-6 are good to ~1e-9; margin for scale
@@ -610,6 +612,31 @@ def test_marker_graph_links_are_consistent_with_the_truth(noisy_run: SimulatedRu
     assert len(squared) > 10
     # Errors of one hand-over's two observations correlate through the simulator's noise: loose.
     assert 0.3 < np.mean(squared) < 6.0
+
+
+def _turn_and_pause(flags: frozenset[str]) -> Frames:
+    """Marker 1 in view while the base stands still, then turns at 35 deg/s; marker 2 comes into
+    view mid-turn and stays while the base stops. Frames 0.1 s apart."""
+    rates = [0.0] * 5 + [35.0] * 8 + [0.0] * 5
+    yaw, frames = 0.0, []
+    for k, rate in enumerate(rates):
+        yaw += math.radians(rate) * 0.1
+        marker = 1 if k < 9 else 2
+        obs = Observation(k * 100_000_000, marker, 0.0, 0.3, 2.0, 0.01, 0.02, 0.02, flags=flags)
+        frames.append(Frame(obs.t_ns, gtsam.Pose2(0.0, 0.0, yaw), (obs,), np.eye(3) * 1e-6))
+    return Frames(frames, home_id=1, home_frame=0)
+
+
+@pytest.mark.parametrize(
+    ("flags", "ends"), [(frozenset({LEANING}), (3, 13)), (frozenset(), (8, 9))]
+)
+def test_a_leaning_handover_takes_the_calm_sightings(flags: frozenset[str], ends) -> None:
+    """Where theta kept a rolling shutter's lean, the handover link ends on each marker's
+    sighting nearest the turn made while the base stood still; otherwise on the last and
+    first, mid-turn."""
+    (link,) = measure_links(_turn_and_pause(flags), MOUNT)
+    assert (link.marker_a, link.marker_b) == (1, 2)
+    assert (link.frame_a, link.frame_b) == ends
 
 
 # --- the iterated EKF update --------------------------------------------------------------------
