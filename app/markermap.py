@@ -114,11 +114,15 @@ class MapMarker:
         return diameters, math.atan2(vectors[1, 1], vectors[0, 1])
 
     def sigmas(self) -> tuple[float, float, float]:
-        """Standard deviations of x, y and yaw (0 without a covariance)."""
+        """Standard deviations of x and y along the map's axes, and of yaw (0 without a
+        covariance): the covariance is in the marker's own frame, turned by its yaw."""
         if self.covariance is None:
             return (0.0, 0.0, 0.0)
-        diagonal = np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
-        return (float(diagonal[0]), float(diagonal[1]), float(diagonal[2]))
+        c, s = math.cos(self.T_map_marker.theta()), math.sin(self.T_map_marker.theta())
+        R = np.array([[c, -s], [s, c]])
+        position = np.diag(R @ self.covariance[:2, :2] @ R.T)
+        x, y = np.sqrt(np.maximum(position, 0.0))
+        return (float(x), float(y), math.sqrt(max(float(self.covariance[2, 2]), 0.0)))
 
 
 @dataclass(frozen=True)

@@ -134,11 +134,22 @@ def test_every_export_format_parses_back_to_the_map(map_json: Path, tmp_path: Pa
         yaw = markers[marker_id]["yaw"]
         return np.array([math.cos(yaw), math.sin(yaw), 0.0])
 
+    def map_sigmas(marker_id: int) -> np.ndarray:
+        """x and y sigmas along the map's axes: map.json's covariance is in the marker's
+        frame, turned by its yaw."""
+        yaw, covariance = markers[marker_id]["yaw"], np.array(markers[marker_id]["covariance"])
+        R = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
+        return np.sqrt(np.diag(R @ covariance[:2, :2] @ R.T))
+
+    # The corridor's markers face along both axes: the sigmas are tested both ways round.
+    assert {round(abs(math.sin(m["yaw"]))) for m in markers.values()} == {0, 1}
     rows = list(csv.DictReader(paths[ExportFormat.CSV].read_text().splitlines()))
     assert {int(r["id"]) for r in rows} == set(markers)
     for row in rows:
         # Exact but for float noise under 1e-12 m (the home marker's), written as 0.0.
         assert float(row["x_m"]) == pytest.approx(markers[int(row["id"])]["x"], rel=0, abs=1e-12)
+        sigmas = [float(row["sigma_x_m"]), float(row["sigma_y_m"])]
+        np.testing.assert_allclose(sigmas, map_sigmas(int(row["id"])), rtol=1e-9, atol=1e-12)
 
     storage = cv2.FileStorage(str(paths[ExportFormat.ARUCO_YAML]), cv2.FILE_STORAGE_READ)
     node = storage.getNode("aruco_bc_markers")
@@ -174,6 +185,8 @@ def test_every_export_format_parses_back_to_the_map(map_json: Path, tmp_path: Pa
         R = gtsam.Rot3.Expmap(np.array([rotation["x"], rotation["y"], rotation["z"]])).matrix()
         np.testing.assert_allclose(R[:, 2], normal_of(tag["id"]), atol=1e-9)
         assert tag["size"] == markers[tag["id"]]["size_m"] == (0.1 if tag["id"] == 3 else 0.2)
+        noise = tag["pose"]["position_noise"]
+        np.testing.assert_allclose([noise["x"], noise["y"]], map_sigmas(tag["id"]), rtol=1e-9)
 
 
 def test_heading_command_matches_geometry(map_json: Path) -> None:
