@@ -39,7 +39,7 @@ __all__ = [
     "store_entry",
 ]
 
-CACHE_VERSION = 8  # 8: the depth scale's sigma; 7: frames checked for a larger dictionary
+CACHE_VERSION = 9  # 9: a size given to all measured on its markers; 8: the depth scale's sigma
 """Raised whenever what an entry holds changes (its shape, or the wording of the notes it keeps):
 older entries are then ignored."""
 MAX_CACHE_BYTES = 10**9

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -17,13 +18,24 @@ from markergraph.estimator import Estimate, Frames, Method
 from markergraph.estimator.sessions import MapPrior, SessionsEstimate, solve_sessions
 from markergraph.markermap import MarkerMap
 from markergraph.records import marker_map_of
-from markergraph.settings import MapConfig
+from markergraph.settings import MapConfig, with_map_defaults
 
 __all__ = ["SESSION_METHODS", "as_estimate", "priors_of", "separate_maps"]
 
 SESSION_METHODS = (Method.SLAM, Method.ISAM2, Method.MARKER_GRAPH)
 # A saved map without covariances (the closed form's) still needs its markers held: this firmly.
 DEFAULT_PRIOR_SIGMAS = np.array([0.01, 0.01, math.radians(1.0)])
+
+
+def settings_for_map(values: dict[str, Any], saved: MarkerMap, path: Path) -> dict[str, Any]:
+    """The settings a log read against a saved map takes (:func:`with_map_defaults`): the map's
+    dictionary and marker sizes where the settings give none.
+
+    Raises:
+        SettingsError: a dictionary or marker size given that the map contradicts.
+    """
+    apart = {i: m.size_m for i, m in saved.markers.items() if m.size_m != saved.marker_size_m}
+    return with_map_defaults(values, saved.dictionary, saved.marker_size_m, apart, path)
 
 
 def priors_of(saved: MarkerMap) -> tuple[dict[int, MapPrior], list[Note]]:
@@ -41,17 +53,30 @@ def priors_of(saved: MarkerMap) -> tuple[dict[int, MapPrior], list[Note]]:
             "at 1 cm and 1 deg",
             figure=len(bare),
         ))  # fmt: skip
-    priors = {}
+    priors, floored = {}, []
     for m in saved.markers.values():
         covariance = m.relative_covariance if m.relative_covariance is not None else m.covariance
         held = default if covariance is None else _floored(covariance)
+        if covariance is not None and held is not covariance:
+            floored.append(m.marker_id)
         priors[m.marker_id] = MapPrior(m.T_map_marker, held)
+    if floored:
+        notes.append(Note(
+            "prior.floored",
+            f"the saved map holds marker(s) {', '.join(map(str, floored))} to under 1 mm or "
+            "1 mrad: held at that (a marker held rigid cannot be found moved, and would move "
+            "the robot instead)",
+            figure=len(floored),
+        ))  # fmt: skip
     return priors, notes
 
 
-MIN_PRIOR_VARIANCE = 1e-12
-"""The least variance a prior is held at, (1 um)^2 or (1 urad)^2: a map may hold a singular
-covariance (semi-definite is a covariance), which GTSAM would take as an infinite weight."""
+MIN_PRIOR_VARIANCE = 1e-6
+"""The least variance a prior is held at, (1 mm)^2 or (1 mrad)^2, under any marker a map
+measures relative to the others: a map may hold a singular covariance (semi-definite is a
+covariance), which GTSAM would take as an infinite weight, and a marker held far tighter than
+its observations would take the blame for a move of its own as the robot's (a map edited to
+zero on one marker, moved 0.3 m: ten others called moved, the robot 21 cm off)."""
 
 
 def _floored(covariance: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -69,6 +69,7 @@ __all__ = [
     "config_toml",
     "map_config",
     "read_config_file",
+    "with_map_defaults",
 ]
 
 # With "all", SLAM comes first: the result folder's top-level files are its.
@@ -295,6 +296,37 @@ def _with_rig_defaults(values: Mapping[str, Any]) -> dict[str, Any]:
     complete = _complete(given)
     complete["marker_sizes"] = {**rig.tag_sizes_m, **complete["marker_sizes"]}
     return complete
+
+
+def with_map_defaults(
+    values: Mapping[str, Any],
+    dictionary: str,
+    marker_size_m: float,
+    sizes_by_id: Mapping[int, float],
+    source: Path,
+) -> dict[str, Any]:
+    """``values`` with a saved map's dictionary, marker size and markers sized apart where they
+    give none: the same markers in another dictionary are other ids, and at another size every
+    range from their corners is off by the ratio.
+
+    Raises:
+        SettingsError: a dictionary or marker size given that the map (``source``) contradicts.
+    """
+    given = dict(values)
+    if given.setdefault("dictionary", dictionary) != dictionary:
+        raise SettingsError(
+            f"--dictionary {given['dictionary']}, but {source} was made with {dictionary}: the "
+            "same markers read in another dictionary are other ids (leave --dictionary out to "
+            "take the map's)"
+        )
+    size = given.setdefault("marker_size", marker_size_m)
+    if not math.isclose(size, marker_size_m, rel_tol=1e-9):
+        raise SettingsError(
+            f"--marker-size {size:g}, but {source} was made with {marker_size_m:g} m markers "
+            "(leave --marker-size out to take the map's)"
+        )
+    given["marker_sizes"] = {**sizes_by_id, **given.get("marker_sizes", {})}
+    return given
 
 
 @dataclass(frozen=True)

@@ -118,16 +118,18 @@ def _plotter(args: argparse.Namespace, methods: int = 1) -> Plotter:
 def run_localize(args: argparse.Namespace) -> int:
     from markergraph.frontend.logs.files import check_exists
 
-    config = map_config(settings_from(args, "localize"))
+    values = settings_from(args, "localize")
     check_exists(Path(args.log))  # said at once, before the mapping's imports
     from markergraph.localize_accuracy import accuracy_lines, accuracy_of
     from markergraph.markermap import MarkerMap
     from markergraph.report_page import REPORT_PAGE
     from markergraph.results import write_localization
     from markergraph.run import localize_log
+    from markergraph.sessions import settings_for_map
 
     check_output_folder(args.out, [args.log, args.map], force=args.force)
     saved = MarkerMap.load(args.map)
+    config = map_config(settings_for_map(values, saved, args.map))
     with _plotter(args) as plotter:
         with ProgressBar(f"reading {Path(args.log).name}", quiet=args.quiet) as bar:
             stages = Stages(quiet=args.quiet, verbose=args.verbose, before=bar.close)
@@ -196,6 +198,10 @@ def run(args: argparse.Namespace) -> int:
     # Before any work (a sample's rendering included): never over the input or a user's folder.
     check_output_folder(out, [*logs, *([args.prior] if args.prior else [])], force=args.force)
     prior = MarkerMap.load(args.prior) if args.prior is not None else None
+    if prior is not None:
+        from markergraph.sessions import settings_for_map
+
+        config = map_config(settings_for_map(settings_from(args, "map"), prior, args.prior))
     if not args.logs:
         logs = [_sample(render=True)]
         print(f"no log given: mapping the bundled {DEFAULT_SAMPLE} sample ({logs[0]})")

@@ -84,7 +84,12 @@ def marker_sizes_by_depth(
     finite = [(i, r / depth_scale) for i, r in ratios if math.isfinite(r) and r > 0]
     if len(finite) < MIN_SIZE_RATIOS:
         return None
-    ratio, sigma, n = _robust_mean([r for _, r in finite])
+    # The size given to all is measured on the markers that take it: one given its own size
+    # and seen most would otherwise pass its own error off as everyone's.
+    taking = [r for i, r in finite if i not in given_by_id]
+    ratio, sigma, n = _robust_mean(
+        taking if len(taking) >= MIN_SIZE_RATIOS else [r for _, r in finite]
+    )
     overall_wrong = abs(ratio - 1.0) > max(SIZE_NOT_DEPTH, ROBUST_SIGMAS * sigma)
     by_marker: dict[int, list[float]] = defaultdict(list)
     for marker_id, r in finite:

@@ -270,6 +270,12 @@ def test_depth_over_pnp_tells_a_size_from_a_depth_scale() -> None:
     assert one.sizes_m.keys() == {1} and one.sizes_m[1] == pytest.approx(0.2, rel=1e-3)
     said = marker_sizes_by_depth(ratios({0: 4 / 3, 1: 4 / 3}), 0.15, {}, 4 / 3)
     assert said is not None and not said.use  # --depth-scale says depth is the side that is off
+    # Marker 2 given 0.25 m for its 0.20 and seen most: its own error, not the others' size.
+    own = marker_sizes_by_depth(ratios({0: 1.0, 1: 1.0, 2: 0.8, 3: 0.8, 4: 0.8}), 0.2,
+                                {i: 0.25 for i in (2, 3, 4)}, 1.0)  # fmt: skip
+    assert own is not None and own.use and own.size_m == 0.2
+    assert own.sizes_m.keys() == {2, 3, 4}
+    assert all(v == pytest.approx(0.2, rel=1e-3) for v in own.sizes_m.values())
 
 
 def test_a_wrong_marker_size_is_measured_by_depth(log: Path, clean: MapRun) -> None:

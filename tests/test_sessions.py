@@ -142,6 +142,21 @@ def test_a_moved_marker_against_a_single_other_is_not_guessed(room) -> None:
         localize(frames_of(run), run.mount.T_base_camera, two)
 
 
+def test_a_marker_held_at_the_prior_floor_is_still_found_moved(office) -> None:
+    """A map holding marker 7 rigid (an edited map.json: zero covariance) is held at the
+    prior's floor, (1 mm)^2: moved 0.3 m, marker 7 alone is still found moved and the robot
+    held (at the old floor, (1 um)^2, ten other markers were called moved, the robot 21 cm off)."""
+    from markergraph.sessions import MIN_PRIOR_VARIANCE
+
+    world, route, _, _, saved = office
+    held = dict(saved)
+    held[MOVED_ID] = MapPrior(saved[MOVED_ID].T_map_marker, np.eye(3) * MIN_PRIOR_VARIANCE)
+    run = simulate_fast(_moved_world(world, MOVED_ID, MOVED_BY_M), route, seed=4, duration_s=120.0)
+    localization = localize(frames_of(run), run.mount.T_base_camera, held)
+    assert [m.marker_id for m in localization.moved] == [MOVED_ID]
+    assert ate(localization, run) < 0.03
+
+
 def test_a_log_of_another_place_is_handed_back(office) -> None:
     _, _, runs, _, _ = office
     other_world, other_route = scenario("paper-room")
@@ -236,6 +251,41 @@ def test_the_command_line_maps_two_logs_and_localises_a_third(room_logs, tmp_pat
 
 
 @pytest.mark.slow
+def test_a_log_read_against_a_map_takes_its_dictionary_and_sizes(room_logs, tmp_path) -> None:
+    """`localize` and `map --prior` read the log with the map's dictionary and marker sizes
+    where none is given (another dictionary's id 3 is another marker; another size scales every
+    range); one given that the map contradicts is one line, exit 1."""
+    import json
+
+    from markergraph.markermap import MarkerMap
+    from markergraph.sessions import settings_for_map
+
+    made = run_cli("map", str(room_logs[0]), "--out", str(tmp_path / "one"), "--no-plots",
+                   "--dictionary", "DICT_4X4_100", "--marker-sizes", "2=0.25")  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    map_json = tmp_path / "one" / "map.json"
+    saved = MarkerMap.load(map_json)
+    values = settings_for_map({}, saved, map_json)
+    # Marker 2, given 0.25 m, measures 0.20 m by depth, as the others do: the map keeps it so.
+    assert saved.marker_size_m == 0.2 and saved.markers[2].size_m == pytest.approx(0.2, rel=5e-3)
+    assert values["dictionary"] == "DICT_4X4_100" and values["marker_size"] == 0.2
+    assert values["marker_sizes"] == {2: saved.markers[2].size_m}
+    made_with = f"was made with {saved.marker_size_m:g} m markers"
+    for flag, value, says in (("--dictionary", "DICT_5X5_50", "was made with DICT_4X4_100"),
+                              ("--marker-size", "0.15", made_with)):  # fmt: skip
+        for command in (["localize", str(room_logs[2]), "--map", str(map_json)],
+                        ["map", str(room_logs[2]), "--prior", str(map_json)]):  # fmt: skip
+            run = run_cli(*command, "--out", str(tmp_path / "x"), flag, value)
+            assert run.returncode == 1 and says in run.stderr, run.stderr
+            assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "x").exists()
+    located = run_cli("localize", str(room_logs[2]), "--map", str(map_json), "--out",
+                      str(tmp_path / "loc"))  # fmt: skip
+    assert located.returncode == 0, located.stderr
+    settings = json.loads((tmp_path / "loc" / "report.json").read_text())["settings"]
+    assert settings["dictionary"] == "DICT_4X4_100"
+    assert settings["marker_size"] == saved.marker_size_m
+
+
 def test_several_logs_refuse_methods_that_take_one(room_logs, tmp_path) -> None:
     run = run_cli("map", str(room_logs[0]), str(room_logs[1]), "--method", "ekf",
                   "--out", str(tmp_path / "x"))  # fmt: skip
