@@ -9,10 +9,13 @@ judges what it found (:mod:`markergraph.verdicts`).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+
+import gtsam
 
 from markergraph.common import EstimationError, MarkerGraphError, Note, SettingsError
 from markergraph.estimator import (
@@ -26,8 +29,8 @@ from markergraph.estimator import (
     marker_heights,
     odometry_in_map,
 )
-from markergraph.estimator.localization import localize
-from markergraph.estimator.sessions import solve_sessions
+from markergraph.estimator.localization import localize, moved_markers
+from markergraph.estimator.sessions import MapPrior, SessionsEstimate, solve_sessions
 from markergraph.executors import extract_logs
 from markergraph.formats.observations import extraction_of_file, is_observation_file
 from markergraph.frontend import Extraction
@@ -353,12 +356,13 @@ def _solve_several(
         notes.append(Note("map.one_log_methods_left_out",
                           "the closed form and the EKF follow one log: left out of a several-log "
                           "map"))  # fmt: skip
+    frames = [r.prepared.frames for r in read]
+    mounts = [r.extraction.mount.T_base_camera for r in read]
     priors = None
     if prior is not None:
         priors, prior_notes = priors_of(prior)
-        notes += prior_notes
-    frames = [r.prepared.frames for r in read]
-    mounts = [r.extraction.mount.T_base_camera for r in read]
+        priors, moved_notes = _without_moved(priors, frames, mounts, config)
+        notes += prior_notes + moved_notes
     # The first log was read with the settings' home marker (or, under a prior, the map's).
     home_id = prior.home_id if prior is not None else frames[0].home_id
     heights = marker_heights([o for r in read for o in r.prepared.observations])
@@ -398,6 +402,33 @@ def _solve_several(
                   for r, t in zip(read, trajectories, strict=True)],
         separate=separate_maps(first_solved.apart, logs, frames, mounts, config),
     )  # fmt: skip
+
+
+def _without_moved(
+    priors: dict[int, MapPrior], frames: list[Frames], mounts: list[gtsam.Pose2], config: MapConfig
+) -> tuple[dict[int, MapPrior], list[Note]]:
+    """The saved map's priors without those of markers the logs find moved (as ``localize``
+    finds them, by SLAM), and a note for each: held at its old place, a moved marker would be
+    bent into the map and pull its neighbours with it."""
+
+    def solve(freed: Sequence[int]) -> SessionsEstimate:
+        kept = {i: p for i, p in priors.items() if i not in freed}
+        return solve_sessions(frames, mounts, robust=config.noise.robust, priors=kept,
+                              home_id=config.home_id)  # fmt: skip
+
+    seen = {i for f in frames for i in f.marker_ids()}
+    found = moved_markers(solve, seen, priors)
+    notes = []
+    for i in found.moved:
+        before, now = priors[i].T_map_marker, found.final.markers[i].T_map_marker
+        moved_m = math.hypot(now.x() - before.x(), now.y() - before.y())
+        notes.append(Note(
+            "prior.marker_moved",
+            f"marker {i} moved {100 * moved_m:.1f} cm since the saved map was made: placed where "
+            "the log sees it now, its place in the saved map left out",
+            figure=moved_m,
+        ))  # fmt: skip
+    return {i: p for i, p in priors.items() if i not in found.moved}, notes
 
 
 def judge(run: MapRun) -> MapRun:

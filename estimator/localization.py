@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import gtsam
@@ -26,7 +26,7 @@ from markergraph.estimator.sessions import MapPrior, SessionsEstimate, solve_ses
 from markergraph.estimator.trajectory import Trajectory
 from markergraph.estimator.types import FactorResidual, MarkerEstimate
 
-__all__ = ["Localization", "MovedMarker", "localize"]
+__all__ = ["Localization", "MovedMarker", "MovedSearch", "localize", "moved_markers"]
 
 # A map marker is a suspect when its prior's whitened error (how hard the observations pull it)
 # or the median of its observations' (how hard the prior holds them off) exceeds this; honest
@@ -118,21 +118,12 @@ def localize(
     *,
     robust: Robust = Robust.HUBER,
 ) -> Localization:
-    """The robot's trajectory in a saved map, its markers held at their covariances.
-
-    A map marker seen at least :data:`MIN_OBSERVATIONS_TO_MOVE` times whose prior or
-    observations are more than :data:`SUSPECT_WHITENED` sigmas off is freed and placed by this
-    log alone, one at a time: the suspect whose absence leaves the others least strained (one
-    moved marker pulls the robot, and with it every other marker's residuals: freeing every
-    suspect at once, or the most strained, frees the wrong ones on a map of three); if its pose
-    differs from the map's beyond chi-square's 99.9 % point (:data:`MOVED_CHI2`, both
-    covariances), it is reported as moved and the trajectory is solved without its prior, so
-    it cannot pull the robot. Markers the map does not know are placed and reported as new.
+    """The robot's trajectory in a saved map, its markers held at their covariances, those
+    moved since found and left out (:func:`moved_markers`). Markers the map does not know are
+    placed and reported as new.
 
     Raises:
-        EstimationError: the log sees no marker of the map; every marker it sees disagrees
-            with the map; or a moved marker is found against a single other, which cannot
-            tell which of the two moved.
+        EstimationError: as :func:`moved_markers`.
     """
 
     def solve(freed: Sequence[int]) -> SessionsEstimate:
@@ -141,9 +132,51 @@ def localize(
             [frames], [T_base_camera], robust=robust, priors=priors, pose_covariances=True
         )
 
+    found = moved_markers(solve, set(frames.marker_ids()), saved)
+    pulled = _prior_whitened(found.first.residuals)
+    return _localization(found.final, found.moved, saved, pulled)
+
+
+@dataclass(frozen=True)
+class MovedSearch:
+    """What :func:`moved_markers` found.
+
+    Attributes:
+        first: the solution with every prior.
+        final: the solution without the moved markers' priors (``first`` where none moved).
+        moved: the markers moved since the map was made.
+    """
+
+    first: SessionsEstimate
+    final: SessionsEstimate
+    moved: list[int]
+
+
+def moved_markers(
+    solve: Callable[[Sequence[int]], SessionsEstimate],
+    seen: set[int],
+    saved: Mapping[int, MapPrior],
+) -> MovedSearch:
+    """The saved map's markers moved since it was made, found by this log's residuals
+    (``solve``: the log's solution without the priors of the markers given; ``seen``: the
+    markers the log sees).
+
+    A map marker seen at least :data:`MIN_OBSERVATIONS_TO_MOVE` times whose prior or
+    observations are more than :data:`SUSPECT_WHITENED` sigmas off is freed and placed by the
+    log alone, one at a time: the suspect whose absence leaves the others least strained (one
+    moved marker pulls the robot, and with it every other marker's residuals: freeing every
+    suspect at once, or the most strained, frees the wrong ones on a map of three); if its pose
+    differs from the map's beyond chi-square's 99.9 % point (:data:`MOVED_CHI2`, both
+    covariances), it moved, and the log is solved without its prior, so it cannot pull the
+    robot.
+
+    Raises:
+        EstimationError: the log sees no marker of the map; every marker it sees disagrees
+            with the map; or a moved marker is found against a single other, which cannot
+            tell which of the two moved.
+    """
     first = solve(())
-    seen = set(frames.marker_ids()) & set(saved)
-    pulled = _prior_whitened(first.residuals)
+    seen = seen & set(saved)
     freed: list[int] = []
     solution = first
     while suspects := _suspects(solution, seen - set(freed)):
@@ -159,18 +192,17 @@ def localize(
         worst = min(trials, key=lambda i: _strain_left(trials[i], held - {i}))
         freed.append(worst)
         solution = trials[worst]
-    moved_ids = [i for i in freed if _moved(saved[i], solution.markers[i], i, solution)]
+    moved = [i for i in freed if _moved(saved[i], solution.markers[i], i, solution)]
     holding = sorted(seen - set(freed))
-    if moved_ids and len(holding) == 1:
+    if moved and len(holding) == 1:
         raise EstimationError(
-            f"map markers {', '.join(map(str, sorted([*moved_ids, *holding])))} disagree with "
+            f"map markers {', '.join(map(str, sorted([*moved, *holding])))} disagree with "
             "each other beyond their covariances, and this log sees no further map marker to "
             "tell which of them moved"
         )
-    if not moved_ids:
-        return _localization(first, [], saved, pulled)
-    final = solution if moved_ids == freed else solve(moved_ids)
-    return _localization(final, moved_ids, saved, pulled)
+    if not moved:
+        return MovedSearch(first, first, [])
+    return MovedSearch(first, solution if moved == freed else solve(moved), moved)
 
 
 def _moved(

@@ -6,6 +6,7 @@ is, and a log of another place is handed back instead of bent into the map."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -284,6 +285,36 @@ def test_a_log_read_against_a_map_takes_its_dictionary_and_sizes(room_logs, tmp_
     settings = json.loads((tmp_path / "loc" / "report.json").read_text())["settings"]
     assert settings["dictionary"] == "DICT_4X4_100"
     assert settings["marker_size"] == saved.marker_size_m
+
+
+@pytest.mark.slow
+def test_map_prior_places_a_moved_marker_where_it_is_now(room_logs, tmp_path) -> None:
+    """`map C --prior MAP.json` where marker 1 moved 0.3 m since: the saved place is left out
+    (a note says how far it moved), and the refined map has marker 1 where the log sees it,
+    within 5 cm of its new true place, its neighbours where they were."""
+    import json
+
+    from markergraph.datasets import write_log
+
+    world, route = scenario("paper-room")
+    moved_world = _moved_world(world, 1, MOVED_BY_M)
+    log = tmp_path / "moved.mcap"
+    write_log(moved_world, route, log, seed=4, duration_s=30.0, compressed=True, frame_hz=5.0)
+    made = run_cli("map", str(room_logs[0]), "--out", str(tmp_path / "one"), "--no-plots")
+    assert made.returncode == 0, made.stderr
+    refined = run_cli("map", str(log), "--prior", str(tmp_path / "one" / "map.json"), "--out",
+                      str(tmp_path / "refined"), "--no-plots")  # fmt: skip
+    assert refined.returncode == 0, refined.stderr
+    (note,) = [line for line in refined.stdout.splitlines() if "since the saved map" in line]
+    assert "marker 1 moved" in note, note
+    moved_cm = float(note.split("moved ")[1].split(" cm")[0])
+    assert abs(moved_cm / 100 - MOVED_BY_M) < 0.05, note  # moved 0.3 m along its wall
+    after = {
+        m["id"]: m for m in json.loads((tmp_path / "refined" / "map.json").read_text())["markers"]
+    }
+    truth = moved_world.T_map_markers()
+    for i, marker in after.items():
+        assert math.hypot(marker["x"] - truth[i].x(), marker["y"] - truth[i].y()) < 0.05, i
 
 
 def test_several_logs_refuse_methods_that_take_one(room_logs, tmp_path) -> None:
