@@ -53,8 +53,9 @@ __all__ = [
     "reference_markers",
 ]
 
-CHI2_95 = {2: -2.0 * math.log(0.05), 3: 7.814727903251178}
-"""The 95 % quantile of chi-square with 2 and 3 dof: a Gaussian's 95 % ellipse (ellipsoid)."""
+CHI2_95 = {1: 3.841458820694124, 2: -2.0 * math.log(0.05), 3: 7.814727903251178}
+"""The 95 % quantile of chi-square with 1, 2 and 3 dof: a Gaussian's 95 % interval, ellipse
+and ellipsoid."""
 _MIN_COMMON = {2: 2, 3: 3}
 PINNED_SIGMA_M = 1e-3
 """A home marker whose position sigma is below this is the map frame pinned by a prior (the
@@ -101,6 +102,8 @@ class MapPoint:
             in a 2-D map), or None.
         cov_p_relative: the same with the map's common rigid motion removed (a 2-D map's
             ``relative_covariance``), or None: what an aligned error is measured against.
+        var_yaw_map, var_yaw_relative: its yaw's variance, in the map and relative to it
+            [rad^2], or None.
     """
 
     marker_id: int
@@ -109,6 +112,8 @@ class MapPoint:
     wall: bool
     cov_p_map: NDArray[np.float64] | None
     cov_p_relative: NDArray[np.float64] | None = None
+    var_yaw_map: float | None = None
+    var_yaw_relative: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,6 +163,8 @@ class Scored:
         cov_aligned: (N, 3, 3) their covariances there [m^2] (NaN without one).
         position, yaw, rotation: their figures.
         n_nees, n_within: markers with a covariance, and those within their 95 % ellipse.
+        n_yaw_nees, n_yaw_within: markers with a yaw error and its variance, and those within
+            its 95 % interval (1.96 sigma).
     """
 
     alignment: Alignment
@@ -172,6 +179,8 @@ class Scored:
     rotation: Figures
     n_nees: int
     n_within: int
+    n_yaw_nees: int = 0
+    n_yaw_within: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -262,11 +271,18 @@ def _map_point(m: MapMarker) -> MapPoint:
         if m.covariance6 is not None:  # over the marker frame's tangent: rotate to the map's
             covariance = R @ m.covariance6[3:, 3:] @ R.T
         p = np.asarray(m.T_map_marker3.translation(), dtype=np.float64)
-        return MapPoint(m.marker_id, p, R, m.wall, covariance)
+        return MapPoint(m.marker_id, p, R, m.wall, covariance, None, _yaw_variance(m.covariance))
     R = np.asarray(gtsam.Rot3.Rz(m.T_map_marker.theta()).matrix())
     p = np.array([m.T_map_marker.x(), m.T_map_marker.y(), m.z_m or 0.0])
     covariance, relative = (_in_map_axes(R, c) for c in (m.covariance, m.relative_covariance))
-    return MapPoint(m.marker_id, p, R, True, covariance, relative)
+    return MapPoint(m.marker_id, p, R, True, covariance, relative,
+                    _yaw_variance(m.covariance), _yaw_variance(m.relative_covariance))  # fmt: skip
+
+
+def _yaw_variance(covariance3: NDArray[np.float64] | None) -> float | None:
+    """The yaw's variance in a marker's (x, y, yaw) covariance (a 3-D map's wall tags carry
+    one too), or None."""
+    return None if covariance3 is None else float(covariance3[2, 2])
 
 
 def _in_map_axes(
@@ -367,7 +383,7 @@ def errors(
     d = dimensions
     R, t, s = alignment.R, alignment.t, alignment.scale
     n = len(points)
-    position, yaw, rotation, nees = (np.full(n, np.nan) for _ in range(4))
+    position, yaw, rotation, nees, yaw_nees = (np.full(n, np.nan) for _ in range(5))
     aligned = np.zeros((n, 3))
     covariances = np.full((n, 3, 3), np.nan)
     for k, (point, ref) in enumerate(zip(points, refs, strict=True)):
@@ -388,10 +404,14 @@ def errors(
             pinned = point.marker_id == gauge_id and not use_relative
             if not pinned and np.linalg.eigvalsh(P)[0] > 0.0:
                 nees[k] = float(error @ np.linalg.solve(P, error))
-    have = np.isfinite(nees)
+            var_yaw = point.var_yaw_relative if use_relative else point.var_yaw_map
+            if not pinned and var_yaw is not None and var_yaw > 0.0 and math.isfinite(yaw[k]):
+                yaw_nees[k] = math.radians(yaw[k]) ** 2 / var_yaw
+    have, have_yaw = np.isfinite(nees), np.isfinite(yaw_nees)
     return Scored(alignment, position, yaw, rotation, nees, aligned, covariances,
                   _figures(position), _figures(yaw), _figures(rotation), int(have.sum()),
-                  int(np.sum(nees[have] <= CHI2_95[d])))  # fmt: skip
+                  int(np.sum(nees[have] <= CHI2_95[d])), int(have_yaw.sum()),
+                  int(np.sum(yaw_nees[have_yaw] <= CHI2_95[1])))  # fmt: skip
 
 
 def _home_alignment(

@@ -67,6 +67,14 @@ def _coverage_line(aligned: Scored, home_fixed: Scored | None, dimensions: int) 
     line += _coverage(aligned)
     if home_fixed is not None and home_fixed.n_nees:
         line += f"; home-fixed {_coverage(home_fixed)}"
+    yaws = [(name, s) for name, s in (("aligned", aligned), ("home-fixed", home_fixed))
+            if s is not None and s.n_yaw_nees]  # fmt: skip
+    if yaws:
+        line += "; yaw within its 95 % interval: " + ", ".join(
+            f"{name} {s.n_yaw_within} of {s.n_yaw_nees} "
+            f"({100 * s.n_yaw_within / s.n_yaw_nees:.0f} %)"
+            for name, s in yaws
+        )
     return line
 
 
@@ -135,7 +143,12 @@ def _scored_document(scored: Scored) -> dict[str, Any]:
         "position_m": figures(scored.position),
         "yaw_deg": figures(scored.yaw),
         "rotation_deg": figures(scored.rotation),
-        "covariance": {"n": scored.n_nees, "within_95": scored.n_within},
+        "covariance": {
+            "n": scored.n_nees,
+            "within_95": scored.n_within,
+            "yaw_n": scored.n_yaw_nees,
+            "yaw_within_95": scored.n_yaw_within,
+        },
     }
 
 

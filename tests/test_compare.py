@@ -149,7 +149,8 @@ def test_nees_is_the_error_whitened_by_the_maps_covariance(
 ) -> None:
     """Aligned, each marker's NEES is n^T P^-1 n with P its relative covariance in the map's
     axes; home-fixed, the predicted error under the plain covariance, the pinned home marker
-    left out; the within-95 % counts are those at most chi-square(2)'s 95 % quantile."""
+    left out; the within-95 % counts are those at most chi-square(2)'s 95 % quantile. The
+    yaw's alike, its error squared over its variance against chi-square(1)'s."""
     map_path, marker_map = map2d
     csv_path, ids, p, noise, yaw_noise = noisy_csv
     out = tmp_path / "figures.json"
@@ -159,15 +160,18 @@ def test_nees_is_the_error_whitened_by_the_maps_covariance(
     h = ids.index(marker_map.home_id)
     turn = _rot2(yaw_noise[h])
     expected: dict[str, dict[int, float]] = {"aligned": {}, "home_fixed": {}}
+    yaw_nees: dict[str, list[float]] = {"aligned": [], "home_fixed": []}
     for k, i in enumerate(ids):
         m = marker_map.markers[i]
         assert m.covariance is not None and m.relative_covariance is not None
         R = _rot2(m.T_map_marker.theta())
         P_relative = R @ m.relative_covariance[:2, :2] @ R.T
         expected["aligned"][i] = float(noise[k] @ np.linalg.solve(P_relative, noise[k]))
+        yaw_nees["aligned"].append(yaw_noise[k] ** 2 / m.relative_covariance[2, 2])
         if i == marker_map.home_id:
             assert per_marker[i]["home_fixed"]["nees"] is None
             continue
+        yaw_nees["home_fixed"].append((yaw_noise[k] - yaw_noise[h]) ** 2 / m.covariance[2, 2])
         # The error in the map's axes: the home-fixed rotation (the offset's, then the home's
         # yaw noise) undone, as the covariance is carried by it.
         error = turn.T @ (noise[k] - noise[h] - (turn - np.eye(2)) @ (p[k] - p[h]))
@@ -177,7 +181,33 @@ def test_nees_is_the_error_whitened_by_the_maps_covariance(
         for i, value in values.items():
             assert per_marker[i][name]["nees"] == pytest.approx(value, rel=1e-6)
         within = sum(v <= -2.0 * math.log(0.05) for v in values.values())
-        assert document[name]["covariance"] == {"n": len(values), "within_95": within}
+        yaw_within = sum(v <= 3.841458820694124 for v in yaw_nees[name])
+        assert document[name]["covariance"] == {
+            "n": len(values), "within_95": within,
+            "yaw_n": len(yaw_nees[name]), "yaw_within_95": yaw_within,
+        }  # fmt: skip
+    assert len(yaw_nees["aligned"]) == len(ids)  # every marker has a yaw on both sides
+
+
+def test_a_yaw_off_by_many_sigmas_leaves_its_interval(
+    map2d, noisy_csv, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One marker's yaw in the reference turned 0.5 rad (tens of its sigmas): the position
+    figures are as they were, and that marker alone leaves the yaw's 95 % interval."""
+    csv_path = noisy_csv[0]
+    rows = csv_path.read_text().splitlines()
+    cells = rows[-1].split(",")
+    cells[3] = repr(float(cells[3]) + 0.5)
+    turned = tmp_path / "turned.csv"
+    turned.write_text("\n".join([*rows[:-1], ",".join(cells)]) + "\n")
+    documents = []
+    for path in (csv_path, turned):
+        out = tmp_path / f"{path.stem}.json"
+        assert _compare(str(map2d[0]), str(path), "--json", str(out), capsys=capsys)[0] == 0
+        documents.append(json.loads(out.read_text())["aligned"]["covariance"])
+    before, after = documents
+    assert after["within_95"] == before["within_95"] and after["yaw_n"] == before["yaw_n"]
+    assert after["yaw_within_95"] == before["yaw_within_95"] - 1
 
 
 def test_scale_is_fitted_only_when_asked(
