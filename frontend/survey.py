@@ -68,6 +68,12 @@ MIN_SIGMA = 1e-6
 cannot take."""
 CSV_COLUMNS = ("id", "x", "y", "z", "yaw", "sigma_xyz", "sigma_rot")
 """The columns a CSV survey may have (``id``, ``x``, ``y`` required)."""
+_UNIT_NAMED = {"x_m": "x", "y_m": "y", "z_m": "z", "yaw_rad": "yaw"}
+"""``export --format csv``'s names of those columns, units in them."""
+_EXPORT_ONLY = frozenset(("sigma_x_m", "sigma_y_m", "sigma_yaw_rad", "sigma_z_m", "n_observations",
+                          "qw", "qx", "qy", "qz", "sigma_rx_rad", "sigma_ry_rad", "sigma_rz_rad",
+                          "wall"))  # fmt: skip
+"""Its other columns, which a survey reads past."""
 _MAP_SCHEMAS = ("markergraph.map/1", "markergraph.map/2")
 SYMMETRY_TOLERANCE = 1e-9  # a covariance's asymmetry and negative eigenvalue rounding leaves
 _BOARD_TYPES = ("board", "staggered_board")
@@ -395,18 +401,19 @@ def _csv_row(row: Mapping[str, str], where: str) -> tuple[KnownTag, bool]:
 
 def _csv_survey(path: Path) -> Survey:
     """A CSV survey: a header row ``id,x,y[,z][,yaw][,sigma_xyz,sigma_rot]`` (metres,
-    radians), one wall tag a row, ``yaw`` the heading of its normal into the room (markergraph's
-    marker frame: x the normal, z up), converted to the tag frame. Without z a tag is at z = 0
-    with a :data:`SIGMA_UNKNOWN_M` sigma in height; without yaw its rotation is free
-    (:data:`SIGMA_UNKNOWN_RAD`); sigmas default to :data:`SIGMA_XYZ_M` and
+    radians; or as ``export --format csv`` writes them, ``x_m`` ... ``yaw_rad``, its other
+    columns read past), one wall tag a row, ``yaw`` the heading of its normal into the room
+    (markergraph's marker frame: x the normal, z up), converted to the tag frame. Without z a
+    tag is at z = 0 with a :data:`SIGMA_UNKNOWN_M` sigma in height; without yaw its rotation
+    is free (:data:`SIGMA_UNKNOWN_RAD`); sigmas default to :data:`SIGMA_XYZ_M` and
     :data:`SIGMA_ROT_RAD`."""
     lines = _read(path, "CSV survey").splitlines()
     _at_most(sum(1 for line in lines if line.strip() and not line.startswith("#")) - 1, str(path))
     reader = csv.DictReader(line for line in lines if line.strip() and not line.startswith("#"))
-    columns = [c.strip() for c in reader.fieldnames or []]
+    columns = [_UNIT_NAMED.get(c.strip(), c.strip()) for c in reader.fieldnames or []]
     reader.fieldnames = columns
     missing = [c for c in ("id", "x", "y") if c not in columns]
-    unknown = [c for c in columns if c not in CSV_COLUMNS]
+    unknown = [c for c in columns if c not in CSV_COLUMNS and c not in _EXPORT_ONLY]
     if missing or unknown:
         what = f"no column {missing[0]!r}" if missing else f"unknown column {unknown[0]!r}"
         raise SettingsError(f"{path}: {what} (a header row {','.join(CSV_COLUMNS)})")

@@ -312,24 +312,28 @@ def test_a_3d_map_against_a_tagslam_survey(
     assert per_marker[4]["aligned"]["yaw_deg"] is None  # a floor tag has no yaw
 
 
-@pytest.mark.parametrize("three_d", [False, True])
-def test_aruco_export_round_trips_to_zero_error(
-    three_d: bool, map2d, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize(
+    ("three_d", "fmt", "kind"),
+    [(False, "aruco-yaml", "aruco"), (True, "aruco-yaml", "aruco"), (False, "csv", "csv")],
+)
+def test_an_export_round_trips_to_zero_error(
+    three_d: bool, fmt: str, kind: str, map2d, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A map against its own ``export --format aruco-yaml``: every marker in common, position,
-    yaw and rotation errors nil under both alignments."""
+    """A map against its own ``export``, ArUco's YAML or the CSV (its unit-named columns read
+    as a survey's): every marker in common, position, yaw and rotation errors nil under both
+    alignments."""
     if three_d:
         map_path = tmp_path / "map3d.json"
         _tag_map().save(map_path)
     else:
         map_path = map2d[0]
-    aruco = tmp_path / "map.yml"
-    assert main(["export", str(map_path), "--format", "aruco-yaml", "--out", str(aruco)]) == 0
+    exported = tmp_path / f"map.{'yml' if fmt == 'aruco-yaml' else fmt}"
+    assert main(["export", str(map_path), "--format", fmt, "--out", str(exported)]) == 0
     out = tmp_path / "figures.json"
-    code, _, err = _compare(str(map_path), str(aruco), "--json", str(out), capsys=capsys)
+    code, _, err = _compare(str(map_path), str(exported), "--json", str(out), capsys=capsys)
     assert code == 0, err
     document = json.loads(out.read_text())
-    assert document["reference_kind"] == "aruco" and not document["only_map"]
+    assert document["reference_kind"] == kind and not document["only_map"]
     assert not document["only_reference"]
     for name in ("aligned", "home_fixed"):
         assert document[name]["position_m"]["max"] < 1e-9
