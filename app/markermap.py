@@ -656,6 +656,8 @@ def _read_markers(
 ) -> dict[int, MapMarker]:
     """The map's markers by id, their number checked before any is read."""
     entries = read.items("markers", value)
+    if not entries and dimensions == 2:  # a 3-D map's tags may all be off the walls
+        raise read.fail("markers", "a list of at least one marker", entries)
     if len(entries) > read.max_markers:
         raise MarkerMapError(
             f"{read.source}: {len(entries):,} markers, more than {read.bound} holds "

@@ -140,6 +140,11 @@ def test_home_and_links_name_markers_of_the_map(real_map, log, tmp_path, capsys)
         "link.json": (lambda d: d["links"][0].update(a=40), "links[0].a"),
         "method.json": (lambda d: d.update(method={"x": 1}), "method must be a string"),
         "converged.json": (lambda d: d.update(converged="no"), "converged"),
+        # localize took it for a map and called every marker it saw new.
+        "empty.json": (
+            lambda d: d.update(markers=[], links=[], home_id=None),
+            "markers must be a list of at least one marker",
+        ),
     }
     for name, (change, words) in cases.items():
         refused_everywhere(capsys, log, tampered(real_map, tmp_path, name, change), tmp_path,
