@@ -9,6 +9,8 @@ from pathlib import Path
 from typing import Any
 
 import gtsam
+import numpy as np
+from numpy.typing import NDArray
 
 from markergraph.common import Note
 from markergraph.estimator import (
@@ -207,7 +209,8 @@ class LocalizationRun:
             "schema": "markergraph.localization/1",
             "map": str(self.map_path),
             "log": str(self.log),
-            "frame": "the saved map's (its home marker's) frame; x, y [m], yaw [rad]",
+            "frame": "the saved map's (its home marker's) frame; x, y [m], yaw [rad]; a "
+            "marker's covariance over (x, y, yaw) in its own frame, as map.json's",
             "poses": [
                 {
                     "t_ns": int(t),
@@ -226,16 +229,24 @@ class LocalizationRun:
                     "displacement_m": m.displacement_m,
                     "before": _pose(m.T_map_before),
                     "now": _pose(m.T_map_now),
+                    "now_covariance": _listed(m.covariance_now),
                     "pulled_sigmas": m.prior_whitened,
                 }
                 for m in loc.moved
             ],
-            "new": [{"id": i, **_pose(m.T_map_marker)} for i, m in sorted(loc.new.items())],
+            "new": [
+                {"id": i, **_pose(m.T_map_marker), "covariance": _listed(m.covariance)}
+                for i, m in sorted(loc.new.items())
+            ],
             "pulled_sigmas": {str(i): v for i, v in sorted(loc.checked.items())},
             "ate_m": self.ate_m,
             "ate_aligned_m": self.ate_aligned_m,
             "notes": [note.text for note in self.notes],
         }
+
+
+def _listed(covariance: NDArray[np.float64] | None) -> list[list[float]] | None:
+    return None if covariance is None else np.asarray(covariance).tolist()
 
 
 def _pose(T: gtsam.Pose2) -> dict[str, float]:

@@ -47,6 +47,7 @@ class MovedMarker:
         T_map_now: where this log's observations put it.
         displacement_m: how far its centre moved [m].
         prior_whitened: how many sigmas the log's observations pulled the map's pose.
+        covariance_now: (3, 3) ``T_map_now``'s covariance (its own tangent), or None.
     """
 
     marker_id: int
@@ -54,6 +55,7 @@ class MovedMarker:
     T_map_now: gtsam.Pose2
     displacement_m: float
     prior_whitened: float
+    covariance_now: NDArray[np.float64] | None = None
 
 
 @dataclass
@@ -229,7 +231,8 @@ def _localization(
     for i in moved_ids:
         before, now = saved[i].T_map_marker, final.markers[i].T_map_marker
         moved.append(MovedMarker(
-            i, before, now, math.hypot(now.x() - before.x(), now.y() - before.y()), pulled[i]
+            i, before, now, math.hypot(now.x() - before.x(), now.y() - before.y()), pulled[i],
+            final.markers[i].covariance,
         ))  # fmt: skip
     new = {i: m for i, m in final.markers.items() if i not in saved}
     trajectory, covariances = final.trajectories[0], final.pose_covariances[0]

@@ -20,6 +20,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from markergraph.estimator.metrics import align_rigid_2d
 from markergraph.estimator.paper import Form
 from markergraph.heading_sigma import heading_sigma
 from markergraph.markermap import MapMarker, MarkerMap
@@ -229,6 +230,17 @@ def test_the_moved_marker_is_in_the_report_from_its_old_to_its_new_place(
     assert math.hypot(entry["now_x_m"] - true_now.x(), entry["now_y_m"] - true_now.y()) < (
         MOVED_TOLERANCE_M
     )
+    # localization.json gives its new place's covariance, given the map: against the truth
+    # carried onto the map's other markers (the map's own error taken out), within its 99.9 %.
+    (moved_entry,) = json.loads((folder / "loc" / "localization.json").read_text())["moved"]
+    now = moved_entry["now"]
+    others = sorted(set(saved) - {MOVED_ID})
+    truth = {i: home.compose(world.T_map_markers()[i]) for i in others}
+    fit = align_rigid_2d(np.array([[truth[i].x(), truth[i].y()] for i in others]),
+                         np.array([[saved[i]["x"], saved[i]["y"]] for i in others]))  # fmt: skip
+    error = gtsam.Pose2(now["x"], now["y"], now["yaw"]).localCoordinates(fit.compose(true_now))
+    covariance = np.array(moved_entry["now_covariance"])
+    assert float(error @ np.linalg.solve(covariance, error)) < 16.27
 
 
 def test_localize_says_what_its_sigma_and_its_ate_are(localized: tuple[Path, str]) -> None:
