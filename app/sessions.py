@@ -53,22 +53,38 @@ def priors_of(saved: MarkerMap) -> tuple[dict[int, MapPrior], list[Note]]:
             "at 1 cm and 1 deg",
             figure=len(bare),
         ))  # fmt: skip
+    marginal = [m.marker_id for m in saved.markers.values()
+                if m.relative_covariance is None and m.covariance is not None]  # fmt: skip
+    if marginal:
+        what = "a 3-D map's wall tags" if saved.dimensions == 3 else "the saved map's markers"
+        notes.append(Note(
+            "prior.marginal",
+            f"{what} ({_listed(marginal)}) have no covariance relative to the map as a "
+            "whole: held at their marginals in the home marker's frame, which carry the home's "
+            "own uncertainty on every marker, hold the robot loosely and can hide a moved marker",
+            figure=len(marginal),
+        ))  # fmt: skip
     priors, floored = {}, []
     for m in saved.markers.values():
         covariance = m.relative_covariance if m.relative_covariance is not None else m.covariance
         held = default if covariance is None else _floored(covariance)
-        if covariance is not None and held is not covariance:
+        # The home marker's marginal is the map frame's anchor: held at the floor, unsaid.
+        if covariance is not None and held is not covariance and m.marker_id != saved.home_id:
             floored.append(m.marker_id)
         priors[m.marker_id] = MapPrior(m.T_map_marker, held)
     if floored:
         notes.append(Note(
             "prior.floored",
-            f"the saved map holds marker(s) {', '.join(map(str, floored))} to under 1 mm or "
+            f"the saved map holds marker(s) {_listed(floored)} to under 1 mm or "
             "1 mrad: held at that (a marker held rigid cannot be found moved, and would move "
             "the robot instead)",
             figure=len(floored),
         ))  # fmt: skip
     return priors, notes
+
+
+def _listed(ids: list[int]) -> str:
+    return ", ".join(map(str, ids[:6])) + (f" and {len(ids) - 6} more" if len(ids) > 6 else "")
 
 
 MIN_PRIOR_VARIANCE = 1e-6

@@ -259,7 +259,7 @@ def test_a_log_read_against_a_map_takes_its_dictionary_and_sizes(room_logs, tmp_
     import json
 
     from markergraph.markermap import MarkerMap
-    from markergraph.sessions import settings_for_map
+    from markergraph.sessions import priors_of, settings_for_map
 
     made = run_cli("map", str(room_logs[0]), "--out", str(tmp_path / "one"), "--no-plots",
                    "--dictionary", "DICT_4X4_100", "--marker-sizes", "2=0.25")  # fmt: skip
@@ -267,6 +267,12 @@ def test_a_log_read_against_a_map_takes_its_dictionary_and_sizes(room_logs, tmp_
     map_json = tmp_path / "one" / "map.json"
     saved = MarkerMap.load(map_json)
     values = settings_for_map({}, saved, map_json)
+    # Its markers carry covariances relative to the map as a whole: held at them, unsaid; a
+    # map without them (a 3-D map's wall tags) is held at its marginals, and says so.
+    assert not [n for n in priors_of(saved)[1] if n.kind in ("prior.marginal", "prior.floored")]
+    bare = {i: dataclasses.replace(m, relative_covariance=None) for i, m in saved.markers.items()}
+    notes = priors_of(dataclasses.replace(saved, markers=bare))[1]
+    assert [n.kind for n in notes] == ["prior.marginal"]
     # Marker 2, given 0.25 m, measures 0.20 m by depth, as the others do: the map keeps it so.
     assert saved.marker_size_m == 0.2 and saved.markers[2].size_m == pytest.approx(0.2, rel=5e-3)
     assert values["dictionary"] == "DICT_4X4_100" and values["marker_size"] == 0.2
