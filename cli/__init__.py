@@ -56,6 +56,9 @@ def _run(args: argparse.Namespace, signals: _signals.Signals) -> int:
     except KeyboardInterrupt as stop:  # Ctrl-C, or SIGTERM raised as one (see _signals)
         signum = stop.signum if isinstance(stop, _signals.Stopped) else signal.SIGINT
         return _stopped(args.command, signals.received or signum)
+    except BrokenPipeError:  # stdout's reader left (`| head`): end quietly, as a shell tool does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # flushed at exit
+        return _signals.exit_code(signal.SIGPIPE)
     except (MarkerGraphError, OSError) as error:
         if signals.received is not None:  # the signal cut a read or a write short
             return _stopped(args.command, signals.received)

@@ -313,3 +313,17 @@ def test_a_rosbag2_folder_of_compressed_files_says_so(log: Path, tmp_path: Path,
     code, _, err = cli(capsys, "info", bag)
     assert code == 1, err
     one_line_error(err, str(bag / "a_0.mcap.zstd"), "zstd", "unzstd")
+
+
+def test_a_reader_that_leaves_early_ends_the_command_quietly(result: Path) -> None:
+    """`markergraph export ... --out - | head` with the reader gone before the first line: no
+    "[Errno 32] Broken pipe" on stderr, exit 141 (128 + SIGPIPE), as a shell tool ends."""
+    run = subprocess.Popen(
+        [sys.executable, "-m", "markergraph.cli", "export", str(result / "map.json"),
+         "--format", "csv", "--out", "-"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert run.stdout is not None and run.stderr is not None
+    run.stdout.close()  # long before the command's imports are done and it writes
+    error = run.stderr.read()
+    assert run.wait(timeout=60) == 128 + signal.SIGPIPE and error == "", error
