@@ -24,15 +24,20 @@ def frames_of(run, home: int | None = None):
     return build_frames(run.observations, run.odometry, home, odometry_noise=run.odometry_noise)
 
 
-@pytest.fixture(scope="module")
-def office():
-    world, route = scenario("office")
+def two_sessions(name: str):
+    """A scenario mapped from two 120 s sessions (seeds 1 and 2), and the map as priors."""
+    world, route = scenario(name)
     runs = [simulate_fast(world, route, seed=seed, duration_s=120.0) for seed in (1, 2)]
     merged = solve_sessions(
         [frames_of(runs[0], 0), frames_of(runs[1])], [runs[0].mount.T_base_camera] * 2
     )
     saved = {i: MapPrior(m.T_map_marker, m.relative_covariance) for i, m in merged.markers.items()}
     return world, route, runs, merged, saved
+
+
+@pytest.fixture(scope="module")
+def office():
+    return two_sessions("office")
 
 
 def ate(localization, run) -> float:
@@ -98,12 +103,7 @@ def test_a_marker_moved_between_sessions_is_reported_and_no_other(office) -> Non
 @pytest.fixture(scope="module")
 def room():
     """The paper's room (three markers) mapped from two sessions."""
-    world, route = scenario("paper-room")
-    runs = [simulate_fast(world, route, seed=seed, duration_s=120.0) for seed in (1, 2)]
-    merged = solve_sessions(
-        [frames_of(runs[0], 0), frames_of(runs[1])], [runs[0].mount.T_base_camera] * 2
-    )
-    saved = {i: MapPrior(m.T_map_marker, m.relative_covariance) for i, m in merged.markers.items()}
+    world, route, _, _, saved = two_sessions("paper-room")
     return world, route, saved
 
 
