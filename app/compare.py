@@ -500,7 +500,7 @@ def compare(
     fixed, note = _home_alignment(points[home], refs[home], dimensions, yawed)
     gauge = _pinned_home(points, default_home)
     # The map's covariances are in its home marker's frame: fixed on another, no NEES.
-    nees = home == default_home
+    mine = home == default_home
     return Comparison(
         dimensions,
         np.array(common, dtype=np.int64),
@@ -508,7 +508,7 @@ def compare(
         tuple(sorted(set(refs) - set(points))),
         np.array([r.p_ref for r in theirs]),
         errors(ours, theirs, rigid, dimensions, gauge, relative=True),
-        None if fixed is None else errors(ours, theirs, fixed, dimensions, gauge, with_nees=nees),
+        None if fixed is None else errors(ours, theirs, fixed, dimensions, gauge, with_nees=mine),
         home,
         (note,) if note else (),
     )

@@ -20,7 +20,7 @@ from markergraph.markermap import MarkerMap
 from markergraph.records import marker_map_of
 from markergraph.settings import MapConfig, with_map_defaults
 
-__all__ = ["SESSION_METHODS", "as_estimate", "priors_of", "separate_maps"]
+__all__ = ["SESSION_METHODS", "as_estimate", "priors_of", "separate_maps", "settings_for_map"]
 
 SESSION_METHODS = (Method.SLAM, Method.ISAM2, Method.MARKER_GRAPH)
 # A saved map without covariances (the closed form's) still needs its markers held: this firmly.
