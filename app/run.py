@@ -47,7 +47,13 @@ from markergraph.obs_cache import (
 from markergraph.prepare import Prepared, prepare
 from markergraph.records import LocalizationRun, MapRun, MethodResult, Session, marker_map_of
 from markergraph.scoring import path_error, score, truth_in_home_frame
-from markergraph.sessions import SESSION_METHODS, as_estimate, priors_of, separate_maps
+from markergraph.sessions import (
+    SESSION_METHODS,
+    as_estimate,
+    in_home_frame,
+    priors_of,
+    separate_maps,
+)
 from markergraph.settings import MapConfig
 from markergraph.shares import (
     no_readout_share,
@@ -376,6 +382,8 @@ def _solve_several(
                                 home_id=config.home_id, method=method)  # fmt: skip
         first_solved = first_solved or solved
         estimate = as_estimate(solved, method, home_id)
+        if prior is not None:
+            estimate = in_home_frame(estimate)
 
         def solve(frames: list[Frames], method: Method = method) -> Estimate:
             solved = solve_sessions(frames, mounts, robust=config.noise.robust, priors=priors,
