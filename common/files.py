@@ -358,10 +358,12 @@ def result_folder(out: Path, *, force: bool = False) -> Iterator[Path]:
     out.parent.mkdir(parents=True, exist_ok=True)
     clean_stale(out)
     partial = _temporary_name(out, "partial")
-    partial.mkdir()
     aside: Path | None = None
     installed = False
     try:
+        # Made inside the try: a signal the moment it exists (which is when a watcher sees it)
+        # would otherwise leave it behind.
+        partial.mkdir()
         yield partial
         with _signals_held():
             stopping = _signal_pending()  # then its handler, run as the block ends, stops us
