@@ -364,10 +364,10 @@ def _solve_several(
                           "map"))  # fmt: skip
     frames = [r.prepared.frames for r in read]
     mounts = [r.extraction.mount.T_base_camera for r in read]
-    priors = None
+    priors, searched = None, None
     if prior is not None:
         priors, prior_notes = priors_of(prior)
-        priors, moved_notes = _without_moved(priors, frames, mounts, config)
+        priors, moved_notes, searched = _without_moved(priors, frames, mounts, config)
         notes += prior_notes + moved_notes
     # The first log was read with the settings' home marker (or, under a prior, the map's).
     home_id = prior.home_id if prior is not None else frames[0].home_id
@@ -378,8 +378,11 @@ def _solve_several(
     for method in methods:
         stage(f"estimating: {method.value} over every log")
         start = time.perf_counter()
-        solved = solve_sessions(frames, mounts, robust=config.noise.robust, priors=priors,
-                                home_id=config.home_id, method=method)  # fmt: skip
+        # SLAM's is the moved markers' search's last solve, on the same priors: not again.
+        solved = searched if method is Method.SLAM and searched is not None else solve_sessions(
+            frames, mounts, robust=config.noise.robust, priors=priors, home_id=config.home_id,
+            method=method,
+        )  # fmt: skip
         first_solved = first_solved or solved
         estimate = as_estimate(solved, method, home_id)
         if prior is not None:
@@ -414,10 +417,10 @@ def _solve_several(
 
 def _without_moved(
     priors: dict[int, MapPrior], frames: list[Frames], mounts: list[gtsam.Pose2], config: MapConfig
-) -> tuple[dict[int, MapPrior], list[Note]]:
+) -> tuple[dict[int, MapPrior], list[Note], SessionsEstimate]:
     """The saved map's priors without those of markers the logs find moved (as ``localize``
-    finds them, by SLAM), and a note for each: held at its old place, a moved marker would be
-    bent into the map and pull its neighbours with it."""
+    finds them, by SLAM), a note for each (held at its old place, a moved marker would be bent
+    into the map and pull its neighbours with it), and SLAM's solution on the priors kept."""
 
     def solve(freed: Sequence[int]) -> SessionsEstimate:
         kept = {i: p for i, p in priors.items() if i not in freed}
@@ -436,7 +439,7 @@ def _without_moved(
             "the log sees it now, its place in the saved map left out",
             figure=moved_m,
         ))  # fmt: skip
-    return {i: p for i, p in priors.items() if i not in found.moved}, notes
+    return {i: p for i, p in priors.items() if i not in found.moved}, notes, found.final
 
 
 def judge(run: MapRun) -> MapRun:

@@ -17,6 +17,7 @@ import gtsam
 import numpy as np
 
 from markergraph.common import EstimationError, Note, SettingsError
+from markergraph.common.notes import some_of
 from markergraph.datasets.scene3d import TRUE_WORLD3D, read_scene3d_truth
 from markergraph.estimator import Method
 from markergraph.estimator.tag_scale import (
@@ -168,9 +169,7 @@ def _size_note(scene: TagScene, config: MapConfig) -> list[Note]:
     unsized = sorted(i for i in scene.tag_sizes if i not in sizes.by_id)
     if not unsized:
         return []
-    shown = ", ".join(map(str, unsized[:8])) + (
-        f" and {len(unsized) - 8} more" if len(unsized) > 8 else ""
-    )
+    shown = some_of(unsized, 8)
     text = (
         f"the map's scale rests on the marker size {sizes.default_m:g} m (--marker-size, "
         f"{_DEFAULT_SIZE_M:g} m unless set; a tagslam.yaml's default_tag_size) that tag"

@@ -16,6 +16,7 @@ from gtsam.symbol_shorthand import L
 from numpy.typing import NDArray
 
 from markergraph.common import Note
+from markergraph.common.notes import some_of
 from markergraph.estimator import Estimate, Frames, Method
 from markergraph.estimator.graph import HOME_PRIOR_NOISE
 from markergraph.estimator.sessions import MapPrior, SessionsEstimate, solve_sessions
@@ -69,7 +70,7 @@ def priors_of(saved: MarkerMap) -> tuple[dict[int, MapPrior], list[Note]]:
         what = "a 3-D map's wall tags" if saved.dimensions == 3 else "the saved map's markers"
         notes.append(Note(
             "prior.marginal",
-            f"{what} ({_listed(marginal)}) have no covariance relative to the map as a "
+            f"{what} ({some_of(marginal)}) have no covariance relative to the map as a "
             "whole: held at their marginals in the home marker's frame, which carry the home's "
             "own uncertainty on every marker, hold the robot loosely and can hide a moved marker",
             figure=len(marginal),
@@ -85,16 +86,12 @@ def priors_of(saved: MarkerMap) -> tuple[dict[int, MapPrior], list[Note]]:
     if floored:
         notes.append(Note(
             "prior.floored",
-            f"the saved map holds marker(s) {_listed(floored)} to under 1 mm or "
+            f"the saved map holds marker(s) {some_of(floored)} to under 1 mm or "
             "1 mrad: held at that (a marker held rigid cannot be found moved, and would move "
             "the robot instead)",
             figure=len(floored),
         ))  # fmt: skip
     return priors, notes
-
-
-def _listed(ids: list[int]) -> str:
-    return ", ".join(map(str, ids[:6])) + (f" and {len(ids) - 6} more" if len(ids) > 6 else "")
 
 
 MIN_PRIOR_VARIANCE = 1e-6

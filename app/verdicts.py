@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from markergraph.common.notes import some_of
 from markergraph.estimator import Estimate, Method, Observation
 from markergraph.estimator.evidence import (
     chi2_upper,
@@ -461,8 +462,7 @@ def _preference(method: Method) -> int:
 
 def _markers(ids: Any) -> str:
     ids = sorted(ids)
-    shown = ", ".join(map(str, ids[:6])) + (f" and {len(ids) - 6} more" if len(ids) > 6 else "")
-    return f"marker{'s' if len(ids) > 1 else ''} {shown}"
+    return f"marker{'s' if len(ids) > 1 else ''} {some_of(ids)}"
 
 
 MAX_REPROJECTION_RMS_PX = 3.0

@@ -4,9 +4,10 @@ them to text once, for the summary, report.json and report.html."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
-__all__ = ["Note"]
+__all__ = ["Note", "some_of"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -28,3 +29,10 @@ class Note:
 
     def __str__(self) -> str:
         return self.text
+
+
+def some_of(ids: Iterable[int], most: int = 6) -> str:
+    """Ids in words, at most ``most`` of them named: "3, 7, 9 and 12 more"."""
+    ids = list(ids)
+    named = ", ".join(map(str, ids[:most]))
+    return named + (f" and {len(ids) - most} more" if len(ids) > most else "")

@@ -17,7 +17,7 @@ from collections.abc import Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from markergraph.common.notes import Note
+from markergraph.common.notes import Note, some_of
 from markergraph.frontend.detect import Detector, load_dictionary
 
 __all__ = [
@@ -77,7 +77,7 @@ def beyond_note(dictionary: str, seen: Mapping[int, int], checks: int) -> Note |
         return None
     family = larger.rsplit("_", 1)[0]
     holding = next(f"{family}_{n}" for n in (50, 100, 250, 1000) if max(ids) < n)
-    shown_ids = ", ".join(map(str, ids[:8])) + (f" and {len(ids) - 8} more" if len(ids) > 8 else "")
+    shown_ids = some_of(ids, 8)
     return Note(
         "dictionary.too_small",
         f"the images show {len(ids)} marker(s) of {larger} beyond {dictionary}'s ids (ids "
