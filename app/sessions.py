@@ -79,16 +79,22 @@ def priors_of(saved: MarkerMap) -> tuple[dict[int, MapPrior], list[Note]]:
     for m in saved.markers.values():
         covariance = m.relative_covariance if m.relative_covariance is not None else m.covariance
         held = default if covariance is None else _floored(covariance)
-        # The home marker's marginal is the map frame's anchor: held at the floor, unsaid.
-        if covariance is not None and held is not covariance and m.marker_id != saved.home_id:
+        # Said only of a covariance no map measures (an edited one): a real map's best
+        # markers come near the floor (TagSLAM's test 21: 0.76 mm), and the home marker's
+        # marginal is the map frame's anchor.
+        if (
+            covariance is not None
+            and np.linalg.eigvalsh(covariance)[0] < UNMEASURED_VARIANCE
+            and m.marker_id != saved.home_id
+        ):
             floored.append(m.marker_id)
         priors[m.marker_id] = MapPrior(m.T_map_marker, held)
     if floored:
         notes.append(Note(
             "prior.floored",
-            f"the saved map holds marker(s) {some_of(floored)} to under 1 mm or "
-            "1 mrad: held at that (a marker held rigid cannot be found moved, and would move "
-            "the robot instead)",
+            f"the saved map holds marker(s) {some_of(floored)} to under 0.1 mm or 0.1 mrad, "
+            "tighter than a map measures: held at 1 mm and 1 mrad (a marker held rigid cannot "
+            "be found moved, and would move the robot instead)",
             figure=len(floored),
         ))  # fmt: skip
     return priors, notes
@@ -99,7 +105,10 @@ MIN_PRIOR_VARIANCE = 1e-6
 measures relative to the others: a map may hold a singular covariance (semi-definite is a
 covariance), which GTSAM would take as an infinite weight, and a marker held far tighter than
 its observations would take the blame for a move of its own as the robot's (a map edited to
-zero on one marker, moved 0.3 m: ten others called moved, the robot 21 cm off)."""
+zero on one marker, moved 0.3 m: ten others called moved, the robot 21 cm off; held at 0.3 mm,
+five others; at 0.55 mm, marker 7 alone)."""
+UNMEASURED_VARIANCE = MIN_PRIOR_VARIANCE / 100
+"""Under this, (0.1 mm)^2, a map's covariance is no measurement's: said in a note."""
 
 
 def _floored(covariance: NDArray[np.float64]) -> NDArray[np.float64]:

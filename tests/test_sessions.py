@@ -300,6 +300,14 @@ def test_a_log_read_against_a_map_takes_its_dictionary_and_sizes(room_logs, tmp_
     bare = {i: dataclasses.replace(m, relative_covariance=None) for i, m in saved.markers.items()}
     notes = priors_of(dataclasses.replace(saved, markers=bare))[1]
     assert [n.kind for n in notes] == ["prior.marginal"]
+    # A marker held at 0.7 mm (as TagSLAM's test 21 holds its best) is floored at 1 mm
+    # unsaid; one held rigid (an edited map) is floored and said.
+    for variance, said in ((5e-7, False), (0.0, True)):
+        tight = dict(saved.markers)
+        tight[1] = dataclasses.replace(tight[1], relative_covariance=np.eye(3) * variance)
+        priors, notes = priors_of(dataclasses.replace(saved, markers=tight))
+        assert np.linalg.eigvalsh(priors[1].covariance)[0] == pytest.approx(1e-6)
+        assert ("prior.floored" in [n.kind for n in notes]) is said
     # Marker 2, given 0.25 m, measures 0.20 m by depth, as the others do: the map keeps it so.
     assert saved.marker_size_m == 0.2 and saved.markers[2].size_m == pytest.approx(0.2, rel=5e-3)
     assert values["dictionary"] == "DICT_4X4_100" and values["marker_size"] == 0.2
